@@ -1,0 +1,127 @@
+//! Every parser of outside input in this crate, fed random and mutated
+//! bytes: it must return an error (or a valid value), never panic.
+use std::fs;
+use std::sync::OnceLock;
+
+use proptest::prelude::*;
+use rustls::pki_types::CertificateDer;
+use telextiles_certs::{
+    DeviceId, Identity, PairingCode, PeerPolicy, PeerRecord, PeerSide, PeerVerifier, TrustStore,
+    IDENTITY_FILE, TRUST_FILE,
+};
+
+struct Fixture {
+    identity: Identity,
+    pem: String,
+    trust_json: Vec<u8>,
+}
+
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let identity = Identity::generate().unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let mut s = TrustStore::empty_in(tmp.path());
+        for name in ["a", "b"] {
+            let peer = Identity::generate().unwrap();
+            s.insert(
+                PeerRecord::new(peer.cert_der().clone(), name, std::time::SystemTime::now())
+                    .unwrap(),
+            );
+        }
+        s.note_addresses(
+            &s.peers()[0].device_id.clone(),
+            &["[2001:db8::1]:47800".parse().unwrap()],
+            std::time::SystemTime::now(),
+        );
+        s.save().unwrap();
+        Fixture {
+            pem: identity.to_pem(),
+            identity,
+            trust_json: fs::read(tmp.path().join(TRUST_FILE)).unwrap(),
+        }
+    })
+}
+
+fn mutate(base: &[u8], edits: &[(usize, u8)], cut: Option<usize>) -> Vec<u8> {
+    let mut v = base.to_vec();
+    for &(pos, byte) in edits {
+        if !v.is_empty() {
+            let i = pos % v.len();
+            v[i] = byte;
+        }
+    }
+    if let Some(c) = cut {
+        v.truncate(c % (base.len() + 1));
+    }
+    v
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    #[test]
+    fn certificate_parsing_never_panics(
+        edits in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
+        cut in proptest::option::of(any::<usize>()),
+        random in proptest::collection::vec(any::<u8>(), 0..300),
+    ) {
+        let f = fixture();
+        let der = mutate(f.identity.cert_der(), &edits, cut);
+        for bytes in [der, random] {
+            let cert = CertificateDer::from(bytes);
+            let _ = DeviceId::from_cert(&cert);
+            let now = rustls::pki_types::UnixTime::since_unix_epoch(std::time::Duration::from_secs(1_800_000_000));
+            for side in [PeerSide::Client, PeerSide::Server] {
+                let _ = PeerVerifier::new(PeerPolicy::AnyForPairing).check(&cert, &[], side, now);
+            }
+            let _ = PeerRecord::new(cert, "x", std::time::SystemTime::now());
+        }
+    }
+
+    #[test]
+    fn identity_pem_parsing_never_panics(
+        edits in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
+        cut in proptest::option::of(any::<usize>()),
+        text in ".{0,200}",
+    ) {
+        let f = fixture();
+        let bytes = mutate(f.pem.as_bytes(), &edits, cut);
+        let _ = Identity::from_pem(&String::from_utf8_lossy(&bytes));
+        let _ = Identity::from_pem(&text);
+        // Through the file loader too (also covers non-UTF-8).
+        let tmp = tempfile::tempdir().unwrap();
+        fs::write(tmp.path().join(IDENTITY_FILE), &bytes).unwrap();
+        if let Ok(id) = Identity::load(tmp.path()) {
+            // Whatever loads must be self-consistent.
+            prop_assert_eq!(DeviceId::from_cert(id.cert_der()).unwrap(), id.device_id());
+        }
+    }
+
+    #[test]
+    fn trust_store_loading_never_panics(
+        edits in proptest::collection::vec((any::<usize>(), any::<u8>()), 0..6),
+        cut in proptest::option::of(any::<usize>()),
+    ) {
+        let f = fixture();
+        let bytes = mutate(&f.trust_json, &edits, cut);
+        let tmp = tempfile::tempdir().unwrap();
+        fs::write(tmp.path().join(TRUST_FILE), &bytes).unwrap();
+        if let Ok(s) = TrustStore::load(tmp.path()) {
+            // Whatever loads is consistent: each certificate hashes to its ID.
+            for p in s.peers() {
+                prop_assert_eq!(DeviceId::from_cert(&p.cert).unwrap(), p.device_id);
+            }
+        }
+    }
+
+    #[test]
+    fn pairing_code_parsing_never_panics(s in ".{0,40}", digits in "[0-9 -]{0,20}") {
+        for t in [s, digits] {
+            if let Ok(c) = t.parse::<PairingCode>() {
+                // A parsed code prints back to something that parses to it.
+                prop_assert_eq!(c.to_string().parse::<PairingCode>().unwrap(), c);
+            }
+        }
+    }
+}
