@@ -1,0 +1,225 @@
+//! The on-disk format: `MAGIC` (4 bytes), format version (u32 LE), payload
+//! length (u64 LE), payload (bincode 2, standard config), SHA-256 of the
+//! payload (32 bytes). The fingerprint peers compare is the hex SHA-256 of the
+//! payload, so any change of content changes it.
+
+use crate::Index;
+use sha2::{Digest, Sha256};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// File magic.
+pub const MAGIC: [u8; 4] = *b"TLXI";
+/// Current format version.
+pub const FORMAT_VERSION: u32 = 1;
+const HEADER: usize = 4 + 4 + 8;
+const MAX_PAYLOAD: u64 = 256 << 20;
+
+/// Errors reading, writing or validating an index.
+#[derive(Debug, thiserror::Error)]
+pub enum IndexError {
+    /// File-system error.
+    #[error("{path}: {source}")]
+    Io {
+        /// File concerned.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Not an index file at all.
+    #[error("{0}: not a Telextiles index file (bad magic)")]
+    BadMagic(PathBuf),
+    /// Written by another format version.
+    #[error("{path}: index format version {found}, this build reads version {FORMAT_VERSION}")]
+    Version {
+        /// File concerned.
+        path: PathBuf,
+        /// Version found.
+        found: u32,
+    },
+    /// Shorter than its header says.
+    #[error("{path}: truncated index file ({len} bytes, expected {expected})")]
+    Truncated {
+        /// File concerned.
+        path: PathBuf,
+        /// Actual length.
+        len: u64,
+        /// Expected length.
+        expected: u64,
+    },
+    /// Checksum mismatch or undecodable payload.
+    #[error("{path}: corrupt index file ({why})")]
+    Corrupt {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong.
+        why: String,
+    },
+    /// Content is inconsistent.
+    #[error("invalid index: {0}")]
+    Invalid(String),
+    /// Built for another encoder.
+    #[error("index was built for encoder {index_encoder}, but the loaded model is {model}: rebuild the index with `telextilesd index build`")]
+    EncoderMismatch {
+        /// Hash recorded in the index.
+        index_encoder: String,
+        /// Hash of the model in use.
+        model: String,
+    },
+}
+
+fn config() -> impl bincode::config::Config {
+    bincode::config::standard().with_limit::<{ MAX_PAYLOAD as usize }>()
+}
+
+pub(crate) fn payload(index: &Index) -> Vec<u8> {
+    bincode::serde::encode_to_vec(index, config()).expect("an index always encodes")
+}
+
+pub(crate) fn fingerprint(index: &Index) -> String {
+    hex(&Sha256::digest(payload(index)))
+}
+
+pub(crate) fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Encode an index into the file format.
+pub fn to_bytes(index: &Index) -> Vec<u8> {
+    let p = payload(index);
+    let mut out = Vec::with_capacity(HEADER + p.len() + 32);
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(p.len() as u64).to_le_bytes());
+    out.extend_from_slice(&p);
+    out.extend_from_slice(&Sha256::digest(&p));
+    out
+}
+
+/// Decode the file format; `path` only names the file in errors.
+pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
+    let p = || path.to_path_buf();
+    if bytes.len() < 4 || bytes[..4] != MAGIC {
+        return Err(IndexError::BadMagic(p()));
+    }
+    if bytes.len() < HEADER {
+        return Err(IndexError::Truncated {
+            path: p(),
+            len: bytes.len() as u64,
+            expected: HEADER as u64,
+        });
+    }
+    let version = u32::from_le_bytes(bytes[4..8].try_into().unwrap());
+    if version != FORMAT_VERSION {
+        return Err(IndexError::Version {
+            path: p(),
+            found: version,
+        });
+    }
+    let len = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
+    if len > MAX_PAYLOAD {
+        return Err(IndexError::Corrupt {
+            path: p(),
+            why: format!("payload length {len} exceeds the {MAX_PAYLOAD}-byte limit"),
+        });
+    }
+    let expected = HEADER as u64 + len + 32;
+    if (bytes.len() as u64) < expected {
+        return Err(IndexError::Truncated {
+            path: p(),
+            len: bytes.len() as u64,
+            expected,
+        });
+    }
+    if (bytes.len() as u64) > expected {
+        return Err(IndexError::Corrupt {
+            path: p(),
+            why: format!("{} trailing bytes", bytes.len() as u64 - expected),
+        });
+    }
+    let payload = &bytes[HEADER..HEADER + len as usize];
+    let sum = &bytes[HEADER + len as usize..];
+    if Sha256::digest(payload).as_slice() != sum {
+        return Err(IndexError::Corrupt {
+            path: p(),
+            why: "checksum mismatch".into(),
+        });
+    }
+    let (index, used): (Index, usize) = bincode::serde::decode_from_slice(payload, config())
+        .map_err(|e| IndexError::Corrupt {
+            path: p(),
+            why: format!("undecodable content: {e}"),
+        })?;
+    if used != payload.len() {
+        return Err(IndexError::Corrupt {
+            path: p(),
+            why: "payload has unused bytes".into(),
+        });
+    }
+    index.validate().map_err(|e| IndexError::Corrupt {
+        path: p(),
+        why: e.to_string(),
+    })?;
+    Ok(index)
+}
+
+impl Index {
+    /// Read and validate an index file.
+    pub fn read(path: &Path) -> Result<Index, IndexError> {
+        let bytes = std::fs::read(path).map_err(|source| IndexError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        from_bytes(&bytes, path)
+    }
+
+    /// Write atomically: a temporary file in the same directory, synced, then
+    /// renamed over `path`. A crash leaves either the old or the new file.
+    pub fn write(&self, path: &Path) -> Result<(), IndexError> {
+        self.validate()?;
+        let io = |source| IndexError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let dir = path
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let name = path.file_name().ok_or_else(|| {
+            io(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "not a file path",
+            ))
+        })?;
+        let tmp = dir.join(format!(
+            ".{}.tmp-{}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
+        let result = (|| {
+            let mut f = std::fs::File::create(&tmp)?;
+            f.write_all(&to_bytes(self))?;
+            f.sync_all()?;
+            std::fs::rename(&tmp, path)?;
+            if let Ok(d) = std::fs::File::open(dir) {
+                let _ = d.sync_all();
+            }
+            Ok(())
+        })();
+        if result.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        result.map_err(io)
+    }
+
+    /// Refuse an index built for another encoder.
+    pub fn check_encoder(&self, model_hash: &str) -> Result<(), IndexError> {
+        if self.encoder_hash != model_hash {
+            return Err(IndexError::EncoderMismatch {
+                index_encoder: self.encoder_hash.clone(),
+                model: model_hash.to_string(),
+            });
+        }
+        Ok(())
+    }
+}

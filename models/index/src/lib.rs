@@ -1,0 +1,219 @@
+//! The textile index both peers hold.
+//!
+//! An [`Index`] names the encoder it was built for (hash of the ONNX file),
+//! holds one L2-normalised centroid (and optional exemplars) per textile with
+//! its metadata and 2D map position, and the roller layout: which textile sits
+//! on which slot. Peers compare [`Index::fingerprint`] when they connect.
+//!
+//! Pure: no I/O except [`Index::read`] / [`Index::write`], which write
+//! atomically and reject truncated, corrupt or foreign files with a clear error.
+#![forbid(unsafe_code)]
+
+pub mod build;
+mod file;
+pub mod map;
+pub mod select;
+mod vecmath;
+
+pub use build::{IndexBuilder, TextileRecord};
+pub use file::{from_bytes, to_bytes, IndexError, FORMAT_VERSION, MAGIC};
+pub use map::MapLayout;
+pub use select::{Coverage, SelectionMethod};
+pub use vecmath::{distance, l2_normalise};
+
+use serde::{Deserialize, Serialize};
+
+/// One textile known to the index.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Entry {
+    /// Catalogue id (`T001`, `U07`, or a user's own label).
+    pub id: String,
+    /// Human-readable name.
+    pub name: String,
+    /// In the training book (seen) or not.
+    pub seen: bool,
+    /// Structure family (plain, twill, ...), free text.
+    pub structure: String,
+    /// Ground-truth tactile attributes (name, value in 0..1), if known.
+    pub attributes: Vec<(String, f32)>,
+    /// L2-normalised mean embedding.
+    pub centroid: Vec<f32>,
+    /// Optional L2-normalised per-press exemplars.
+    pub exemplars: Vec<Vec<f32>>,
+    /// Position on the 2D map.
+    pub map_xy: [f32; 2],
+}
+
+/// Which textile sits on which slot of the roller.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RollerLayout {
+    /// How the slots were chosen.
+    pub method: SelectionMethod,
+    /// Entry index carried by each slot, slot 0 first (clockwise order).
+    pub slots: Vec<usize>,
+    /// For every entry, the slot whose textile is nearest in latent space.
+    pub entry_slot: Vec<usize>,
+}
+
+impl RollerLayout {
+    /// Number of slots on the wheel.
+    pub fn n(&self) -> usize {
+        self.slots.len()
+    }
+}
+
+/// The index file's content.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Index {
+    /// Hex SHA-256 of the ONNX encoder the embeddings come from.
+    pub encoder_hash: String,
+    /// Encoder architecture label (from the model's metadata).
+    pub encoder_arch: String,
+    /// Embedding dimension.
+    pub dim: usize,
+    /// Textile catalogue version the entries came from (0 if user-recorded).
+    pub catalogue_version: u32,
+    /// The textiles.
+    pub entries: Vec<Entry>,
+    /// The roller.
+    pub roller: RollerLayout,
+    /// The 2D map.
+    pub map: MapLayout,
+}
+
+/// Result of a nearest-textile query.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Nearest {
+    /// Entry index of the nearest textile.
+    pub best: usize,
+    /// Euclidean distance between unit vectors (0..=2).
+    pub best_dist: f32,
+    /// Entry index of the runner-up, if the index has two or more entries.
+    pub second: Option<usize>,
+    /// Distance of the runner-up (`f32::INFINITY` if none).
+    pub second_dist: f32,
+}
+
+impl Nearest {
+    /// Distance margin between the runner-up and the best.
+    pub fn margin(&self) -> f32 {
+        self.second_dist - self.best_dist
+    }
+}
+
+impl Index {
+    /// Distance from an L2-normalised query to entry `i`: the nearest of its
+    /// centroid and exemplars.
+    pub fn entry_distance(&self, i: usize, q: &[f32]) -> f32 {
+        let e = &self.entries[i];
+        let mut d = distance(&e.centroid, q);
+        for x in &e.exemplars {
+            d = d.min(distance(x, q));
+        }
+        d
+    }
+
+    /// Nearest and second-nearest textile to an L2-normalised query.
+    ///
+    /// # Panics
+    /// If `q.len() != self.dim` or the index is empty (an index is never
+    /// built or read empty).
+    pub fn nearest(&self, q: &[f32]) -> Nearest {
+        assert_eq!(q.len(), self.dim, "query dimension differs from the index");
+        let mut best = (usize::MAX, f32::INFINITY);
+        let mut second = (usize::MAX, f32::INFINITY);
+        for i in 0..self.entries.len() {
+            let d = self.entry_distance(i, q);
+            if d < best.1 {
+                second = best;
+                best = (i, d);
+            } else if d < second.1 {
+                second = (i, d);
+            }
+        }
+        Nearest {
+            best: best.0,
+            best_dist: best.1,
+            second: (second.0 != usize::MAX).then_some(second.0),
+            second_dist: second.1,
+        }
+    }
+
+    /// The `k` nearest entries to a query, nearest first, with distances.
+    pub fn k_nearest(&self, q: &[f32], k: usize) -> Vec<(usize, f32)> {
+        let mut all: Vec<(usize, f32)> = (0..self.entries.len())
+            .map(|i| (i, self.entry_distance(i, q)))
+            .collect();
+        all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all.truncate(k);
+        all
+    }
+
+    /// Roller slot whose textile is nearest to entry `entry`.
+    pub fn slot_of_entry(&self, entry: usize) -> usize {
+        self.roller.entry_slot[entry]
+    }
+
+    /// Entry index of a textile id.
+    pub fn entry_by_id(&self, id: &str) -> Option<usize> {
+        self.entries.iter().position(|e| e.id == id)
+    }
+
+    /// Place a query on the 2D map from its nearest textiles.
+    pub fn place_on_map(&self, q: &[f32]) -> [f32; 2] {
+        let near = self.k_nearest(q, self.map.place_k.max(1));
+        map::interpolate(&near, |i| self.entries[i].map_xy)
+    }
+
+    /// Hex content hash that peers compare at connection time.
+    pub fn fingerprint(&self) -> String {
+        file::fingerprint(self)
+    }
+
+    /// Check internal consistency (dimensions, slot and entry references).
+    pub fn validate(&self) -> Result<(), IndexError> {
+        let bad = |m: String| Err(IndexError::Invalid(m));
+        if self.entries.is_empty() {
+            return bad("the index has no textiles".into());
+        }
+        if self.dim == 0 {
+            return bad("embedding dimension is 0".into());
+        }
+        for e in &self.entries {
+            if e.centroid.len() != self.dim || e.exemplars.iter().any(|x| x.len() != self.dim) {
+                return bad(format!(
+                    "textile {} has an embedding of the wrong dimension (index dim {})",
+                    e.id, self.dim
+                ));
+            }
+            if e.centroid
+                .iter()
+                .chain(e.exemplars.iter().flatten())
+                .any(|v| !v.is_finite())
+            {
+                return bad(format!("textile {} has a non-finite embedding", e.id));
+            }
+        }
+        let n = self.entries.len();
+        if self.roller.slots.is_empty() {
+            return bad("the roller has no slots".into());
+        }
+        if let Some(s) = self.roller.slots.iter().find(|&&s| s >= n) {
+            return bad(format!(
+                "roller slot refers to textile #{s}, but there are {n}"
+            ));
+        }
+        let mut seen = self.roller.slots.clone();
+        seen.sort_unstable();
+        seen.dedup();
+        if seen.len() != self.roller.slots.len() {
+            return bad("a textile appears on two roller slots".into());
+        }
+        if self.roller.entry_slot.len() != n
+            || self.roller.entry_slot.iter().any(|&s| s >= self.roller.n())
+        {
+            return bad("the textile-to-slot table does not match the roller".into());
+        }
+        Ok(())
+    }
+}

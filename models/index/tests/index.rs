@@ -1,0 +1,243 @@
+use rand::{Rng, SeedableRng};
+use telextiles_index::select::{self, coverage, order_wheel, wheel_length, SelectionMethod};
+use telextiles_index::{l2_normalise, Index, IndexBuilder, IndexError, TextileRecord};
+
+const DIM: usize = 16;
+
+/// `clusters` groups of `per` textiles; each textile has 10 noisy embeddings.
+fn clustered(clusters: usize, per: usize, seed: u64) -> Vec<TextileRecord> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut out = Vec::new();
+    for c in 0..clusters {
+        let centre: Vec<f32> = (0..DIM).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        for t in 0..per {
+            let own: Vec<f32> = centre
+                .iter()
+                .map(|x| x + rng.gen_range(-0.3..0.3))
+                .collect();
+            let embeddings = (0..10)
+                .map(|_| own.iter().map(|x| x + rng.gen_range(-0.05..0.05)).collect())
+                .collect();
+            let id = format!("T{:03}", c * per + t + 1);
+            out.push(TextileRecord {
+                name: format!("textile {id}"),
+                id,
+                seen: t != per - 1,
+                structure: format!("family{c}"),
+                attributes: vec![("roughness".into(), c as f32 / clusters as f32)],
+                embeddings,
+                exemplars: vec![],
+            });
+        }
+    }
+    out
+}
+
+fn build(method: SelectionMethod, n: usize) -> Index {
+    let mut b = IndexBuilder::new("abc123", "test", DIM, 1);
+    for r in clustered(8, 6, 7) {
+        b.add(r).unwrap();
+    }
+    b.roller_n = n;
+    b.method = method;
+    b.build().unwrap()
+}
+
+#[test]
+fn round_trip_is_exact_and_fingerprint_stable() {
+    let index = build(SelectionMethod::KMedoids, 16);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("i.tlxi");
+    index.write(&path).unwrap();
+    let back = Index::read(&path).unwrap();
+    assert_eq!(back, index);
+    assert_eq!(back.fingerprint(), index.fingerprint());
+    // Any change of content changes the fingerprint.
+    let mut other = index.clone();
+    other.entries[3].centroid[0] += 1e-3;
+    assert_ne!(other.fingerprint(), index.fingerprint());
+    // No temporary files left behind.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
+
+#[test]
+fn bad_files_are_refused_with_clear_errors() {
+    let index = build(SelectionMethod::FarthestPoint, 8);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("i.tlxi");
+    index.write(&path).unwrap();
+    let good = std::fs::read(&path).unwrap();
+
+    let write = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).unwrap();
+        Index::read(&path).unwrap_err()
+    };
+    let e = write(&good[..good.len() - 10]);
+    assert!(matches!(e, IndexError::Truncated { .. }), "{e}");
+    assert!(e.to_string().contains("i.tlxi"), "{e}");
+
+    let mut flipped = good.clone();
+    flipped[40] ^= 0x55;
+    let e = write(&flipped);
+    assert!(e.to_string().contains("checksum"), "{e}");
+
+    let e = write(b"PNG\x89 this is not an index");
+    assert!(matches!(e, IndexError::BadMagic(_)), "{e}");
+
+    let mut v2 = good.clone();
+    v2[4] = 9;
+    let e = write(&v2);
+    assert!(matches!(e, IndexError::Version { found: 9, .. }), "{e}");
+
+    let mut long = good.clone();
+    long.push(0);
+    assert!(matches!(write(&long), IndexError::Corrupt { .. }));
+
+    let e = Index::read(&dir.path().join("missing.tlxi")).unwrap_err();
+    assert!(e.to_string().contains("missing.tlxi"), "{e}");
+}
+
+#[test]
+fn index_for_another_model_is_refused() {
+    let index = build(SelectionMethod::KMedoids, 8);
+    assert!(index.check_encoder("abc123").is_ok());
+    let e = index.check_encoder("def456").unwrap_err();
+    assert!(e.to_string().contains("rebuild"), "{e}");
+}
+
+#[test]
+fn nearest_finds_the_textile_a_noisy_query_came_from() {
+    let index = build(SelectionMethod::KMedoids, 16);
+    let records = clustered(8, 6, 7);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
+    let mut right = 0;
+    for r in &records {
+        let mut q: Vec<f32> = r.embeddings[0]
+            .iter()
+            .map(|x| x + rng.gen_range(-0.05..0.05))
+            .collect();
+        l2_normalise(&mut q);
+        let n = index.nearest(&q);
+        assert!(n.margin() >= 0.0);
+        assert!(n.second.is_some());
+        if index.entries[n.best].id == r.id {
+            right += 1;
+        }
+        // The map places the query next to its textile.
+        let p = index.place_on_map(&q);
+        let e = index.entries[n.best].map_xy;
+        assert!(((p[0] - e[0]).powi(2) + (p[1] - e[1]).powi(2)).sqrt() < 0.5);
+    }
+    assert!(right as f32 / records.len() as f32 > 0.9, "{right}");
+}
+
+#[test]
+fn roller_selection_invariants_and_coverage_beats_random() {
+    let records = clustered(8, 6, 3);
+    let points: Vec<Vec<f32>> = records
+        .iter()
+        .map(|r| {
+            let mut v = r.embeddings[0].clone();
+            l2_normalise(&mut v);
+            v
+        })
+        .collect();
+    let n = 16;
+    let random: Vec<_> = (0..20)
+        .map(|s| {
+            let c = select::select(&points, n, SelectionMethod::Random, s);
+            let sp: Vec<_> = c.iter().map(|&i| points[i].clone()).collect();
+            coverage(&points, &sp)
+        })
+        .collect();
+    let rand_mean = random.iter().map(|c| c.mean).sum::<f32>() / random.len() as f32;
+    let rand_max = random.iter().map(|c| c.max).sum::<f32>() / random.len() as f32;
+    for m in [
+        SelectionMethod::Umap1d,
+        SelectionMethod::FarthestPoint,
+        SelectionMethod::KMedoids,
+    ] {
+        let c = select::select(&points, n, m, 1);
+        let mut d = c.clone();
+        d.sort_unstable();
+        d.dedup();
+        assert_eq!(d.len(), n, "{m}: slots must be distinct");
+        let sp: Vec<_> = c.iter().map(|&i| points[i].clone()).collect();
+        let cov = coverage(&points, &sp);
+        match m {
+            SelectionMethod::KMedoids => assert!(cov.mean <= rand_mean, "{cov:?} vs {rand_mean}"),
+            SelectionMethod::FarthestPoint => assert!(cov.max <= rand_max, "{cov:?} vs {rand_max}"),
+            _ => {}
+        }
+        // Ordering the wheel never makes adjacent slots less similar.
+        let ordered = order_wheel(&points, &c);
+        assert!(wheel_length(&points, &ordered) <= wheel_length(&points, &c) + 1e-4);
+        let mut o = ordered.clone();
+        o.sort_unstable();
+        assert_eq!(o, d);
+    }
+}
+
+#[test]
+fn built_index_puts_only_seen_textiles_on_the_roller_and_is_deterministic() {
+    let a = build(SelectionMethod::Umap1d, 16);
+    let b = build(SelectionMethod::Umap1d, 16);
+    assert_eq!(a.fingerprint(), b.fingerprint());
+    assert_eq!(a.roller.n(), 16);
+    for &s in &a.roller.slots {
+        assert!(a.entries[s].seen);
+    }
+    for (i, &s) in a.roller.slots.iter().enumerate() {
+        assert_eq!(
+            a.slot_of_entry(s),
+            i,
+            "a roller textile maps to its own slot"
+        );
+    }
+}
+
+#[test]
+fn builder_rejects_bad_input() {
+    let mut b = IndexBuilder::new("h", "a", DIM, 1);
+    let mut r = clustered(1, 2, 1).remove(0);
+    r.embeddings[0].pop();
+    assert!(b.add(r).unwrap_err().to_string().contains("dimension"));
+    let r = clustered(1, 2, 1).remove(0);
+    b.add(r.clone()).unwrap();
+    assert!(b.add(r).unwrap_err().to_string().contains("twice"));
+    b.roller_n = 5;
+    assert!(b.build().unwrap_err().to_string().contains("slots"));
+}
+
+proptest::proptest! {
+    #[test]
+    fn decoder_never_panics_on_random_bytes(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..600)) {
+        let _ = telextiles_index_from_bytes(&bytes);
+    }
+
+    #[test]
+    fn decoder_never_panics_on_mutated_files(pos in 0usize..4000, val in proptest::num::u8::ANY) {
+        let index = small();
+        let mut bytes = index_bytes(&index);
+        let p = pos % bytes.len();
+        bytes[p] = val;
+        let _ = telextiles_index_from_bytes(&bytes);
+    }
+}
+
+fn small() -> Index {
+    let mut b = IndexBuilder::new("h", "a", DIM, 1);
+    for r in clustered(2, 3, 5) {
+        b.add(r).unwrap();
+    }
+    b.roller_n = 4;
+    b.build().unwrap()
+}
+
+fn index_bytes(index: &Index) -> Vec<u8> {
+    telextiles_index::to_bytes(index)
+}
+
+fn telextiles_index_from_bytes(bytes: &[u8]) -> Result<Index, IndexError> {
+    telextiles_index::from_bytes(bytes, std::path::Path::new("fuzz.tlxi"))
+}

@@ -1,0 +1,348 @@
+//! Classical texture descriptors (the fast end of the speed/accuracy chart):
+//! downsampled pixels, rotation-invariant uniform LBP histograms and the
+//! radially averaged FFT power spectrum, each on the raw frame or on the
+//! frame minus the sensor's no-contact reference (background subtraction).
+//!
+//! Every descriptor looks at the centre `CROP` x `CROP` square of the image
+//! it is given (a 240x320 DIGIT frame or the 240x240 centre canvas: the same
+//! pixels) and returns an L2-normalised vector, so the same cosine kNN as for
+//! the encoders applies.
+
+use std::f32::consts::PI;
+
+/// Side of the centre square the descriptors look at (native resolution).
+pub const CROP: usize = 128;
+
+/// Which descriptor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum BaselineKind {
+    /// 16x16 block means per channel (768-d), per-channel mean removed.
+    Pixels,
+    /// Rotation-invariant uniform LBP (P=8) at radii 1, 2, 3: 30 bins, Hellinger.
+    Lbp,
+    /// Radially averaged log power spectrum of the Hann-windowed grey crop (63 bins).
+    Fft,
+}
+
+/// A descriptor and whether it sees background-subtracted frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Baseline {
+    /// Descriptor.
+    pub kind: BaselineKind,
+    /// Subtract the no-contact reference first.
+    pub bgsub: bool,
+}
+
+impl Baseline {
+    /// All six baselines.
+    pub fn all() -> Vec<Baseline> {
+        let mut v = Vec::new();
+        for kind in [BaselineKind::Pixels, BaselineKind::Lbp, BaselineKind::Fft] {
+            for bgsub in [false, true] {
+                v.push(Baseline { kind, bgsub });
+            }
+        }
+        v
+    }
+
+    /// Short name used in tables and charts.
+    pub fn name(&self) -> String {
+        let k = match self.kind {
+            BaselineKind::Pixels => "pixels-16x16",
+            BaselineKind::Lbp => "lbp-riu2",
+            BaselineKind::Fft => "fft-radial",
+        };
+        if self.bgsub {
+            format!("{k} -bg")
+        } else {
+            k.to_string()
+        }
+    }
+
+    /// Descriptor of the centre crop of an RGB image (`w` x `h`, HWC u8).
+    /// `bg` is the no-contact reference of the same size (used when `bgsub`).
+    pub fn features(&self, img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
+        let bg = if self.bgsub { bg } else { None };
+        let rgb = centre_crop_f32(img, w, h, bg);
+        let mut f = match self.kind {
+            BaselineKind::Pixels => pixels(&rgb),
+            BaselineKind::Lbp => lbp(&grey(&rgb)),
+            BaselineKind::Fft => fft_radial(&grey(&rgb)),
+        };
+        l2(&mut f);
+        f
+    }
+}
+
+/// The centre `CROP`x`CROP` square as f32 RGB (HWC), minus `bg` if given.
+fn centre_crop_f32(img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
+    assert!(w >= CROP && h >= CROP, "image smaller than the crop");
+    assert_eq!(img.len(), w * h * 3, "image size");
+    let (x0, y0) = ((w - CROP) / 2, (h - CROP) / 2);
+    let mut out = Vec::with_capacity(CROP * CROP * 3);
+    for y in 0..CROP {
+        let row = ((y0 + y) * w + x0) * 3;
+        let src = &img[row..row + CROP * 3];
+        match bg {
+            Some(b) => out.extend(
+                src.iter()
+                    .zip(&b[row..row + CROP * 3])
+                    .map(|(&a, &r)| a as f32 - r as f32),
+            ),
+            None => out.extend(src.iter().map(|&a| a as f32)),
+        }
+    }
+    out
+}
+
+fn grey(rgb: &[f32]) -> Vec<f32> {
+    rgb.chunks_exact(3)
+        .map(|p| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2])
+        .collect()
+}
+
+/// L2-normalise in place (zero vectors stay zero).
+pub fn l2(v: &mut [f32]) {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n > 1e-12 {
+        v.iter_mut().for_each(|x| *x /= n);
+    }
+}
+
+fn pixels(rgb: &[f32]) -> Vec<f32> {
+    const G: usize = 16;
+    let b = CROP / G;
+    let mut f = vec![0f32; G * G * 3];
+    for y in 0..CROP {
+        for x in 0..CROP {
+            let cell = (y / b) * G + x / b;
+            for c in 0..3 {
+                f[c * G * G + cell] += rgb[(y * CROP + x) * 3 + c];
+            }
+        }
+    }
+    for c in 0..3 {
+        let ch = &mut f[c * G * G..(c + 1) * G * G];
+        let m = ch.iter().sum::<f32>() / ch.len() as f32;
+        ch.iter_mut().for_each(|v| *v -= m);
+    }
+    f
+}
+
+/// Rotation-invariant uniform LBP code (0..=9) of 8 neighbour signs.
+fn riu2(bits: u8) -> usize {
+    let transitions = (bits ^ bits.rotate_left(1)).count_ones();
+    if transitions <= 2 {
+        bits.count_ones() as usize
+    } else {
+        9
+    }
+}
+
+fn lbp(g: &[f32]) -> Vec<f32> {
+    let n = CROP;
+    let mut out = Vec::with_capacity(30);
+    for r in 1..=3usize {
+        // Bilinear taps of the 8 circular neighbours at radius r.
+        let taps: Vec<(isize, isize, f32, f32)> = (0..8)
+            .map(|p| {
+                let a = 2.0 * PI * p as f32 / 8.0;
+                let (dx, dy) = (r as f32 * a.cos(), -(r as f32) * a.sin());
+                let (fx, fy) = (dx.floor(), dy.floor());
+                (fx as isize, fy as isize, dx - fx, dy - fy)
+            })
+            .collect();
+        let mut hist = [0f32; 10];
+        let m = r + 1;
+        for y in m..n - m {
+            for x in m..n - m {
+                let c = g[y * n + x];
+                let mut bits = 0u8;
+                for (p, &(ix, iy, wx, wy)) in taps.iter().enumerate() {
+                    let (xx, yy) = ((x as isize + ix) as usize, (y as isize + iy) as usize);
+                    let v00 = g[yy * n + xx];
+                    let v01 = g[yy * n + xx + 1];
+                    let v10 = g[(yy + 1) * n + xx];
+                    let v11 = g[(yy + 1) * n + xx + 1];
+                    let v = v00 * (1.0 - wx) * (1.0 - wy)
+                        + v01 * wx * (1.0 - wy)
+                        + v10 * (1.0 - wx) * wy
+                        + v11 * wx * wy;
+                    if v >= c - 1e-4 {
+                        bits |= 1 << p;
+                    }
+                }
+                hist[riu2(bits)] += 1.0;
+            }
+        }
+        let total: f32 = hist.iter().sum::<f32>().max(1.0);
+        out.extend(hist.iter().map(|h| (h / total).sqrt()));
+    }
+    out
+}
+
+/// In-place iterative radix-2 complex FFT of length `re.len()` (a power of two).
+pub fn fft(re: &mut [f32], im: &mut [f32]) {
+    let n = re.len();
+    assert!(n.is_power_of_two() && im.len() == n);
+    let mut j = 0;
+    for i in 1..n {
+        let mut bit = n >> 1;
+        while j & bit != 0 {
+            j ^= bit;
+            bit >>= 1;
+        }
+        j |= bit;
+        if i < j {
+            re.swap(i, j);
+            im.swap(i, j);
+        }
+    }
+    let mut len = 2;
+    while len <= n {
+        let ang = -2.0 * PI / len as f32;
+        for start in (0..n).step_by(len) {
+            for k in 0..len / 2 {
+                let (s, c) = (ang * k as f32).sin_cos();
+                let (a, b) = (start + k, start + k + len / 2);
+                let (tr, ti) = (re[b] * c - im[b] * s, re[b] * s + im[b] * c);
+                re[b] = re[a] - tr;
+                im[b] = im[a] - ti;
+                re[a] += tr;
+                im[a] += ti;
+            }
+        }
+        len <<= 1;
+    }
+}
+
+fn fft_radial(g: &[f32]) -> Vec<f32> {
+    let n = CROP;
+    let mean = g.iter().sum::<f32>() / g.len() as f32;
+    let hann: Vec<f32> = (0..n)
+        .map(|i| 0.5 - 0.5 * (2.0 * PI * i as f32 / n as f32).cos())
+        .collect();
+    let mut re: Vec<f32> = (0..n * n)
+        .map(|i| (g[i] - mean) * hann[i / n] * hann[i % n])
+        .collect();
+    let mut im = vec![0f32; n * n];
+    for row in 0..n {
+        fft(
+            &mut re[row * n..(row + 1) * n],
+            &mut im[row * n..(row + 1) * n],
+        );
+    }
+    let (mut cr, mut ci) = (vec![0f32; n], vec![0f32; n]);
+    for col in 0..n {
+        for r in 0..n {
+            cr[r] = re[r * n + col];
+            ci[r] = im[r * n + col];
+        }
+        fft(&mut cr, &mut ci);
+        for r in 0..n {
+            re[r * n + col] = cr[r];
+            im[r * n + col] = ci[r];
+        }
+    }
+    let bins = n / 2;
+    let (mut sum, mut cnt) = (vec![0f64; bins], vec![0u32; bins]);
+    for ky in 0..n {
+        let fy = if ky < n / 2 {
+            ky as f32
+        } else {
+            ky as f32 - n as f32
+        };
+        for kx in 0..n {
+            let fx = if kx < n / 2 {
+                kx as f32
+            } else {
+                kx as f32 - n as f32
+            };
+            let r = (fx * fx + fy * fy).sqrt().round() as usize;
+            if (1..bins).contains(&r) {
+                let i = ky * n + kx;
+                sum[r] += (re[i] * re[i] + im[i] * im[i]) as f64;
+                cnt[r] += 1;
+            }
+        }
+    }
+    let mut f: Vec<f32> = (1..bins)
+        .map(|r| ((sum[r] / cnt[r].max(1) as f64) + 1e-3).ln() as f32)
+        .collect();
+    let m = f.iter().sum::<f32>() / f.len() as f32;
+    f.iter_mut().for_each(|v| *v -= m);
+    f
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stripes(period: f32, angle_deg: f32, phase: f32) -> Vec<u8> {
+        let (s, c) = angle_deg.to_radians().sin_cos();
+        let mut v = Vec::with_capacity(240 * 240 * 3);
+        for y in 0..240 {
+            for x in 0..240 {
+                let t = (x as f32 * c + y as f32 * s) * 2.0 * PI / period + phase;
+                let g = (128.0 + 80.0 * t.sin()) as u8;
+                v.extend([g, g, g]);
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn fft_matches_a_direct_dft() {
+        let x: Vec<f32> = (0..8).map(|i| ((i * 7) % 5) as f32 - 1.5).collect();
+        let (mut re, mut im) = (x.clone(), vec![0.0; 8]);
+        fft(&mut re, &mut im);
+        for k in 0..8 {
+            let (mut dr, mut di) = (0.0f32, 0.0f32);
+            for (n, &v) in x.iter().enumerate() {
+                let a = -2.0 * PI * (k * n) as f32 / 8.0;
+                dr += v * a.cos();
+                di += v * a.sin();
+            }
+            assert!((re[k] - dr).abs() < 1e-4 && (im[k] - di).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn riu2_codes() {
+        assert_eq!(riu2(0), 0);
+        assert_eq!(riu2(0xff), 8);
+        assert_eq!(riu2(0b0000_0111), 3);
+        assert_eq!(riu2(0b1000_0011), 3);
+        assert_eq!(riu2(0b0101_0101), 9);
+    }
+
+    #[test]
+    fn descriptors_tell_periods_apart_and_lbp_fft_ignore_rotation() {
+        let cos = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
+        for kind in [BaselineKind::Lbp, BaselineKind::Fft] {
+            let b = Baseline { kind, bgsub: false };
+            let f = |p, a, ph| b.features(&stripes(p, a, ph), 240, 240, None);
+            let a0 = f(6.0, 0.0, 0.0);
+            let a_rot = f(6.0, 60.0, 1.0);
+            let other = f(17.0, 0.0, 0.0);
+            assert!((a0.iter().map(|v| v * v).sum::<f32>() - 1.0).abs() < 1e-4);
+            assert!(
+                cos(&a0, &a_rot) > cos(&a0, &other),
+                "{kind:?}: rotated {} vs other period {}",
+                cos(&a0, &a_rot),
+                cos(&a0, &other)
+            );
+        }
+        // Background subtraction removes a shared reference exactly.
+        let img = stripes(6.0, 0.0, 0.0);
+        let b = Baseline {
+            kind: BaselineKind::Pixels,
+            bgsub: true,
+        };
+        assert!(b
+            .features(&img, 240, 240, Some(&img))
+            .iter()
+            .all(|&v| v == 0.0));
+        assert_eq!(b.features(&img, 240, 240, None).len(), 768);
+    }
+}

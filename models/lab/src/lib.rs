@@ -1,0 +1,17 @@
+//! telextiles-lab: the manufacturer side of Telextiles. Trains the
+//! contrastive encoder with burn (MoCo v2 style), exports it to ONNX with the
+//! encoder contract, verifies it in ONNX Runtime, evaluates it as in the
+//! paper and measures latency. burn is a dependency of this crate only; the
+//! daemon never links it.
+
+pub mod augment;
+pub mod bench;
+pub mod data;
+pub mod knn;
+pub mod model;
+pub mod onnx;
+pub mod preprocess;
+pub mod protocol;
+pub mod simsource;
+pub mod synth;
+pub mod train;

@@ -1,0 +1,442 @@
+//! telextiles-lab: train, export, evaluate, benchmark.
+
+use anyhow::{bail, ensure, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use telextiles_lab::augment::AugConfig;
+use telextiles_lab::bench;
+use telextiles_lab::data::{write_atomic, ImageSet};
+use telextiles_lab::model::ArchConfig;
+use telextiles_lab::onnx::{export_encoder, EncoderMeta, OrtEncoder};
+use telextiles_lab::protocol::{self, Protocol, SourceKind};
+use telextiles_lab::train::{embed_set, train_loop, LoopOptions, RunDir, TrainConfig, Trainer};
+
+#[derive(Parser)]
+#[command(
+    name = "telextiles-lab",
+    about = "Telextiles encoder lab: train, export, evaluate, benchmark"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Render the frame caches of the paper protocol (training canvases, evaluation sets).
+    Cache(CacheArgs),
+    /// Train the encoder (MoCo v2 style) on a cache; checkpoints every epoch.
+    Train(TrainArgs),
+    /// Export a checkpoint to ONNX and verify it against burn in ONNX Runtime.
+    Export(ExportArgs),
+    /// Evaluate an ONNX encoder as in the paper (kNN top-1 tables).
+    Eval(EvalArgs),
+    /// Per-frame encode latency of an ONNX encoder through ONNX Runtime.
+    BenchLatency(LatencyArgs),
+    /// Time MoCo training steps of candidate architectures on this machine.
+    BenchTrain(BenchTrainArgs),
+}
+
+#[derive(Args, Clone)]
+struct DataArgs {
+    /// Frame source: `sim` (telextiles-sim), `synth` (procedural, for tests).
+    #[arg(long, default_value = "sim")]
+    source: SourceKind,
+    /// Network input size the caches are made for.
+    #[arg(long, default_value_t = 64)]
+    input: u32,
+    /// Deployment centre crop (px of the 240x320 frame).
+    #[arg(long, default_value_t = 168)]
+    crop: u32,
+    /// Training frames per press.
+    #[arg(long, default_value_t = 8)]
+    train_frames: usize,
+    /// Only the first N textiles (quick runs).
+    #[arg(long)]
+    textiles: Option<usize>,
+    /// Cache directory.
+    #[arg(long, default_value = "target/telextiles-lab/cache")]
+    cache_dir: PathBuf,
+    /// Render threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+}
+
+impl DataArgs {
+    fn protocol(&self) -> Protocol {
+        let mut p = Protocol::paper(self.input, self.crop);
+        p.train_frames = self.train_frames;
+        p.max_textiles = self.textiles;
+        p
+    }
+}
+
+#[derive(Args)]
+struct CacheArgs {
+    #[command(flatten)]
+    data: DataArgs,
+}
+
+#[derive(Args)]
+struct TrainArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// Architecture, e.g. resnet18-w64-s224 or resnet-d1111-w16-s64 (-e<dim> adds an embedding layer).
+    #[arg(long, default_value = "resnet-d1111-w16-s64")]
+    arch: String,
+    /// Run directory (checkpoints, metrics.jsonl).
+    #[arg(long)]
+    run: PathBuf,
+    #[arg(long, default_value_t = 30)]
+    epochs: usize,
+    #[arg(long)]
+    steps_per_epoch: Option<usize>,
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    #[arg(long, default_value_t = 512)]
+    queue: usize,
+    #[arg(long, default_value_t = 0.03)]
+    lr: f64,
+    #[arg(long, default_value_t = 0.2)]
+    temperature: f32,
+    #[arg(long, default_value_t = 0.99)]
+    key_momentum: f32,
+    #[arg(long, default_value_t = 2)]
+    bn_splits: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Continue from the run's latest checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Stop after this many steps (timing runs).
+    #[arg(long)]
+    max_steps: Option<usize>,
+    /// Held-out kNN/std every this many epochs.
+    #[arg(long, default_value_t = 1)]
+    eval_every: usize,
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// Run directory (uses its latest checkpoint) or a checkpoint directory.
+    #[arg(long)]
+    run: PathBuf,
+    /// Output ONNX file.
+    #[arg(long, default_value = "models/encoder.onnx")]
+    out: PathBuf,
+    #[command(flatten)]
+    data: DataArgs,
+}
+
+#[derive(Args)]
+struct EvalArgs {
+    /// ONNX encoder.
+    #[arg(long, default_value = "models/encoder.onnx")]
+    model: PathBuf,
+    #[command(flatten)]
+    data: DataArgs,
+    /// ONNX Runtime threads.
+    #[arg(long, default_value_t = 2)]
+    ort_threads: usize,
+    /// Write the results as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct LatencyArgs {
+    /// ONNX encoders to time.
+    #[arg(long)]
+    model: Vec<PathBuf>,
+    /// Also time randomly initialised encoders of these architectures
+    /// (latency does not depend on the weights).
+    #[arg(long, value_delimiter = ',')]
+    arch: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    threads: Vec<usize>,
+    #[arg(long, default_value_t = 300)]
+    runs: usize,
+}
+
+#[derive(Args)]
+struct BenchTrainArgs {
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "resnet-d1111-w16-s64,resnet18-w64-s224"
+    )]
+    arch: Vec<String>,
+    #[arg(long, default_value_t = 64)]
+    batch: usize,
+    #[arg(long, default_value_t = 5)]
+    steps: usize,
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::Cache(a) => {
+            let p = a.data.protocol();
+            protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+            Ok(())
+        }
+        Cmd::Train(a) => train(a),
+        Cmd::Export(a) => export(a),
+        Cmd::Eval(a) => eval(a),
+        Cmd::BenchLatency(a) => {
+            println!(
+                "| model | threads | median ms/frame | p90 ms | runs |\n|---|---|---|---|---|"
+            );
+            let mut models = Vec::new();
+            for m in &a.model {
+                let bytes =
+                    std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
+                models.push((m.display().to_string(), bytes));
+            }
+            for name in &a.arch {
+                let arch = ArchConfig::parse(name)?;
+                let enc = arch.init_encoder(&burn::tensor::Device::flex());
+                let meta = EncoderMeta {
+                    arch: arch.clone(),
+                    crop: arch.input as u32,
+                    train_data_hash: "untrained".into(),
+                };
+                models.push((
+                    format!("{} (untrained)", arch.name()),
+                    export_encoder(&enc, &meta)?,
+                ));
+            }
+            ensure!(!models.is_empty(), "give --model and/or --arch");
+            for (name, bytes) in &models {
+                for &t in &a.threads {
+                    let l = bench::time_latency(bytes, t, 30, a.runs)?;
+                    println!(
+                        "| {} | {} | {:.3} | {:.3} | {} |",
+                        name, t, l.median_ms, l.p90_ms, l.runs
+                    );
+                }
+            }
+            Ok(())
+        }
+        Cmd::BenchTrain(a) => {
+            println!(
+                "| arch | encoder params | batch | median s/step | steps |\n|---|---|---|---|---|"
+            );
+            for name in &a.arch {
+                let arch = ArchConfig::parse(name)?;
+                let t = bench::time_train_steps(&arch, a.batch, a.steps)?;
+                println!(
+                    "| {} | {} | {} | {:.3} | {} |",
+                    t.arch, t.encoder_params, t.batch, t.median_s, t.steps
+                );
+            }
+            Ok(())
+        }
+    }
+}
+
+fn train(a: TrainArgs) -> Result<()> {
+    let arch = ArchConfig::parse(&a.arch)?;
+    ensure!(
+        arch.input as u32 == a.data.input,
+        "--arch input {} differs from --input {}",
+        arch.input,
+        a.data.input
+    );
+    let p = a.data.protocol();
+    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+    let run = RunDir(a.run.clone());
+    let mut trainer = if a.resume {
+        let latest = run
+            .latest()
+            .with_context(|| format!("--resume: no checkpoint in {}", a.run.display()))?;
+        let mut t = Trainer::load(&latest)?;
+        ensure!(
+            t.cfg.arch == arch,
+            "--resume: checkpoint is {}, not {}",
+            t.cfg.arch.name(),
+            arch.name()
+        );
+        t.cfg.epochs = a.epochs;
+        eprintln!(
+            "resumed {} at epoch {} step {}",
+            latest.display(),
+            t.epoch,
+            t.step
+        );
+        t
+    } else {
+        if run.latest().is_some() {
+            bail!(
+                "{} already has checkpoints; pass --resume or use another --run",
+                a.run.display()
+            );
+        }
+        let mut cfg = TrainConfig::new(arch);
+        cfg.batch = a.batch;
+        cfg.queue = a.queue;
+        cfg.lr = a.lr;
+        cfg.temperature = a.temperature;
+        cfg.key_momentum = a.key_momentum;
+        cfg.bn_splits = a.bn_splits;
+        cfg.epochs = a.epochs;
+        cfg.steps_per_epoch = a.steps_per_epoch;
+        cfg.seed = a.seed;
+        cfg.aug = AugConfig::default();
+        Trainer::new(cfg)
+    };
+    std::fs::create_dir_all(&a.run)?;
+    write_atomic(
+        &a.run.join("config.json"),
+        serde_json::to_string_pretty(&trainer.cfg)?.as_bytes(),
+    )?;
+    let info = serde_json::json!({
+        "train_images": sets.train.len(),
+        "train_hash": sets.train.hash(),
+        "heldout_images": sets.heldout.len(),
+        "source": sets.train.source,
+        "command": std::env::args().collect::<Vec<_>>().join(" "),
+    });
+    write_atomic(
+        &a.run.join("data.json"),
+        serde_json::to_string_pretty(&info)?.as_bytes(),
+    )?;
+    eprintln!(
+        "training {} on {} canvases ({} steps/epoch, {} epochs), held-out {} frames",
+        trainer.cfg.arch.name(),
+        sets.train.len(),
+        trainer.steps_per_epoch(telextiles_lab::train::presses(&sets.train).len()),
+        trainer.cfg.epochs,
+        sets.heldout.len()
+    );
+    let t0 = Instant::now();
+    let opts = LoopOptions {
+        progress_every: 1,
+        max_steps: a.max_steps,
+        keep: 3,
+        eval_every: a.eval_every,
+    };
+    let losses = train_loop(&mut trainer, &sets.train, Some(&sets.heldout), &run, &opts)?;
+    eprintln!(
+        "done: {} steps in {:.0}s this process",
+        losses.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn checkpoint_dir(p: &Path) -> Result<PathBuf> {
+    if p.join("state.json").exists() {
+        return Ok(p.to_path_buf());
+    }
+    RunDir(p.to_path_buf())
+        .latest()
+        .with_context(|| format!("no checkpoint found in {}", p.display()))
+}
+
+fn export(a: ExportArgs) -> Result<()> {
+    let ck = checkpoint_dir(&a.run)?;
+    let trainer = Trainer::load(&ck)?;
+    let run_dir = if ck.join("state.json") == a.run.join("state.json") {
+        ck.parent()
+            .and_then(|p| p.parent())
+            .unwrap_or(&ck)
+            .to_path_buf()
+    } else {
+        a.run.clone()
+    };
+    let data: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(run_dir.join("data.json"))
+            .with_context(|| format!("{}/data.json", run_dir.display()))?,
+    )?;
+    let hash = data["train_hash"]
+        .as_str()
+        .context("data.json lacks train_hash")?
+        .to_string();
+    let meta = EncoderMeta {
+        arch: trainer.cfg.arch.clone(),
+        crop: a.data.crop,
+        train_data_hash: hash,
+    };
+    let encoder = trainer.encoder();
+    let bytes = export_encoder(&encoder, &meta)?;
+    // Verify against burn on real held-out frames (batch of 16 and of 1).
+    let sets = protocol::load_or_build(
+        &a.data.protocol(),
+        a.data.source,
+        &a.data.cache_dir,
+        a.data.threads,
+    )?;
+    let probe = sets
+        .heldout
+        .subset(&(0..16.min(sets.heldout.len())).collect::<Vec<_>>());
+    let want = embed_set_raw(&encoder, &probe)?;
+    let mut ort = OrtEncoder::from_bytes(&bytes, 2)?;
+    let mut x = Vec::new();
+    for i in 0..probe.len() {
+        telextiles_lab::preprocess::normalize_into(probe.image(i), probe.side, &mut x);
+    }
+    let got = ort.embed(&x)?;
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    ensure!(
+        diff < 1e-4,
+        "ONNX Runtime and burn differ by {diff} (>= 1e-4); not writing {}",
+        a.out.display()
+    );
+    write_atomic(&a.out, &bytes)?;
+    use sha2::Digest;
+    println!(
+        "wrote {} ({} bytes, sha256 {}) from {} (epoch {}); ort vs burn max abs diff {:.2e} on {} frames",
+        a.out.display(),
+        bytes.len(),
+        telextiles_lab::data::hex(&sha2::Sha256::digest(&bytes)),
+        ck.display(),
+        trainer.epoch,
+        diff,
+        probe.len()
+    );
+    Ok(())
+}
+
+/// Unnormalised burn embeddings of an input set.
+fn embed_set_raw(encoder: &telextiles_lab::model::Encoder, set: &ImageSet) -> Result<Vec<f32>> {
+    use burn::tensor::{Device, Tensor, TensorData};
+    let device = Device::flex();
+    let mut x = Vec::new();
+    for i in 0..set.len() {
+        telextiles_lab::preprocess::normalize_into(set.image(i), set.side, &mut x);
+    }
+    let s = set.side;
+    let y = encoder.forward(Tensor::<4>::from_data(
+        TensorData::new(x, [set.len(), 3, s, s]),
+        &device,
+    ));
+    y.into_data()
+        .try_to_vec::<f32>()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))
+}
+
+fn eval(a: EvalArgs) -> Result<()> {
+    let mut enc = OrtEncoder::from_file(&a.model, a.ort_threads)?;
+    ensure!(
+        enc.input_size as u32 == a.data.input,
+        "model input {} differs from --input {}",
+        enc.input_size,
+        a.data.input
+    );
+    let p = a.data.protocol();
+    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+    let report = protocol::evaluate(&mut enc, &sets, &p)?;
+    println!("{}", report.markdown(&a.model));
+    if let Some(j) = a.json {
+        write_atomic(&j, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    }
+    let _ = embed_set;
+    Ok(())
+}

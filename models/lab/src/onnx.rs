@@ -1,0 +1,268 @@
+//! ONNX export (burn-onnx) with the Telextiles encoder contract, and running
+//! the exported file through ONNX Runtime (`ort`) for verification,
+//! evaluation and latency measurements.
+
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use burn::module::Module;
+use burn::tensor::{Device, Tensor};
+use burn_onnx::export::{AxisSpec, InputSpec, OnnxExporter};
+use onnx_ir::{Message, ModelProto};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use crate::model::{ArchConfig, Encoder};
+use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
+
+/// Name of the input tensor.
+pub const INPUT_NAME: &str = "frames";
+/// Name of the output tensor.
+pub const OUTPUT_NAME: &str = "embedding";
+
+/// Metadata written into `metadata_props` (keys `telextiles.*`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncoderMeta {
+    /// Architecture (also gives input size and embedding dim).
+    pub arch: ArchConfig,
+    /// Centre-crop side in px of the 240x320 frame.
+    pub crop: u32,
+    /// Hex hash of the training data.
+    pub train_data_hash: String,
+}
+
+impl EncoderMeta {
+    /// All `telextiles.*` key/value pairs of the contract.
+    pub fn props(&self) -> Vec<(String, String)> {
+        let f3 = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+        vec![
+            ("telextiles.format".into(), "1".into()),
+            ("telextiles.input_size".into(), self.arch.input.to_string()),
+            ("telextiles.crop".into(), self.crop.to_string()),
+            ("telextiles.mean".into(), f3(DIGIT_MEAN)),
+            ("telextiles.std".into(), f3(DIGIT_STD)),
+            (
+                "telextiles.embedding_dim".into(),
+                self.arch.embedding_dim().to_string(),
+            ),
+            ("telextiles.arch".into(), self.arch.name()),
+            (
+                "telextiles.train_data_hash".into(),
+                self.train_data_hash.clone(),
+            ),
+            ("telextiles.background".into(), "none".into()),
+        ]
+    }
+}
+
+/// Export the encoder (inference mode) to ONNX bytes with named input/output,
+/// a dynamic batch axis and the contract's metadata.
+pub fn export_encoder(encoder: &Encoder, meta: &EncoderMeta) -> Result<Vec<u8>> {
+    let device = Device::flex();
+    let enc = encoder.valid().to_device(&device);
+    let s = meta.arch.input;
+    let sample = Tensor::<4>::zeros([1, 3, s, s], &device);
+    let validation = Tensor::<4>::zeros([2, 3, s, s], &device);
+    let specs = [InputSpec::new([
+        AxisSpec::dynamic("batch"),
+        AxisSpec::Static,
+        AxisSpec::Static,
+        AxisSpec::Static,
+    ])];
+    let onnx = OnnxExporter::new()
+        .export_dynamic(&enc, sample, validation, &specs, Encoder::forward)
+        .map_err(|e| anyhow!("burn-onnx export failed: {e}"))?;
+    finish_model(onnx.as_bytes(), meta)
+}
+
+/// Rename the graph's single input/output to the contract names and set
+/// `metadata_props`.
+pub fn finish_model(bytes: &[u8], meta: &EncoderMeta) -> Result<Vec<u8>> {
+    let mut model = ModelProto::parse_from_bytes(bytes).context("exported ONNX does not parse")?;
+    let graph = model.graph.mut_or_insert_default();
+    let inits: std::collections::HashSet<String> =
+        graph.initializer.iter().map(|t| t.name.clone()).collect();
+    let inputs: Vec<usize> = (0..graph.input.len())
+        .filter(|&i| !inits.contains(&graph.input[i].name))
+        .collect();
+    ensure!(
+        inputs.len() == 1,
+        "expected one graph input, found {}",
+        inputs.len()
+    );
+    ensure!(
+        graph.output.len() == 1,
+        "expected one graph output, found {}",
+        graph.output.len()
+    );
+    let old_in = graph.input[inputs[0]].name.clone();
+    let old_out = graph.output[0].name.clone();
+    let rename = |s: &mut String| {
+        if *s == old_in {
+            *s = INPUT_NAME.to_string();
+        } else if *s == old_out {
+            *s = OUTPUT_NAME.to_string();
+        }
+    };
+    for node in graph.node.iter_mut() {
+        node.input.iter_mut().for_each(rename);
+        node.output.iter_mut().for_each(rename);
+    }
+    for vi in graph
+        .input
+        .iter_mut()
+        .chain(graph.output.iter_mut())
+        .chain(graph.value_info.iter_mut())
+    {
+        rename(&mut vi.name);
+    }
+    model.producer_name = "telextiles-lab".into();
+    model.producer_version = env!("CARGO_PKG_VERSION").into();
+    model
+        .metadata_props
+        .retain(|p| !p.key.starts_with("telextiles."));
+    for (k, v) in meta.props() {
+        model.metadata_props.push(Default::default());
+        let e = model.metadata_props.last_mut().expect("just pushed");
+        e.key = k;
+        e.value = v;
+    }
+    model.write_to_bytes().context("serialising ONNX")
+}
+
+/// Path of the ONNX Runtime library: `$ORT_DYLIB_PATH` or the CI install.
+pub fn ort_dylib_path() -> PathBuf {
+    std::env::var_os("ORT_DYLIB_PATH")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/local/lib/libonnxruntime.so.1.31.1"))
+}
+
+static ORT_ENV: OnceLock<std::result::Result<ort::environment::Environment, String>> =
+    OnceLock::new();
+
+/// Load ONNX Runtime once per process and return its environment.
+pub fn init_ort() -> Result<&'static ort::environment::Environment> {
+    ORT_ENV
+        .get_or_init(|| {
+            let path = ort_dylib_path();
+            let builder = ort::init_from(&path)
+                .map_err(|e| format!("cannot load ONNX Runtime from {}: {e}", path.display()))?;
+            builder
+                .with_name("telextiles-lab")
+                .build()
+                .map_err(|e| format!("ONNX Runtime environment: {e}"))
+        })
+        .as_ref()
+        .map_err(|e| anyhow!("{e}"))
+}
+
+/// An encoder loaded in ONNX Runtime.
+pub struct OrtEncoder {
+    session: ort::session::Session,
+    /// Network input side.
+    pub input_size: usize,
+    /// Embedding dimension.
+    pub dim: usize,
+    /// `telextiles.*` metadata of the model.
+    pub meta: BTreeMap<String, String>,
+}
+
+impl OrtEncoder {
+    /// Load from bytes with `threads` intra-op threads; checks the contract.
+    pub fn from_bytes(bytes: &[u8], threads: usize) -> Result<Self> {
+        let env = init_ort()?;
+        let session = ort::session::Session::builder(env)
+            .map_err(|e| anyhow!("{e}"))?
+            .with_intra_threads(threads)
+            .map_err(|e| anyhow!("{e}"))?
+            .with_inter_threads(1)
+            .map_err(|e| anyhow!("{e}"))?
+            .commit_from_memory(bytes)
+            .map_err(|e| anyhow!("ONNX Runtime cannot load the model: {e}"))?;
+        let md = session.metadata().map_err(|e| anyhow!("{e}"))?;
+        let mut meta = BTreeMap::new();
+        for k in md.custom_keys().map_err(|e| anyhow!("{e}"))? {
+            if let Some(v) = md.custom(&k) {
+                meta.insert(k, v);
+            }
+        }
+        drop(md);
+        let get = |k: &str| -> Result<usize> {
+            meta.get(k)
+                .with_context(|| format!("model metadata lacks {k}"))?
+                .parse()
+                .with_context(|| format!("model metadata {k} is not a number"))
+        };
+        let input_size = get("telextiles.input_size")?;
+        let dim = get("telextiles.embedding_dim")?;
+        let ins = session.inputs();
+        let outs = session.outputs();
+        ensure!(
+            ins.len() == 1 && ins[0].name() == INPUT_NAME,
+            "model input must be a single tensor named {INPUT_NAME:?}"
+        );
+        ensure!(
+            outs.len() == 1 && outs[0].name() == OUTPUT_NAME,
+            "model output must be a single tensor named {OUTPUT_NAME:?}"
+        );
+        let ishape: Vec<i64> = ins[0]
+            .dtype()
+            .tensor_shape()
+            .context("input is not a tensor")?
+            .to_vec();
+        let s = input_size as i64;
+        ensure!(
+            ishape.len() == 4 && ishape[0] < 0 && ishape[1..] == [3, s, s],
+            "model input shape {ishape:?} is not [N, 3, {s}, {s}] with dynamic N"
+        );
+        let oshape: Vec<i64> = outs[0]
+            .dtype()
+            .tensor_shape()
+            .context("output is not a tensor")?
+            .to_vec();
+        ensure!(
+            oshape.len() == 2 && oshape[1] == dim as i64,
+            "model output shape {oshape:?} is not [N, {dim}]"
+        );
+        Ok(OrtEncoder {
+            session,
+            input_size,
+            dim,
+            meta,
+        })
+    }
+
+    /// Load from a file.
+    pub fn from_file(path: &Path, threads: usize) -> Result<Self> {
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        Self::from_bytes(&bytes, threads).with_context(|| format!("model {}", path.display()))
+    }
+
+    /// Embed `n` preprocessed frames (`n * 3 * S * S` floats, NCHW).
+    pub fn embed(&mut self, frames: &[f32]) -> Result<Vec<f32>> {
+        let per = 3 * self.input_size * self.input_size;
+        if frames.is_empty() || !frames.len().is_multiple_of(per) {
+            bail!(
+                "{} floats is not a whole number of {}-float frames",
+                frames.len(),
+                per
+            );
+        }
+        let n = frames.len() / per;
+        let s = self.input_size;
+        let t = ort::value::TensorRef::from_array_view(([n, 3, s, s], frames))
+            .map_err(|e| anyhow!("{e}"))?;
+        let out = self
+            .session
+            .run(ort::inputs![INPUT_NAME => t])
+            .map_err(|e| anyhow!("{e}"))?;
+        let (shape, data) = out[OUTPUT_NAME]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| anyhow!("{e}"))?;
+        ensure!(
+            shape.len() == 2 && shape[0] as usize == n && shape[1] as usize == self.dim,
+            "bad output shape {shape:?}"
+        );
+        Ok(data.to_vec())
+    }
+}

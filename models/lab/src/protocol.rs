@@ -1,0 +1,547 @@
+//! The paper's data protocol on simulated (or synthetic) presses, the frame
+//! caches built from it, and the evaluation tables of `docs/evaluation.md`.
+//!
+//! People 0..8 are the training people (sensors 0..3), people 8, 9, 10 are
+//! held out (sensors 0, 4, 5 — two of them sensors never seen in training).
+//! Every press is split as in the paper: frames before 120 build the index,
+//! frames from 120 on are queries; only frames in full contact are used.
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+use crate::data::{build_sets, hex, FrameSource, ImageSet, PressKey, PressPlan};
+use crate::knn::{knn_score, normalize_rows, top_k, KnnScore};
+use crate::onnx::OrtEncoder;
+use crate::preprocess::normalize_into;
+use crate::train::INDEX_FRAMES;
+
+/// Which frame source to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+pub enum SourceKind {
+    /// The DIGIT press simulator (`telextiles-sim`).
+    Sim,
+    /// Procedural gratings (tests, timing).
+    Synth,
+}
+
+/// The protocol: who presses what, which frames are cached.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Protocol {
+    /// Network input size.
+    pub input: u32,
+    /// Deployment centre crop.
+    pub crop: u32,
+    /// People whose presses train the encoder.
+    pub train_people: Vec<u32>,
+    /// Held-out people and the sensor each uses.
+    pub heldout: Vec<(u32, u32)>,
+    /// Sensors of the training people are `person % train_sensors`.
+    pub train_sensors: u32,
+    /// Training canvases per press (spread over the contact frames).
+    pub train_frames: usize,
+    /// Index frames per press (frames < 120).
+    pub index_frames: usize,
+    /// Query frames per press (frames >= 120).
+    pub query_frames: usize,
+    /// Only the first N training textiles.
+    pub max_textiles: Option<usize>,
+}
+
+impl Protocol {
+    /// The default protocol for a given input size and crop.
+    pub fn paper(input: u32, crop: u32) -> Self {
+        Protocol {
+            input,
+            crop,
+            train_people: (0..8).collect(),
+            heldout: vec![(8, 0), (9, 4), (10, 5)],
+            train_sensors: 4,
+            train_frames: 8,
+            index_frames: 6,
+            query_frames: 3,
+            max_textiles: None,
+        }
+    }
+}
+
+/// All cached sets of a protocol.
+pub struct Sets {
+    /// Training canvases (training people, training textiles, jig).
+    pub train: ImageSet,
+    /// Index frames of the training presses at input size.
+    pub train_index: ImageSet,
+    /// Held-out people, training textiles, jig: index and query frames.
+    pub heldout: ImageSet,
+    /// First held-out person, hand-held presses.
+    pub handheld: ImageSet,
+    /// Held-out people pressing the unseen textiles.
+    pub unseen: ImageSet,
+    /// Ground-truth attributes per class (if the source knows them).
+    pub attributes: Vec<Option<Vec<f32>>>,
+}
+
+/// `n` frames spread evenly over `[lo, hi)`.
+pub fn spread(lo: usize, hi: usize, n: usize) -> Vec<usize> {
+    if hi <= lo || n == 0 {
+        return Vec::new();
+    }
+    let mut v: Vec<usize> = (0..n)
+        .map(|i| lo + ((i as f64 + 0.5) * (hi - lo) as f64 / n as f64) as usize)
+        .collect();
+    v.dedup();
+    v
+}
+
+fn make_source(kind: SourceKind) -> Result<Box<dyn FrameSource>> {
+    Ok(match kind {
+        SourceKind::Sim => Box::new(crate::simsource::SimSource::new()?),
+        SourceKind::Synth => Box::new(crate::synth::SynthSource),
+    })
+}
+
+/// Load the protocol's caches from `cache_dir`, rendering them first if needed.
+pub fn load_or_build(
+    p: &Protocol,
+    kind: SourceKind,
+    cache_dir: &Path,
+    threads: usize,
+) -> Result<Sets> {
+    let source = make_source(kind)?;
+    let key = {
+        use sha2::Digest;
+        let mut h = sha2::Sha256::new();
+        h.update(serde_json::to_vec(p)?);
+        h.update(source.describe());
+        h.update(b"cache-format-2");
+        hex(&h.finalize())[..16].to_string()
+    };
+    let dir = cache_dir.join(format!("{kind:?}-s{}-c{}-{key}", p.input, p.crop).to_lowercase());
+    let names = ["train", "train_index", "heldout", "handheld", "unseen"];
+    let mut training = source.training_textiles();
+    if let Some(m) = p.max_textiles {
+        training.truncate(m);
+    }
+    let unseen = source.unseen_textiles();
+    let classes: Vec<String> = training.iter().chain(&unseen).cloned().collect();
+    let attributes = classes.iter().map(|c| source.attributes(c)).collect();
+    if names.iter().all(|n| dir.join(format!("{n}.bin")).exists()) {
+        let r = |n: &str| ImageSet::read(&dir.join(format!("{n}.bin")));
+        eprintln!("using cache {}", dir.display());
+        return Ok(Sets {
+            train: r("train")?,
+            train_index: r("train_index")?,
+            heldout: r("heldout")?,
+            handheld: r("handheld")?,
+            unseen: r("unseen")?,
+            attributes,
+        });
+    }
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::write(dir.join("protocol.json"), serde_json::to_string_pretty(p)?)?;
+    let nidx = |lo: usize, hi: usize| spread(lo, hi.min(INDEX_FRAMES as usize), p.index_frames);
+    let nq = |lo: usize, hi: usize| spread(lo.max(INDEX_FRAMES as usize), hi, p.query_frames);
+    let plan_for = |textiles: &[String],
+                    class0: usize,
+                    people: &[(u32, u32)],
+                    jig: bool,
+                    seed0: u64,
+                    canvas: bool,
+                    queries: bool|
+     -> Result<Vec<PressPlan>> {
+        let mut out = Vec::new();
+        for (ti, t) in textiles.iter().enumerate() {
+            for &(person, sensor) in people {
+                let key = PressKey {
+                    textile: t.clone(),
+                    person,
+                    sensor,
+                    jig,
+                    seed: seed0 + person as u64,
+                };
+                let (lo, hi) = source.contact_range(&key)?;
+                let mut input_frames = nidx(lo, hi);
+                if queries {
+                    input_frames.extend(nq(lo, hi));
+                }
+                out.push(PressPlan {
+                    key,
+                    class: (class0 + ti) as u32,
+                    canvas_frames: if canvas {
+                        spread(lo, hi, p.train_frames)
+                    } else {
+                        Vec::new()
+                    },
+                    input_frames,
+                });
+            }
+        }
+        Ok(out)
+    };
+    let train_people: Vec<(u32, u32)> = p
+        .train_people
+        .iter()
+        .map(|&q| (q, q % p.train_sensors.max(1)))
+        .collect();
+    let t0 = std::time::Instant::now();
+    let build = |name: &str, plan: Vec<PressPlan>| -> Result<(ImageSet, ImageSet)> {
+        let total = plan.len();
+        let label = name.to_string();
+        let progress = move |d: usize, n: usize| {
+            if d.is_multiple_of(10) || d == n {
+                eprint!(
+                    "\rrendering {label}: {d}/{n} presses, {:.0}s   ",
+                    t0.elapsed().as_secs_f64()
+                );
+            }
+        };
+        let r = build_sets(
+            source.as_ref(),
+            classes.clone(),
+            &plan,
+            p.input,
+            p.crop,
+            threads,
+            &progress,
+        );
+        eprintln!();
+        let _ = total;
+        r
+    };
+    let (train, train_index) = build(
+        "train",
+        plan_for(&training, 0, &train_people, true, 1000, true, false)?,
+    )?;
+    let (_, heldout) = build(
+        "heldout",
+        plan_for(&training, 0, &p.heldout, true, 2000, false, true)?,
+    )?;
+    let (_, handheld) = build(
+        "handheld",
+        plan_for(&training, 0, &p.heldout[..1], false, 3000, false, true)?,
+    )?;
+    let (_, unseen_set) = build(
+        "unseen",
+        plan_for(&unseen, training.len(), &p.heldout, true, 4000, false, true)?,
+    )?;
+    for (n, s) in names
+        .iter()
+        .zip([&train, &train_index, &heldout, &handheld, &unseen_set])
+    {
+        s.write(&dir.join(format!("{n}.bin")))?;
+    }
+    eprintln!(
+        "cached {} in {:.0}s",
+        dir.display(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(Sets {
+        train,
+        train_index,
+        heldout,
+        handheld,
+        unseen: unseen_set,
+        attributes,
+    })
+}
+
+/// Embed an input set through ONNX Runtime (L2-normalised rows).
+pub fn embed_ort(enc: &mut OrtEncoder, set: &ImageSet) -> Result<Vec<f32>> {
+    let mut out = Vec::with_capacity(set.len() * enc.dim);
+    for start in (0..set.len()).step_by(64) {
+        let end = (start + 64).min(set.len());
+        let mut x = Vec::new();
+        for i in start..end {
+            normalize_into(set.image(i), set.side, &mut x);
+        }
+        out.extend(enc.embed(&x)?);
+    }
+    normalize_rows(&mut out, enc.dim);
+    Ok(out)
+}
+
+/// One row of a results table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// What was evaluated.
+    pub name: String,
+    /// Index description.
+    pub index: String,
+    /// kNN scores.
+    pub score: KnnScore,
+}
+
+/// Mapping of one unseen textile.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnseenRow {
+    /// Unseen textile id.
+    pub textile: String,
+    /// Most frequent nearest known textile over its query frames.
+    pub nearest: String,
+    /// Fraction of its frames mapped to `nearest`.
+    pub agreement: f64,
+    /// Mean cosine similarity to the nearest known frame.
+    pub similarity: f64,
+    /// Attribute distance to `nearest` (if attributes are known).
+    pub attr_dist: Option<f64>,
+    /// Rank of `nearest` among all known textiles by attribute distance (1 = closest).
+    pub attr_rank: Option<usize>,
+}
+
+/// Evaluation results.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// Protocol used.
+    pub protocol: Protocol,
+    /// (a) across people.
+    pub across_people: Vec<Row>,
+    /// (b) one person, jig vs hand-held.
+    pub jig_vs_handheld: Vec<Row>,
+    /// (c) unseen textiles.
+    pub unseen: Vec<UnseenRow>,
+    /// Mean attribute distance between random pairs of known textiles.
+    pub attr_dist_random: Option<f64>,
+}
+
+fn sel(
+    set: &ImageSet,
+    emb: &[f32],
+    dim: usize,
+    f: impl Fn(&crate::data::FrameMeta) -> bool,
+) -> (Vec<f32>, Vec<u32>) {
+    let idx: Vec<usize> = (0..set.len()).filter(|&i| f(&set.items[i])).collect();
+    (
+        crate::train::rows(emb, dim, &idx),
+        idx.iter().map(|&i| set.items[i].class).collect(),
+    )
+}
+
+fn score(index: &(Vec<f32>, Vec<u32>), q: &(Vec<f32>, Vec<u32>), dim: usize) -> KnnScore {
+    knn_score(&index.0, &index.1, &q.0, &q.1, dim, 20, 0.07)
+}
+
+fn cat(a: (Vec<f32>, Vec<u32>), b: (Vec<f32>, Vec<u32>)) -> (Vec<f32>, Vec<u32>) {
+    (
+        a.0.into_iter().chain(b.0).collect(),
+        a.1.into_iter().chain(b.1).collect(),
+    )
+}
+
+/// Run the whole evaluation with an ONNX Runtime encoder.
+pub fn evaluate(enc: &mut OrtEncoder, sets: &Sets, p: &Protocol) -> Result<Report> {
+    let d = enc.dim;
+    let e_train = embed_ort(enc, &sets.train_index)?;
+    let e_held = embed_ort(enc, &sets.heldout)?;
+    let e_hand = embed_ort(enc, &sets.handheld)?;
+    let e_unseen = embed_ort(enc, &sets.unseen)?;
+    let is_idx = |m: &crate::data::FrameMeta| m.frame < INDEX_FRAMES;
+    let is_q = |m: &crate::data::FrameMeta| m.frame >= INDEX_FRAMES;
+    let mut across = Vec::new();
+    let train_idx = sel(&sets.train_index, &e_train, d, is_idx);
+    let all_q = sel(&sets.heldout, &e_held, d, is_q);
+    across.push(Row {
+        name: format!(
+            "held-out people {:?} (queries: last 30 frames)",
+            p.heldout.iter().map(|h| h.0).collect::<Vec<_>>()
+        ),
+        index: format!("training people {:?}, first 120 frames", p.train_people),
+        score: score(&train_idx, &all_q, d),
+    });
+    let mut within_all = (Vec::new(), Vec::new());
+    let mut within_q = (Vec::new(), Vec::new());
+    let mut within_rows = Vec::new();
+    for &(person, sensor) in &p.heldout {
+        let q = sel(&sets.heldout, &e_held, d, |m| m.person == person && is_q(m));
+        let own = sel(&sets.heldout, &e_held, d, |m| {
+            m.person == person && is_idx(m)
+        });
+        across.push(Row {
+            name: format!("person {person} (sensor {sensor})"),
+            index: "training people, first 120 frames".into(),
+            score: score(&train_idx, &q, d),
+        });
+        let others = sel(&sets.heldout, &e_held, d, |m| {
+            m.person != person && is_idx(m)
+        });
+        across.push(Row {
+            name: format!("person {person} (sensor {sensor})"),
+            index: "the other held-out people, first 120 frames".into(),
+            score: score(&others, &q, d),
+        });
+        within_rows.push(Row {
+            name: format!("person {person} (sensor {sensor})"),
+            index: "own press, first 120 frames (paper split)".into(),
+            score: score(&own, &q, d),
+        });
+        within_all = cat(within_all, own);
+        within_q = cat(within_q, q);
+    }
+    let _ = (within_all, within_q);
+    across.extend(within_rows);
+    // (b) one person: jig vs hand-held, per-press split (paper Table 2).
+    let (person, sensor) = p.heldout[0];
+    let mut jig_rows = Vec::new();
+    let jig_idx = sel(&sets.heldout, &e_held, d, |m| {
+        m.person == person && is_idx(m)
+    });
+    let jig_q = sel(&sets.heldout, &e_held, d, |m| m.person == person && is_q(m));
+    let hand_idx = sel(&sets.handheld, &e_hand, d, is_idx);
+    let hand_q = sel(&sets.handheld, &e_hand, d, is_q);
+    jig_rows.push(Row {
+        name: format!("person {person}, sensor {sensor}, jig"),
+        index: "same presses, first 120 frames".into(),
+        score: score(&jig_idx, &jig_q, d),
+    });
+    jig_rows.push(Row {
+        name: format!("person {person}, sensor {sensor}, hand-held"),
+        index: "same presses, first 120 frames".into(),
+        score: score(&hand_idx, &hand_q, d),
+    });
+    jig_rows.push(Row {
+        name: format!("person {person}, hand-held queries"),
+        index: "jig presses of the same person".into(),
+        score: score(&jig_idx, &hand_q, d),
+    });
+    jig_rows.push(Row {
+        name: format!("person {person}, hand-held queries"),
+        index: "training people (jig)".into(),
+        score: score(&train_idx, &hand_q, d),
+    });
+    // (c) unseen textiles mapped to the nearest known one.
+    let known = cat(train_idx.clone(), sel(&sets.heldout, &e_held, d, is_idx));
+    let n_train_classes = sets.train.classes.len() - sets.unseen_classes();
+    let mut unseen_rows = Vec::new();
+    let mut uclasses: Vec<u32> = sets.unseen.items.iter().map(|m| m.class).collect();
+    uclasses.sort_unstable();
+    uclasses.dedup();
+    let attr_dist = |a: usize, b: usize| -> Option<f64> {
+        let (x, y) = (
+            sets.attributes.get(a)?.as_ref()?,
+            sets.attributes.get(b)?.as_ref()?,
+        );
+        Some(
+            x.iter()
+                .zip(y)
+                .map(|(p, q)| ((p - q) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt(),
+        )
+    };
+    for &uc in &uclasses {
+        let q = sel(&sets.unseen, &e_unseen, d, |m| m.class == uc);
+        let nn = top_k(&known.0, &q.0, d, 1);
+        let mut counts = vec![0usize; n_train_classes];
+        let mut sim = 0.0;
+        for r in &nn {
+            counts[known.1[r[0].1] as usize] += 1;
+            sim += r[0].0 as f64;
+        }
+        let (best, cnt) = counts
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, c)| **c)
+            .map(|(i, c)| (i, *c))
+            .unwrap_or((0, 0));
+        let ad = attr_dist(uc as usize, best);
+        let rank = ad.map(|dist| {
+            (0..n_train_classes)
+                .filter(|&k| attr_dist(uc as usize, k).is_some_and(|x| x < dist))
+                .count()
+                + 1
+        });
+        unseen_rows.push(UnseenRow {
+            textile: sets.train.classes[uc as usize].clone(),
+            nearest: sets.train.classes[best].clone(),
+            agreement: cnt as f64 / nn.len().max(1) as f64,
+            similarity: sim / nn.len().max(1) as f64,
+            attr_dist: ad,
+            attr_rank: rank,
+        });
+    }
+    let mut rd = (0.0, 0usize);
+    for a in 0..n_train_classes {
+        for b in 0..a {
+            if let Some(x) = attr_dist(a, b) {
+                rd.0 += x;
+                rd.1 += 1;
+            }
+        }
+    }
+    Ok(Report {
+        protocol: p.clone(),
+        across_people: across,
+        jig_vs_handheld: jig_rows,
+        unseen: unseen_rows,
+        attr_dist_random: (rd.1 > 0).then(|| rd.0 / rd.1 as f64),
+    })
+}
+
+impl Sets {
+    fn unseen_classes(&self) -> usize {
+        let mut c: Vec<u32> = self.unseen.items.iter().map(|m| m.class).collect();
+        c.sort_unstable();
+        c.dedup();
+        let min = c
+            .first()
+            .copied()
+            .unwrap_or(self.train.classes.len() as u32) as usize;
+        self.train.classes.len() - min
+    }
+}
+
+impl Report {
+    /// Markdown tables.
+    pub fn markdown(&self, model: &Path) -> String {
+        let mut s = String::new();
+        let pct = |x: f64| format!("{:.2}%", 100.0 * x);
+        s.push_str(&format!("Model: `{}`\n\n", model.display()));
+        s.push_str("### (a) Across people\n\n| queries | index | kNN top-1 (k=1) | weighted kNN top-1 (k=20, T=0.07) | queries |\n|---|---|---|---|---|\n");
+        for r in &self.across_people {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} |\n",
+                r.name,
+                r.index,
+                pct(r.score.top1_k1),
+                pct(r.score.top1_weighted),
+                r.score.queries
+            ));
+        }
+        s.push_str("\n### (b) One person, jig vs hand-held (shape of the paper's Table 2)\n\n| queries | index | kNN top-1 (k=1) | weighted kNN top-1 | queries |\n|---|---|---|---|---|\n");
+        for r in &self.jig_vs_handheld {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} |\n",
+                r.name,
+                r.index,
+                pct(r.score.top1_k1),
+                pct(r.score.top1_weighted),
+                r.score.queries
+            ));
+        }
+        s.push_str("\n### (c) Unseen textiles mapped to the nearest known textile\n\n| unseen | nearest known | frames agreeing | mean cosine | attribute distance | attribute rank of nearest (of known) |\n|---|---|---|---|---|---|\n");
+        for u in &self.unseen {
+            s.push_str(&format!(
+                "| {} | {} | {} | {:.3} | {} | {} |\n",
+                u.textile,
+                u.nearest,
+                pct(u.agreement),
+                u.similarity,
+                u.attr_dist.map_or("-".into(), |x| format!("{x:.3}")),
+                u.attr_rank.map_or("-".into(), |x| x.to_string())
+            ));
+        }
+        if let Some(r) = self.attr_dist_random {
+            let mean = self.unseen.iter().filter_map(|u| u.attr_dist).sum::<f64>()
+                / self.unseen.len().max(1) as f64;
+            let ranks: Vec<f64> = self
+                .unseen
+                .iter()
+                .filter_map(|u| u.attr_rank.map(|x| x as f64))
+                .collect();
+            s.push_str(&format!(
+                "\nMean attribute distance unseen -> nearest known: {mean:.3}; between random known pairs: {r:.3}; median attribute rank of the nearest: {}.\n",
+                crate::bench::median(&ranks)
+            ));
+        }
+        s
+    }
+}

@@ -1,0 +1,166 @@
+//! Textile catalogue, simulated DIGIT presses and the on-disk press format.
+//!
+//! ```no_run
+//! use telextiles_sim::{PressSpec, Simulator};
+//! let sim = Simulator::new().unwrap();
+//! let press = sim.render_press(&PressSpec::new("T001", 7)).unwrap();
+//! assert_eq!(press.frames.len(), 150);
+//! assert_eq!((press.frames[0].width(), press.frames[0].height()), (240, 320));
+//! ```
+#![forbid(unsafe_code)]
+
+pub mod calib;
+pub mod catalogue;
+pub mod dataset;
+pub mod fabric;
+pub mod recording;
+mod render;
+pub mod sheet;
+
+pub use catalogue::{Book, Catalogue, Textile};
+pub use image::{ImageFormat, RgbImage};
+pub use render::{person_style, sensor_model, PersonStyle, SensorModel, Simulator};
+
+use serde::{Deserialize, Serialize};
+
+/// Frames per second of a DIGIT press.
+pub const FPS: f32 = 60.0;
+/// Frames in one press (2.5 s at 60 fps).
+pub const PRESS_FRAMES: usize = 150;
+/// Frame width (columns), as digit-interface delivers frames.
+pub const WIDTH: u32 = 240;
+/// Frame height (rows).
+pub const HEIGHT: u32 = 320;
+/// Number of simulated people in the paper protocol.
+pub const PEOPLE: u32 = 11;
+
+/// Errors of the simulator.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("unknown textile id {0:?} (known: T001..T119, U01..U20)")]
+    UnknownTextile(String),
+    #[error("frame index {index} out of range (press has {frames} frames)")]
+    FrameOutOfRange { index: usize, frames: usize },
+    #[error("invalid press spec: {0}")]
+    InvalidSpec(String),
+    #[error("embedded DIGIT calibration: {0}")]
+    Calibration(String),
+}
+
+/// What to render: one press of one textile by one person on one sensor.
+/// Unset options are drawn from the person's style and the seed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PressSpec {
+    /// Textile id ("T001".."T119", "U01".."U20").
+    pub textile: String,
+    /// Simulated person 0..11 (any u32 works; each has a consistent style).
+    pub person: u32,
+    /// Simulated sensor unit (0 = the nominal real calibration/background).
+    pub sensor: u32,
+    /// Pressed with the spring jig (steady) rather than hand-held.
+    pub jig: bool,
+    /// Seed of this press; the same spec renders the same frames.
+    pub seed: u64,
+    /// In-plane rotation of the fabric under the sensor, degrees.
+    pub rotation_deg: Option<f32>,
+    /// Press force in newtons.
+    pub force: Option<f32>,
+    /// Lateral offset of the window on the fabric, mm.
+    pub offset_mm: Option<[f32; 2]>,
+    /// Whether the press releases before the end (default: person's habit).
+    pub release: Option<bool>,
+    /// Number of frames (default 150).
+    pub frames: usize,
+    /// Camera noise on (default true).
+    pub noise: bool,
+}
+
+impl PressSpec {
+    /// A jig press by person 0 on sensor 0, everything else drawn from `seed`.
+    pub fn new(textile: impl Into<String>, seed: u64) -> PressSpec {
+        PressSpec {
+            textile: textile.into(),
+            person: 0,
+            sensor: 0,
+            jig: true,
+            seed,
+            rotation_deg: None,
+            force: None,
+            offset_mm: None,
+            release: None,
+            frames: PRESS_FRAMES,
+            noise: true,
+        }
+    }
+}
+
+impl PressSpec {
+    /// One-line JSON (the `telextilesd sim dataset --stream` format).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Parse a spec from JSON (fields missing from the line are an error).
+    pub fn from_json(s: &str) -> Result<PressSpec, SimError> {
+        serde_json::from_str(s).map_err(|e| SimError::InvalidSpec(e.to_string()))
+    }
+}
+
+impl Default for PressSpec {
+    fn default() -> Self {
+        PressSpec::new("T001", 0)
+    }
+}
+
+/// The physical parameters a simulated press was rendered with.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PressParams {
+    pub rotation_deg: f32,
+    pub force_n: f32,
+    pub offset_mm: [f32; 2],
+    /// Sensor tilt about the x and y axes, degrees.
+    pub tilt_deg: [f32; 2],
+    /// Indentation of the gel at full force, mm.
+    pub indentation_mm: f32,
+    pub gel_thickness_mm: f32,
+    /// First frame with contact.
+    pub contact_frame: u32,
+    /// First frame of the hold (ramp done).
+    pub hold_frame: u32,
+    /// First frame of the release, if the press releases.
+    pub release_frame: Option<u32>,
+    /// Lateral slip during the hold, mm.
+    pub slip_mm: [f32; 2],
+    /// Relative force wobble amplitude during the hold.
+    pub wobble: f32,
+    pub noise: bool,
+    pub catalogue_version: u32,
+}
+
+/// Metadata of a press (simulated or captured).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PressMeta {
+    /// Textile id (or, for PyTouch data, the class directory name).
+    pub textile: String,
+    pub person: u32,
+    pub sensor: u32,
+    pub jig: bool,
+    pub fps: f32,
+    /// Per-frame timestamps in microseconds from the first frame.
+    pub timestamps_us: Vec<u64>,
+    /// Seed of a simulated press; None for captured data.
+    pub seed: Option<u64>,
+    /// "sim", "digit" (live capture) or "pytouch".
+    pub source: String,
+    /// Serial number of the physical sensor, if known.
+    pub sensor_serial: Option<String>,
+    /// Simulator parameters of a simulated press.
+    pub params: Option<PressParams>,
+}
+
+/// One press: metadata and frames (240 wide x 320 tall RGB).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Press {
+    pub meta: PressMeta,
+    pub frames: Vec<image::RgbImage>,
+}

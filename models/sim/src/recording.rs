@@ -1,0 +1,348 @@
+//! The on-disk press format (shared with real capture) and the PyTouch layout.
+//!
+//! A press is a directory:
+//! ```text
+//! <dir>/press.json     metadata (format, version, textile, person, sensor, jig,
+//!                      fps, timestamps_us, seed, source, params, frame names)
+//! <dir>/000000.png     frame 0, RGB 8-bit, 240 wide x 320 tall
+//! <dir>/000001.png     ...
+//! ```
+//! Writes are atomic: everything goes to `<dir>.tmp-<pid>-<n>` first, which
+//! is renamed to `<dir>` when complete.
+
+use crate::{Press, PressMeta, HEIGHT, WIDTH};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Value of the `format` field in press.json.
+pub const FORMAT: &str = "telextiles-press";
+/// Current format version.
+pub const FORMAT_VERSION: u32 = 1;
+/// File name of the metadata.
+pub const META_FILE: &str = "press.json";
+
+/// Errors reading or writing presses; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: {msg}", path.display())]
+    Invalid { path: PathBuf, msg: String },
+}
+
+impl RecordingError {
+    /// The file or directory the error is about.
+    pub fn path(&self) -> &Path {
+        match self {
+            RecordingError::Io { path, .. } | RecordingError::Invalid { path, .. } => path,
+        }
+    }
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RecordingError + '_ {
+    move |source| RecordingError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn invalid(path: &Path, msg: impl Into<String>) -> RecordingError {
+    RecordingError::Invalid {
+        path: path.to_path_buf(),
+        msg: msg.into(),
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct PressFile {
+    format: String,
+    format_version: u32,
+    width: u32,
+    height: u32,
+    frames: Vec<String>,
+    #[serde(flatten)]
+    meta: PressMeta,
+}
+
+/// Name of frame `i`.
+pub fn frame_name(i: usize) -> String {
+    format!("{i:06}.png")
+}
+
+static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// Write a press to `dir` (which must not exist yet), atomically.
+pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
+    if dir.exists() {
+        return Err(invalid(dir, "already exists; refusing to overwrite"));
+    }
+    if press.frames.len() != press.meta.timestamps_us.len() {
+        return Err(invalid(
+            dir,
+            format!(
+                "{} frames but {} timestamps",
+                press.frames.len(),
+                press.meta.timestamps_us.len()
+            ),
+        ));
+    }
+    for (i, f) in press.frames.iter().enumerate() {
+        if f.width() != WIDTH || f.height() != HEIGHT {
+            return Err(invalid(
+                dir,
+                format!(
+                    "frame {i} is {}x{}, expected {WIDTH}x{HEIGHT}",
+                    f.width(),
+                    f.height()
+                ),
+            ));
+        }
+    }
+    let name = dir
+        .file_name()
+        .ok_or_else(|| invalid(dir, "not a directory name"))?
+        .to_string_lossy()
+        .into_owned();
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+    let tmp = parent.join(format!(
+        "{name}.tmp-{}-{}",
+        std::process::id(),
+        TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let result = (|| {
+        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
+        let mut names = Vec::with_capacity(press.frames.len());
+        for (i, f) in press.frames.iter().enumerate() {
+            let n = frame_name(i);
+            let p = tmp.join(&n);
+            f.save_with_format(&p, image::ImageFormat::Png)
+                .map_err(|e| invalid(&p, format!("cannot write PNG: {e}")))?;
+            names.push(n);
+        }
+        let file = PressFile {
+            format: FORMAT.into(),
+            format_version: FORMAT_VERSION,
+            width: WIDTH,
+            height: HEIGHT,
+            frames: names,
+            meta: press.meta.clone(),
+        };
+        let p = tmp.join(META_FILE);
+        let json = serde_json::to_vec_pretty(&file).map_err(|e| invalid(&p, e.to_string()))?;
+        std::fs::write(&p, json).map_err(io_err(&p))?;
+        std::fs::rename(&tmp, dir).map_err(io_err(dir))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+/// Read only the metadata of a press directory.
+pub fn read_meta(dir: &Path) -> Result<PressMeta, RecordingError> {
+    Ok(read_file(dir)?.meta)
+}
+
+fn read_file(dir: &Path) -> Result<PressFile, RecordingError> {
+    let p = dir.join(META_FILE);
+    let bytes = std::fs::read(&p).map_err(io_err(&p))?;
+    let file: PressFile = serde_json::from_slice(&bytes)
+        .map_err(|e| invalid(&p, format!("malformed metadata: {e}")))?;
+    if file.format != FORMAT {
+        return Err(invalid(
+            &p,
+            format!("format is {:?}, expected {FORMAT:?}", file.format),
+        ));
+    }
+    if file.format_version != FORMAT_VERSION {
+        return Err(invalid(
+            &p,
+            format!(
+                "format_version {} not supported (this build reads {FORMAT_VERSION})",
+                file.format_version
+            ),
+        ));
+    }
+    if (file.width, file.height) != (WIDTH, HEIGHT) {
+        return Err(invalid(
+            &p,
+            format!(
+                "frame size {}x{}, expected {WIDTH}x{HEIGHT}",
+                file.width, file.height
+            ),
+        ));
+    }
+    if file.frames.len() != file.meta.timestamps_us.len() {
+        return Err(invalid(
+            &p,
+            format!(
+                "{} frames but {} timestamps",
+                file.frames.len(),
+                file.meta.timestamps_us.len()
+            ),
+        ));
+    }
+    if !(file.meta.fps.is_finite() && file.meta.fps > 0.0) {
+        return Err(invalid(
+            &p,
+            format!("fps {} is not positive", file.meta.fps),
+        ));
+    }
+    for n in &file.frames {
+        if n.is_empty() || n.contains('/') || n.contains('\\') || n == ".." || n == "." {
+            return Err(invalid(
+                &p,
+                format!("frame name {n:?} is not a plain file name"),
+            ));
+        }
+    }
+    Ok(file)
+}
+
+/// Decode one frame file, checking it is 240x320 RGB 8-bit.
+pub fn read_frame(path: &Path) -> Result<image::RgbImage, RecordingError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
+        .map_err(|e| invalid(path, format!("corrupt PNG: {e}")))?;
+    let img = match img {
+        image::DynamicImage::ImageRgb8(i) => i,
+        other => {
+            return Err(invalid(
+                path,
+                format!("expected 8-bit RGB, found {:?}", other.color()),
+            ));
+        }
+    };
+    if img.width() != WIDTH || img.height() != HEIGHT {
+        return Err(invalid(
+            path,
+            format!(
+                "frame is {}x{}, expected {WIDTH}x{HEIGHT}",
+                img.width(),
+                img.height()
+            ),
+        ));
+    }
+    Ok(img)
+}
+
+/// Read a press directory back (bit-exact).
+pub fn read_press(dir: &Path) -> Result<Press, RecordingError> {
+    let file = read_file(dir)?;
+    let frames = file
+        .frames
+        .iter()
+        .map(|n| read_frame(&dir.join(n)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Press {
+        meta: file.meta,
+        frames,
+    })
+}
+
+/// One `<class>/<serial>` directory of a PyTouch-style dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PytouchEntry {
+    pub class: String,
+    pub serial: String,
+    /// Frame files, sorted by name.
+    pub files: Vec<PathBuf>,
+}
+
+fn sorted_dir(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(path).map_err(io_err(path))? {
+        v.push(e.map_err(io_err(path))?.path());
+    }
+    v.sort();
+    Ok(v)
+}
+
+/// List a PyTouch layout `root/<class>/<serial>/*.png` without decoding.
+pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
+    let mut out = Vec::new();
+    for class_dir in sorted_dir(root)? {
+        if !class_dir.is_dir() {
+            continue;
+        }
+        let class = class_dir
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        for serial_dir in sorted_dir(&class_dir)? {
+            if !serial_dir.is_dir() {
+                continue;
+            }
+            let serial = serial_dir
+                .file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned();
+            let files: Vec<PathBuf> = sorted_dir(&serial_dir)?
+                .into_iter()
+                .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+                .collect();
+            if !files.is_empty() {
+                out.push(PytouchEntry {
+                    class: class.clone(),
+                    serial,
+                    files,
+                });
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(invalid(
+            root,
+            "no <class>/<serial>/*.png frames found (PyTouch layout)",
+        ));
+    }
+    Ok(out)
+}
+
+/// Read a PyTouch layout: one `Press` per `<class>/<serial>` directory, with
+/// the class as textile id, the serial as sensor serial, 60 fps timestamps.
+pub fn read_pytouch(root: &Path) -> Result<Vec<Press>, RecordingError> {
+    let serials: Vec<String> = {
+        let mut s: Vec<String> = pytouch_index(root)?.into_iter().map(|e| e.serial).collect();
+        s.sort();
+        s.dedup();
+        s
+    };
+    pytouch_index(root)?
+        .into_iter()
+        .map(|e| {
+            let frames = e
+                .files
+                .iter()
+                .map(|f| read_frame(f))
+                .collect::<Result<Vec<_>, _>>()?;
+            let n = frames.len() as u64;
+            Ok(Press {
+                meta: PressMeta {
+                    textile: e.class,
+                    person: 0,
+                    sensor: serials.iter().position(|s| *s == e.serial).unwrap_or(0) as u32,
+                    jig: false,
+                    fps: crate::FPS,
+                    timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
+                    seed: None,
+                    source: "pytouch".into(),
+                    sensor_serial: Some(e.serial),
+                    params: None,
+                },
+                frames,
+            })
+        })
+        .collect()
+}

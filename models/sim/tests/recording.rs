@@ -1,0 +1,172 @@
+//! The on-disk press format: bit-exact round trip, PyTouch layout, and clear
+//! errors naming the file on bad input.
+use rand::{Rng, SeedableRng};
+use std::path::Path;
+use telextiles_sim::recording::{self, read_press, read_pytouch, write_press, RecordingError};
+use telextiles_sim::{Press, PressSpec, RgbImage, Simulator};
+
+fn small_press(sim: &Simulator) -> Press {
+    sim.render_press(&PressSpec {
+        frames: 6,
+        jig: false,
+        person: 2,
+        ..PressSpec::new("T050", 5)
+    })
+    .unwrap()
+}
+
+fn msg(e: RecordingError) -> String {
+    e.to_string()
+}
+
+#[test]
+fn round_trip_is_bit_exact_and_atomic() {
+    let sim = Simulator::new().unwrap();
+    let press = small_press(&sim);
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("nested/press");
+    write_press(&dir, &press).unwrap();
+    let back = read_press(&dir).unwrap();
+    assert_eq!(back, press);
+    assert_eq!(back.meta.params, press.meta.params);
+    // no temporary directories are left behind
+    let left: Vec<_> = std::fs::read_dir(tmp.path().join("nested"))
+        .unwrap()
+        .collect();
+    assert_eq!(left.len(), 1);
+    // refuses to overwrite
+    let e = write_press(&dir, &press).unwrap_err();
+    assert!(msg(e).contains("already exists"));
+    // a press with a wrong-size frame is refused before anything is written
+    let mut bad = press.clone();
+    bad.frames[2] = RgbImage::new(320, 240);
+    let e = write_press(&tmp.path().join("bad"), &bad).unwrap_err();
+    assert!(msg(e).contains("frame 2"));
+    assert!(!tmp.path().join("bad").exists());
+}
+
+fn written(tmp: &Path) -> std::path::PathBuf {
+    let sim = Simulator::new().unwrap();
+    let dir = tmp.join("p");
+    write_press(&dir, &small_press(&sim)).unwrap();
+    dir
+}
+
+#[test]
+fn corrupt_png_names_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = written(tmp.path());
+    std::fs::write(dir.join("000003.png"), b"\x89PNG\r\n\x1a\nnot really").unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("000003.png") && e.contains("corrupt PNG"), "{e}");
+    // truncated real PNG
+    let bytes = std::fs::read(dir.join("000001.png")).unwrap();
+    std::fs::write(dir.join("000001.png"), &bytes[..bytes.len() / 2]).unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("000001.png"), "{e}");
+}
+
+#[test]
+fn wrong_frame_size_names_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = written(tmp.path());
+    RgbImage::new(320, 240)
+        .save(dir.join("000004.png"))
+        .unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("000004.png") && e.contains("320x240"), "{e}");
+}
+
+#[test]
+fn missing_or_malformed_metadata_names_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = written(tmp.path());
+    let meta = dir.join("press.json");
+    let good = std::fs::read_to_string(&meta).unwrap();
+    std::fs::write(&meta, "{ \"format\": ").unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("press.json") && e.contains("malformed"), "{e}");
+    std::fs::write(
+        &meta,
+        good.replace("\"format_version\": 1", "\"format_version\": 99"),
+    )
+    .unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("press.json") && e.contains("99"), "{e}");
+    std::fs::write(&meta, good.replace("\"000002.png\"", "\"../000002.png\"")).unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("plain file name"), "{e}");
+    std::fs::write(&meta, good.replace("\"000005.png\"", "\"000009.png\"")).unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("000009.png"), "{e}");
+    std::fs::remove_file(&meta).unwrap();
+    let e = msg(read_press(&dir).unwrap_err());
+    assert!(e.contains("press.json"), "{e}");
+}
+
+#[test]
+fn random_metadata_bytes_never_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = written(tmp.path());
+    let meta = dir.join("press.json");
+    let good = std::fs::read(&meta).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    for _ in 0..300 {
+        let mut b = good.clone();
+        match rng.gen_range(0..3) {
+            0 => {
+                for _ in 0..rng.gen_range(1..8) {
+                    let i = rng.gen_range(0..b.len());
+                    b[i] = rng.gen();
+                }
+            }
+            1 => b.truncate(rng.gen_range(0..b.len())),
+            _ => b = (0..rng.gen_range(0..200)).map(|_| rng.gen()).collect(),
+        }
+        std::fs::write(&meta, &b).unwrap();
+        if let Err(e) = read_press(&dir) {
+            assert!(!e.to_string().is_empty());
+        }
+    }
+    // random bytes as a frame
+    std::fs::write(&meta, &good).unwrap();
+    for _ in 0..50 {
+        let b: Vec<u8> = (0..rng.gen_range(0..400)).map(|_| rng.gen()).collect();
+        std::fs::write(dir.join("000000.png"), &b).unwrap();
+        let e = read_press(&dir).unwrap_err();
+        assert!(e.to_string().contains("000000.png"));
+    }
+}
+
+#[test]
+fn pytouch_layout_reads_and_names_bad_files() {
+    let sim = Simulator::new().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let p = small_press(&sim);
+    for (class, serial) in [
+        ("cotton", "D20001"),
+        ("cotton", "D20002"),
+        ("wool", "D20001"),
+    ] {
+        let d = root.join(class).join(serial);
+        std::fs::create_dir_all(&d).unwrap();
+        for (i, f) in p.frames.iter().take(3).enumerate() {
+            f.save(d.join(format!("frame_{i}.png"))).unwrap();
+        }
+        std::fs::write(d.join("notes.txt"), "ignored").unwrap();
+    }
+    let presses = read_pytouch(root).unwrap();
+    assert_eq!(presses.len(), 3);
+    assert_eq!(presses[0].meta.textile, "cotton");
+    assert_eq!(presses[1].meta.sensor_serial.as_deref(), Some("D20002"));
+    assert_eq!(presses[2].meta.textile, "wool");
+    assert_eq!(presses[2].frames[1], p.frames[1]);
+    assert_eq!(presses[0].meta.timestamps_us.len(), 3);
+    std::fs::write(root.join("wool/D20001/frame_1.png"), b"garbage").unwrap();
+    let e = read_pytouch(root).unwrap_err().to_string();
+    assert!(e.contains("frame_1.png"), "{e}");
+    let empty = tempfile::tempdir().unwrap();
+    assert!(read_pytouch(empty.path()).is_err());
+    assert!(recording::pytouch_index(&root.join("missing")).is_err());
+}
