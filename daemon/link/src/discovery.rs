@@ -1,0 +1,265 @@
+//! mDNS discovery (mdns-sd): advertise and browse `_telextiles._udp.local.`.
+//!
+//! The TXT record carries the device ID (`id`), the protocol version (`pv`)
+//! and whether the device is showing a pairing code (`pair=1`). None of it
+//! is trusted: identity is proved only by TLS.
+//!
+//! Interfaces: multicast is first disabled on every interface
+//! (`IfKind::All`), then enabled only on the selected ones
+//! ([`Interfaces`]): an explicit allow-list, or every interface except
+//! loopback and virtual ones (docker*, br-*, veth*, tun*, wg*, virbr*, ...).
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::str::FromStr;
+
+use mdns_sd::{IfKind, IfPredicate, ServiceDaemon, ServiceEvent, ServiceInfo};
+use telextiles_certs::DeviceId;
+use tokio::sync::mpsc;
+
+use crate::LinkError;
+
+/// The DNS-SD service type of the peer link.
+pub const SERVICE_TYPE: &str = "_telextiles._udp.local.";
+
+/// Interface name prefixes skipped by default.
+pub const DEFAULT_SKIP_PREFIXES: &[&str] = &[
+    "lo",
+    "docker",
+    "br-",
+    "veth",
+    "tun",
+    "tap",
+    "wg",
+    "virbr",
+    "vnet",
+    "zt",
+    "tailscale",
+];
+
+/// Which network interfaces mDNS may use.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Interfaces {
+    /// Only these interface names (the daemon's `--mdns-interface`; tests
+    /// pass the namespace's veth).
+    Only(Vec<String>),
+    /// Every interface whose name starts with none of these prefixes.
+    AllExcept(Vec<String>),
+}
+
+impl Default for Interfaces {
+    fn default() -> Self {
+        Interfaces::AllExcept(
+            DEFAULT_SKIP_PREFIXES
+                .iter()
+                .map(|s| s.to_string())
+                .collect(),
+        )
+    }
+}
+
+impl Interfaces {
+    /// Whether mDNS may use the interface called `name`.
+    pub fn allows(&self, name: &str) -> bool {
+        match self {
+            Interfaces::Only(names) => names.iter().any(|n| n == name),
+            Interfaces::AllExcept(prefixes) => {
+                !prefixes.iter().any(|p| name.starts_with(p.as_str()))
+            }
+        }
+    }
+}
+
+/// mDNS settings.
+#[derive(Debug, Clone, Default)]
+pub struct DiscoveryConfig {
+    pub interfaces: Interfaces,
+    /// Instance name; default `telextiles-<short device id>`.
+    pub instance_name: Option<String>,
+}
+
+impl DiscoveryConfig {
+    /// Discovery on exactly these interfaces.
+    pub fn only(interfaces: &[&str]) -> DiscoveryConfig {
+        DiscoveryConfig {
+            interfaces: Interfaces::Only(interfaces.iter().map(|s| s.to_string()).collect()),
+            instance_name: None,
+        }
+    }
+}
+
+/// A device seen on the network (claims only; TLS proves identity).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Discovered {
+    pub device_id: DeviceId,
+    pub protocol_version: u16,
+    pub addrs: Vec<SocketAddr>,
+    /// It is showing a pairing code.
+    pub pairing: bool,
+    pub fullname: String,
+}
+
+/// Parses a resolved service's TXT record into a [`Discovered`].
+pub fn parse_txt(
+    fullname: &str,
+    id: Option<&str>,
+    pv: Option<&str>,
+    pair: Option<&str>,
+    addrs: Vec<SocketAddr>,
+) -> Result<Discovered, String> {
+    let id = id.ok_or_else(|| format!("{fullname}: TXT record has no device id"))?;
+    let device_id =
+        DeviceId::from_str(id).map_err(|e| format!("{fullname}: bad device id in TXT: {e}"))?;
+    let protocol_version = pv
+        .ok_or_else(|| format!("{fullname}: TXT record has no protocol version"))?
+        .parse::<u16>()
+        .map_err(|e| format!("{fullname}: bad protocol version in TXT: {e}"))?;
+    Ok(Discovered {
+        device_id,
+        protocol_version,
+        addrs,
+        pairing: pair == Some("1"),
+        fullname: fullname.to_string(),
+    })
+}
+
+/// Running advertisement + browser. Dropping it unregisters and stops.
+pub struct Discovery {
+    daemon: ServiceDaemon,
+    fullname: String,
+}
+
+impl Discovery {
+    /// Advertises this device on `port` and browses for others. Found
+    /// devices (other than this one) arrive on the receiver.
+    pub fn start(
+        cfg: &DiscoveryConfig,
+        my_id: &DeviceId,
+        port: u16,
+        pairing: bool,
+    ) -> Result<(Discovery, mpsc::UnboundedReceiver<Discovered>), LinkError> {
+        let err = |e: mdns_sd::Error| LinkError::Discovery(e.to_string());
+        let daemon = ServiceDaemon::new().map_err(err)?;
+        // Never multicast anywhere but the selected interfaces.
+        daemon.disable_interface(IfKind::All).map_err(err)?;
+        let sel = cfg.interfaces.clone();
+        daemon
+            .enable_interface(IfKind::Predicate(IfPredicate::new(move |i| {
+                sel.allows(&i.name)
+            })))
+            .map_err(err)?;
+
+        let short = my_id.short().to_lowercase();
+        let instance = cfg
+            .instance_name
+            .clone()
+            .unwrap_or_else(|| format!("telextiles-{short}"));
+        let host = format!("telextiles-{short}.local.");
+        let id_text = my_id.to_string();
+        let pv = telextiles_proto::peer::PROTOCOL_VERSION.to_string();
+        let props = [
+            ("id", id_text.as_str()),
+            ("pv", pv.as_str()),
+            ("pair", if pairing { "1" } else { "0" }),
+        ];
+        let info = ServiceInfo::new(SERVICE_TYPE, &instance, &host, (), port, &props[..])
+            .map_err(err)?
+            .enable_addr_auto();
+        let fullname = info.get_fullname().to_string();
+        daemon.register(info).map_err(err)?;
+        let events = daemon.browse(SERVICE_TYPE).map_err(err)?;
+
+        let (tx, rx) = mpsc::unbounded_channel();
+        let me = *my_id;
+        let own = fullname.clone();
+        std::thread::Builder::new()
+            .name("telextiles-mdns".into())
+            .spawn(move || {
+                let mut seen: HashMap<String, Discovered> = HashMap::new();
+                while let Ok(ev) = events.recv() {
+                    let ServiceEvent::ServiceResolved(svc) = ev else {
+                        continue;
+                    };
+                    if svc.fullname == own {
+                        continue;
+                    }
+                    let addrs: Vec<SocketAddr> = svc
+                        .get_addresses()
+                        .iter()
+                        .map(|a| SocketAddr::new(a.to_ip_addr(), svc.get_port()))
+                        .filter(|a| !a.ip().is_unspecified())
+                        .collect();
+                    let d = match parse_txt(
+                        &svc.fullname,
+                        svc.get_property_val_str("id"),
+                        svc.get_property_val_str("pv"),
+                        svc.get_property_val_str("pair"),
+                        addrs,
+                    ) {
+                        Ok(d) => d,
+                        Err(e) => {
+                            tracing::debug!("ignoring mDNS service: {e}");
+                            continue;
+                        }
+                    };
+                    if d.device_id == me {
+                        continue;
+                    }
+                    if seen.get(&d.fullname) == Some(&d) {
+                        continue;
+                    }
+                    seen.insert(d.fullname.clone(), d.clone());
+                    if tx.send(d).is_err() {
+                        return;
+                    }
+                }
+            })
+            .map_err(|e| LinkError::Discovery(format!("cannot start the mDNS thread: {e}")))?;
+        Ok((Discovery { daemon, fullname }, rx))
+    }
+}
+
+impl Drop for Discovery {
+    fn drop(&mut self) {
+        let _ = self.daemon.unregister(&self.fullname);
+        let _ = self.daemon.shutdown();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_interfaces_skip_loopback_and_virtual() {
+        let i = Interfaces::default();
+        for bad in [
+            "lo", "docker0", "br-1234", "veth12", "tun0", "wg0", "virbr0",
+        ] {
+            assert!(!i.allows(bad), "{bad}");
+        }
+        for good in ["eth0", "enp3s0", "wlan0", "wlp2s0"] {
+            assert!(i.allows(good), "{good}");
+        }
+        let only = Interfaces::Only(vec!["veth-a".into()]);
+        assert!(only.allows("veth-a"));
+        assert!(!only.allows("eth0"));
+    }
+
+    #[test]
+    fn txt_parsing_reports_what_is_wrong() {
+        let id = DeviceId::from_bytes([7; 32]);
+        let text = id.to_string();
+        let d = parse_txt("x", Some(&text), Some("1"), Some("1"), vec![]).unwrap();
+        assert_eq!(d.device_id, id);
+        assert!(d.pairing);
+        assert!(parse_txt("x", None, Some("1"), None, vec![])
+            .unwrap_err()
+            .contains("no device id"));
+        assert!(parse_txt("x", Some("nonsense"), Some("1"), None, vec![])
+            .unwrap_err()
+            .contains("bad device id"));
+        assert!(parse_txt("x", Some(&text), Some("x"), None, vec![])
+            .unwrap_err()
+            .contains("bad protocol version"));
+    }
+}

@@ -1,0 +1,630 @@
+//! Peer link: mDNS discovery, pairing over the connection, and QUIC
+//! streaming between two paired Telextiles daemons.
+//!
+//! One QUIC endpoint (one UDP socket) both listens and dials, so the address
+//! a peer connects from is the address it listens on; that is what the trust
+//! store remembers. TLS 1.3 with mutual authentication through the pinning
+//! verifiers of `telextiles-certs`: an unpaired device is refused in the
+//! handshake (outside pairing mode).
+//!
+//! On each connection the dialing side opens one bidirectional **control
+//! stream** ([`telextiles_proto::peer::Control`] frames). Pairing messages go
+//! first if the peer is not yet paired; then both sides exchange
+//! [`Hello`](telextiles_proto::peer::Hello) and either `HelloAck` (streaming
+//! starts: [`LinkEvent::PeerUp`]) or `Mismatch` (both users get a clear
+//! [`LinkEvent::Error`], nothing is streamed). Latent vectors travel as QUIC
+//! datagrams, latest wins. Pings every [`Timing::ping_interval`] feed an
+//! NTP-style clock-offset estimate so received latents carry their one-way
+//! latency.
+//!
+//! Who dials: a peer found by mDNS or remembered in the trust store is
+//! dialled by the side with the smaller device ID; addresses given with
+//! `--connect` ([`LinkConfig::connect`]) are always dialled. If two
+//! connections to one peer exist, both sides keep the one dialled by the
+//! smaller ID (newest if both were), so they agree without talking.
+#![forbid(unsafe_code)]
+
+pub mod discovery;
+mod session;
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
+use telextiles_certs::{
+    client_config, server_config, CodeOffer, DeviceId, Identity, PairingCode, PeerPolicy, PinSet,
+    VerificationCode,
+};
+use telextiles_proto::peer::{self, Control, LatentFrame, QuantVec, FLAG_FINAL};
+use tokio::sync::{mpsc, watch, Notify};
+
+pub use discovery::{DiscoveryConfig, Interfaces, SERVICE_TYPE};
+pub use telextiles_proto::peer::{Hello, MismatchReason, PROTOCOL_VERSION};
+
+/// QUIC application close codes used by the link.
+pub mod close_code {
+    /// Normal shutdown.
+    pub const BYE: u32 = 0;
+    /// Superseded by another connection to the same peer.
+    pub const DUPLICATE: u32 = 1;
+    /// Hello mismatch (protocol, encoder, index).
+    pub const INCOMPATIBLE: u32 = 2;
+    /// Pairing failed or the peer is not paired.
+    pub const PAIRING: u32 = 3;
+    /// The peer broke the protocol.
+    pub const PROTOCOL: u32 = 4;
+}
+
+/// Microseconds on this process's monotonic clock (origin: first call).
+/// Use it for [`LinkHandle::send_latent`]'s capture time.
+pub fn now_us() -> u64 {
+    static ORIGIN: OnceLock<Instant> = OnceLock::new();
+    ORIGIN.get_or_init(Instant::now).elapsed().as_micros() as u64
+}
+
+/// What this side tells the peer in its hello.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HelloInfo {
+    pub encoder_hash: String,
+    pub index_fingerprint: String,
+    pub embedding_dim: u16,
+}
+
+/// Timers of the link.
+#[derive(Debug, Clone)]
+pub struct Timing {
+    /// QUIC keep-alive (PING frames) interval.
+    pub keep_alive: Duration,
+    /// A connection with no packets for this long is dead.
+    pub idle_timeout: Duration,
+    /// First reconnect delay; doubles per failure up to `backoff_max`.
+    pub backoff_min: Duration,
+    pub backoff_max: Duration,
+    /// Clock-offset ping interval.
+    pub ping_interval: Duration,
+    /// Time allowed for the hello (and pairing) exchange.
+    pub handshake_timeout: Duration,
+    /// One dial attempt (QUIC + TLS handshake) is abandoned after this and
+    /// a fresh one starts, so a peer that comes back is found quickly.
+    pub connect_timeout: Duration,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing {
+            keep_alive: Duration::from_millis(500),
+            idle_timeout: Duration::from_secs(2),
+            backoff_min: Duration::from_millis(100),
+            backoff_max: Duration::from_secs(1),
+            ping_interval: Duration::from_millis(500),
+            handshake_timeout: Duration::from_secs(10),
+            connect_timeout: Duration::from_millis(750),
+        }
+    }
+}
+
+/// How latents are quantised for the datagram.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Quantisation {
+    /// f16 if it fits the connection's datagram size, else int8.
+    #[default]
+    Auto,
+    /// Always int8 with a per-vector scale.
+    Int8,
+}
+
+/// Pairing over the link (the `telextilesd pair` flow).
+#[derive(Debug)]
+pub enum PairingMode {
+    /// This side shows the code; accepts one pairing attempt from an
+    /// unpaired device.
+    Show(CodeOffer),
+    /// This side's user typed the code; dials the device that shows it
+    /// (found by mDNS with the pairing flag, or `--connect`).
+    Enter(PairingCode),
+}
+
+/// Everything [`Link::start`] needs besides the identity.
+#[derive(Debug)]
+pub struct LinkConfig {
+    /// Shown to the peer's user.
+    pub device_name: String,
+    /// UDP address to listen (and dial) on, e.g. `0.0.0.0:0` or `[::]:4797`.
+    pub listen: SocketAddr,
+    pub hello: HelloInfo,
+    /// Peers to dial explicitly (`--connect host:port`).
+    pub connect: Vec<SocketAddr>,
+    /// mDNS advertise + browse; `None` disables multicast entirely.
+    pub discovery: Option<DiscoveryConfig>,
+    /// Data directory of the trust store: remembered peer addresses are
+    /// dialled and updated; new pairings are stored. `None`: memory only.
+    pub data_dir: Option<PathBuf>,
+    pub pairing: Option<PairingMode>,
+    pub timing: Timing,
+    pub quantisation: Quantisation,
+}
+
+impl LinkConfig {
+    /// A config with defaults: no discovery, no explicit peers, no pairing.
+    pub fn new(device_name: impl Into<String>, listen: SocketAddr, hello: HelloInfo) -> Self {
+        LinkConfig {
+            device_name: device_name.into(),
+            listen,
+            hello,
+            connect: Vec::new(),
+            discovery: None,
+            data_dir: None,
+            pairing: None,
+            timing: Timing::default(),
+            quantisation: Quantisation::Auto,
+        }
+    }
+}
+
+/// A received latent vector.
+#[derive(Debug, Clone)]
+pub struct Latent {
+    pub peer: DeviceId,
+    pub seq: u64,
+    pub press_id: u32,
+    /// Capture time on the peer's clock (µs).
+    pub capture_us: u64,
+    /// Last frame of its press.
+    pub is_final: bool,
+    /// Dequantised vector (not re-normalised).
+    pub vector: Vec<f32>,
+    /// Bytes of the datagram.
+    pub wire_bytes: usize,
+    /// Capture on the peer → receipt here, from the clock-offset estimate;
+    /// `None` until the first pong.
+    pub one_way_latency_us: Option<i64>,
+}
+
+/// Why a peer connection ended or could not start.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// The peer's encoder/index/protocol differs: no streaming.
+    Incompatible(Vec<MismatchReason>),
+    /// The peer refused this device in the TLS handshake (not paired there).
+    RefusedByPeer,
+    /// This side refused a device that is not paired.
+    RefusedPeer,
+    /// Pairing failed (wrong code, expired, ...).
+    Pairing,
+    /// Could not reach the peer / the connection failed.
+    Connection,
+    /// The peer broke the protocol.
+    Protocol,
+    /// mDNS or trust-store trouble.
+    Local,
+}
+
+/// Events for the daemon.
+#[derive(Debug, Clone)]
+pub enum LinkEvent {
+    /// The endpoint is bound.
+    Listening {
+        addr: SocketAddr,
+    },
+    /// mDNS saw a device (a claim only; TLS proves identity).
+    Discovered {
+        peer: DeviceId,
+        addrs: Vec<SocketAddr>,
+        paired: bool,
+        pairing: bool,
+    },
+    /// Pairing succeeded; the peer is pinned (and stored if `data_dir`).
+    Paired {
+        peer: DeviceId,
+        verification: VerificationCode,
+    },
+    /// Hello exchanged and compatible: streaming works both ways.
+    PeerUp {
+        peer: DeviceId,
+        name: String,
+        addr: SocketAddr,
+    },
+    /// The connection to a peer ended.
+    PeerDown {
+        peer: DeviceId,
+        reason: String,
+    },
+    Latent(Latent),
+    /// A control message other than hello/ping (press start/stop, errors).
+    Control {
+        peer: DeviceId,
+        msg: Control,
+    },
+    /// Something the user should read.
+    Error {
+        peer: Option<DeviceId>,
+        kind: ErrorKind,
+        message: String,
+    },
+}
+
+/// Errors of the [`LinkHandle`] API and of start-up.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("cannot bind the peer-link UDP socket on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("TLS configuration failed: {0}")]
+    Tls(#[from] rustls::Error),
+    #[error("QUIC configuration failed: {0}")]
+    Quic(String),
+    #[error("mDNS discovery failed: {0}")]
+    Discovery(String),
+    #[error("no peer is connected")]
+    NoPeer,
+    #[error("the vector has {dim} components; no encoding fits the {max}-byte datagrams of this connection")]
+    TooLarge { dim: usize, max: usize },
+    #[error("invalid message: {0}")]
+    Message(#[from] peer::PeerError),
+    #[error("the link has shut down")]
+    Closed,
+}
+
+pub(crate) struct PeerSlot {
+    pub conn: quinn::Connection,
+    pub ctrl: mpsc::UnboundedSender<Control>,
+    pub dialed_by_lower: bool,
+}
+
+pub(crate) struct Shared {
+    pub my_id: DeviceId,
+    pub identity: Identity,
+    pub pins: PinSet,
+    pub endpoint: quinn::Endpoint,
+    pub transport: Arc<quinn::TransportConfig>,
+    pub events: mpsc::Sender<LinkEvent>,
+    pub peers: Mutex<HashMap<DeviceId, PeerSlot>>,
+    pub peers_changed: Notify,
+    pub pairing: Mutex<Option<PairingMode>>,
+    pub hello: Hello,
+    pub timing: Timing,
+    pub quantisation: Quantisation,
+    pub data_dir: Option<PathBuf>,
+    pub shutdown: watch::Sender<bool>,
+    pub dialing: Mutex<HashMap<DeviceId, watch::Sender<Vec<SocketAddr>>>>,
+    pub stopped: AtomicBool,
+}
+
+impl Shared {
+    pub(crate) async fn emit(&self, ev: LinkEvent) {
+        let _ = self.events.send(ev).await;
+    }
+
+    pub(crate) fn emit_now(&self, ev: LinkEvent) {
+        let _ = self.events.try_send(ev);
+    }
+
+    pub(crate) fn is_up(&self, id: &DeviceId) -> bool {
+        lock(&self.peers).contains_key(id)
+    }
+
+    pub(crate) fn pairing_mode(&self) -> bool {
+        lock(&self.pairing).is_some()
+    }
+
+    pub(crate) fn client_config(
+        &self,
+        policy: PeerPolicy,
+    ) -> Result<quinn::ClientConfig, LinkError> {
+        let tls = client_config(&self.identity, policy)?;
+        let quic = QuicClientConfig::try_from(tls).map_err(|e| LinkError::Quic(e.to_string()))?;
+        let mut cfg = quinn::ClientConfig::new(Arc::new(quic));
+        cfg.transport_config(self.transport.clone());
+        Ok(cfg)
+    }
+
+    pub(crate) fn set_server_policy(&self, policy: PeerPolicy) -> Result<(), LinkError> {
+        let cfg = make_server_config(&self.identity, policy, self.transport.clone())?;
+        self.endpoint.set_server_config(Some(cfg));
+        Ok(())
+    }
+}
+
+pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn make_server_config(
+    identity: &Identity,
+    policy: PeerPolicy,
+    transport: Arc<quinn::TransportConfig>,
+) -> Result<quinn::ServerConfig, LinkError> {
+    let tls = server_config(identity, policy)?;
+    let quic = QuicServerConfig::try_from(tls).map_err(|e| LinkError::Quic(e.to_string()))?;
+    let mut cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    cfg.transport_config(transport);
+    Ok(cfg)
+}
+
+/// The running link. Dropping every handle does not stop it; call
+/// [`LinkHandle::shutdown`].
+pub struct Link;
+
+/// Cheap to clone; talks to the running link.
+#[derive(Clone)]
+pub struct LinkHandle {
+    shared: Arc<Shared>,
+    seq: Arc<AtomicU64>,
+    local_addr: SocketAddr,
+    _discovery: Option<Arc<discovery::Discovery>>,
+}
+
+impl Link {
+    /// Binds the endpoint, starts discovery, dialing and accepting. Must be
+    /// called inside a tokio runtime. Events arrive on the receiver
+    /// (bounded; latents are dropped, never queued, when it is full).
+    pub async fn start(
+        config: LinkConfig,
+        identity: Identity,
+        pins: PinSet,
+    ) -> Result<(LinkHandle, mpsc::Receiver<LinkEvent>), LinkError> {
+        let LinkConfig {
+            device_name,
+            listen,
+            hello,
+            connect,
+            discovery,
+            data_dir,
+            pairing,
+            timing,
+            quantisation,
+        } = config;
+        let mut transport = quinn::TransportConfig::default();
+        transport
+            .keep_alive_interval(Some(timing.keep_alive))
+            .max_idle_timeout(Some(
+                quinn::IdleTimeout::try_from(timing.idle_timeout)
+                    .map_err(|e| LinkError::Quic(e.to_string()))?,
+            ))
+            .datagram_receive_buffer_size(Some(64 * 1024))
+            // Latest wins at the sender too: a small send buffer makes quinn
+            // drop the oldest queued latents instead of delaying new ones.
+            .datagram_send_buffer_size(4 * 1300)
+            // Model-based congestion control: random loss (Wi-Fi) does not
+            // collapse the window the way loss-based controllers do.
+            .congestion_controller_factory(Arc::new(quinn::congestion::BbrConfig::default()));
+        let transport = Arc::new(transport);
+        let server_policy = match &pairing {
+            Some(PairingMode::Show(_)) => PeerPolicy::AnyForPairing,
+            _ => PeerPolicy::Pinned(pins.clone()),
+        };
+        let server = make_server_config(&identity, server_policy, transport.clone())?;
+        let socket = std::net::UdpSocket::bind(listen).map_err(|source| LinkError::Bind {
+            addr: listen,
+            source,
+        })?;
+        let endpoint = quinn::Endpoint::new(
+            quinn::EndpointConfig::default(),
+            Some(server),
+            socket,
+            Arc::new(quinn::TokioRuntime),
+        )
+        .map_err(|source| LinkError::Bind {
+            addr: listen,
+            source,
+        })?;
+        let local_addr = endpoint.local_addr().map_err(|source| LinkError::Bind {
+            addr: listen,
+            source,
+        })?;
+        let (tx, rx) = mpsc::channel(1024);
+        let (shutdown, _) = watch::channel(false);
+        let enter_mode = matches!(pairing, Some(PairingMode::Enter(_)));
+        let show_mode = matches!(pairing, Some(PairingMode::Show(_)));
+        let my_id = identity.device_id();
+        let shared = Arc::new(Shared {
+            my_id,
+            identity,
+            pins,
+            endpoint,
+            transport,
+            events: tx,
+            peers: Mutex::new(HashMap::new()),
+            peers_changed: Notify::new(),
+            pairing: Mutex::new(pairing),
+            hello: Hello {
+                protocol_version: PROTOCOL_VERSION,
+                device_name: truncate(&device_name, peer::MAX_NAME_LEN),
+                encoder_hash: hello.encoder_hash,
+                index_fingerprint: hello.index_fingerprint,
+                embedding_dim: hello.embedding_dim,
+            },
+            timing,
+            quantisation,
+            data_dir,
+            shutdown,
+            dialing: Mutex::new(HashMap::new()),
+            stopped: AtomicBool::new(false),
+        });
+        shared.emit(LinkEvent::Listening { addr: local_addr }).await;
+
+        tokio::spawn(session::accept_loop(shared.clone()));
+
+        for addr in connect {
+            tokio::spawn(session::dial_loop(shared.clone(), None, vec![addr], true));
+        }
+        // Remembered addresses of paired peers.
+        if let Some(dir) = &shared.data_dir {
+            if let Ok(store) = telextiles_certs::TrustStore::load(dir) {
+                for p in store.peers() {
+                    if shared.pins.contains(&p.device_id) && !p.last_addresses.is_empty() {
+                        session::ensure_dialing(&shared, p.device_id, p.last_addresses.clone());
+                    }
+                }
+            }
+        }
+        let disc = match discovery {
+            Some(dcfg) => {
+                let (d, found) =
+                    discovery::Discovery::start(&dcfg, &my_id, local_addr.port(), show_mode)?;
+                tokio::spawn(session::discovery_loop(shared.clone(), found, enter_mode));
+                Some(Arc::new(d))
+            }
+            None => None,
+        };
+        Ok((
+            LinkHandle {
+                shared,
+                seq: Arc::new(AtomicU64::new(1)),
+                local_addr,
+                _discovery: disc,
+            },
+            rx,
+        ))
+    }
+}
+
+fn truncate(s: &str, max: usize) -> String {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s[..end].to_string()
+}
+
+impl LinkHandle {
+    /// The bound UDP address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// This device's ID.
+    pub fn device_id(&self) -> DeviceId {
+        self.shared.my_id
+    }
+
+    /// Peers whose hello succeeded and whose connection is alive.
+    pub fn connected_peers(&self) -> Vec<DeviceId> {
+        lock(&self.shared.peers).keys().copied().collect()
+    }
+
+    /// Sends one latent vector to every connected peer as a datagram
+    /// (fire and forget, latest wins). Returns the sequence number used.
+    /// `final_frame` marks the last frame of a press.
+    pub fn send_latent(
+        &self,
+        press_id: u32,
+        vector: &[f32],
+        capture_us: u64,
+        final_frame: bool,
+    ) -> Result<u64, LinkError> {
+        let peers: Vec<quinn::Connection> = lock(&self.shared.peers)
+            .values()
+            .map(|p| p.conn.clone())
+            .collect();
+        if peers.is_empty() {
+            return Err(LinkError::NoPeer);
+        }
+        let seq = self.seq.fetch_add(1, Ordering::Relaxed);
+        let mut sent = 0;
+        let mut last_err = None;
+        for conn in peers {
+            let max = conn.max_datagram_size().unwrap_or(0);
+            let quant = match self.shared.quantisation {
+                Quantisation::Auto => peer::quantize_to_fit(vector, max),
+                Quantisation::Int8 => Some(QuantVec::quantize_i8(vector))
+                    .filter(|q| peer::DATAGRAM_HEADER_LEN + q.encoded_len() <= max),
+            };
+            let Some(quant) = quant else {
+                last_err = Some(LinkError::TooLarge {
+                    dim: vector.len(),
+                    max,
+                });
+                continue;
+            };
+            let frame = LatentFrame {
+                seq,
+                capture_us,
+                press_id,
+                flags: if final_frame { FLAG_FINAL } else { 0 },
+                vector: quant,
+            };
+            let bytes = frame.encode()?;
+            if conn.send_datagram(bytes::Bytes::from(bytes)).is_ok() {
+                sent += 1;
+            }
+        }
+        match (sent, last_err) {
+            (0, Some(e)) => Err(e),
+            _ => Ok(seq),
+        }
+    }
+
+    /// Sends a control message (reliable, ordered) to every connected peer.
+    /// Returns how many peers it was queued for.
+    pub fn send_control(&self, msg: Control) -> Result<usize, LinkError> {
+        msg.validate()?;
+        let peers = lock(&self.shared.peers);
+        if peers.is_empty() {
+            return Err(LinkError::NoPeer);
+        }
+        let mut n = 0;
+        for p in peers.values() {
+            if p.ctrl.send(msg.clone()).is_ok() {
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
+    /// Convenience: `PressStop` carrying the press's final latent (int8), so
+    /// the receiver's final decision never depends on a lost datagram.
+    pub fn send_press_stop(
+        &self,
+        press_id: u32,
+        final_vector: Option<&[f32]>,
+        capture_us: u64,
+    ) -> Result<usize, LinkError> {
+        let final_latent = final_vector.map(|v| LatentFrame {
+            seq: self.seq.fetch_add(1, Ordering::Relaxed),
+            capture_us,
+            press_id,
+            flags: FLAG_FINAL,
+            vector: QuantVec::quantize_i8(v),
+        });
+        self.send_control(Control::PressStop {
+            press_id,
+            capture_us,
+            final_latent,
+        })
+    }
+
+    /// Dials an address (like `--connect`) from now on, with reconnects.
+    pub fn connect(&self, addr: SocketAddr) {
+        tokio::spawn(session::dial_loop(
+            self.shared.clone(),
+            None,
+            vec![addr],
+            true,
+        ));
+    }
+
+    /// Closes every connection and stops dialing and accepting.
+    pub async fn shutdown(&self) {
+        self.shared.stopped.store(true, Ordering::SeqCst);
+        let _ = self.shared.shutdown.send(true);
+        let conns: Vec<quinn::Connection> = lock(&self.shared.peers)
+            .drain()
+            .map(|(_, p)| p.conn)
+            .collect();
+        for c in conns {
+            c.close(close_code::BYE.into(), b"shutdown");
+        }
+        self.shared
+            .endpoint
+            .close(close_code::BYE.into(), b"shutdown");
+        let _ =
+            tokio::time::timeout(Duration::from_secs(1), self.shared.endpoint.wait_idle()).await;
+    }
+}

@@ -1,0 +1,1112 @@
+//! Connection life cycle: accepting, dialing with backoff, pairing, hello,
+//! and the streaming session.
+use std::net::SocketAddr;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+
+use quinn::{Connection, ConnectionError, RecvStream, SendStream};
+use rustls::pki_types::CertificateDer;
+use telextiles_certs::{
+    peer_device_id, DeviceId, PairingError, PairingMessage, PairingRole, PairingSession,
+    PairingStep, PeerPolicy, PeerRecord, TrustStore,
+};
+use telextiles_proto::peer::{
+    self, check_hello, ClockOffset, ClockSample, Control, FrameDecoder, LatentFrame, LatestWins,
+};
+use tokio::sync::{mpsc, watch};
+
+use crate::discovery::Discovered;
+use crate::{
+    close_code, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot, Shared,
+};
+
+/// Why a connection ended, for the user.
+#[derive(Debug)]
+struct End {
+    kind: ErrorKind,
+    message: String,
+    /// Report as an error event (otherwise just PeerDown / nothing).
+    report: bool,
+}
+
+impl End {
+    fn err(kind: ErrorKind, message: impl Into<String>) -> End {
+        End {
+            kind,
+            message: message.into(),
+            report: true,
+        }
+    }
+    fn quiet(message: impl Into<String>) -> End {
+        End {
+            kind: ErrorKind::Connection,
+            message: message.into(),
+            report: false,
+        }
+    }
+}
+
+fn is_crypto_close(e: &ConnectionError) -> bool {
+    match e {
+        ConnectionError::ConnectionClosed(c) => {
+            let code = u64::from(c.error_code);
+            (0x100..0x200).contains(&code)
+        }
+        _ => false,
+    }
+}
+
+/// Explains a connection error seen on a fresh connection.
+fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
+    if is_crypto_close(e) {
+        return End::err(
+            ErrorKind::RefusedByPeer,
+            format!(
+                "the device at {addr} refused this device in the TLS handshake: it is not paired with this device (run `telextilesd pair` on both devices) [{e}]"
+            ),
+        );
+    }
+    match e {
+        ConnectionError::ApplicationClosed(c)
+            if u64::from(c.error_code) == close_code::PAIRING as u64 =>
+        {
+            End::err(
+                ErrorKind::Pairing,
+                format!(
+                    "the device at {addr} closed the connection: {}",
+                    String::from_utf8_lossy(&c.reason)
+                ),
+            )
+        }
+        ConnectionError::ApplicationClosed(c)
+            if u64::from(c.error_code) == close_code::INCOMPATIBLE as u64 =>
+        {
+            End::err(
+                ErrorKind::Incompatible(Vec::new()),
+                format!(
+                    "the device at {addr} refused to stream: {}",
+                    String::from_utf8_lossy(&c.reason)
+                ),
+            )
+        }
+        ConnectionError::ApplicationClosed(c)
+            if u64::from(c.error_code) == close_code::DUPLICATE as u64 =>
+        {
+            End::quiet("replaced by another connection to the same peer")
+        }
+        _ => End::quiet(format!("connection to {addr} lost: {e}")),
+    }
+}
+
+fn peer_cert(conn: &Connection) -> Option<CertificateDer<'static>> {
+    let any = conn.peer_identity()?;
+    let certs = any.downcast::<Vec<CertificateDer<'static>>>().ok()?;
+    certs.first().cloned()
+}
+
+// ---------------------------------------------------------------------------
+// Accepting and dialing
+// ---------------------------------------------------------------------------
+
+pub(crate) async fn accept_loop(shared: Arc<Shared>) {
+    let mut stop = shared.shutdown.subscribe();
+    loop {
+        let incoming = tokio::select! {
+            i = shared.endpoint.accept() => i,
+            _ = stop.changed() => return,
+        };
+        let Some(incoming) = incoming else { return };
+        let shared = shared.clone();
+        let mut stop2 = shared.shutdown.subscribe();
+        tokio::spawn(async move {
+            // Cancelled at shutdown so nothing keeps the endpoint alive.
+            tokio::select! {
+                _ = accept_one(shared, incoming) => {}
+                _ = stop2.changed() => {}
+            }
+        });
+    }
+}
+
+async fn accept_one(shared: Arc<Shared>, incoming: quinn::Incoming) {
+    let addr = incoming.remote_address();
+    match incoming.await {
+        Ok(conn) => {
+            let _ = run_connection(shared, conn, false).await;
+        }
+        Err(e) => {
+            let text = e.to_string();
+            let msg = if let Some(id) = text
+                .split("NotPaired(DeviceId(")
+                .nth(1)
+                .and_then(|r| r.split(')').next())
+            {
+                format!(
+                    "refused a connection from {addr}: device {id} is not paired with this device (pair with `telextilesd pair` if this is your peer) [{text}]"
+                )
+            } else if text.contains("not paired") || text.contains("certificate") {
+                format!("refused a connection from {addr}: {text}")
+            } else {
+                format!("incoming connection from {addr} failed: {text}")
+            };
+            shared
+                .emit(LinkEvent::Error {
+                    peer: None,
+                    kind: ErrorKind::RefusedPeer,
+                    message: msg,
+                })
+                .await;
+        }
+    }
+}
+
+/// Starts (or updates the addresses of) the dial loop of a known peer.
+/// Only the side with the smaller device ID dials discovered/remembered
+/// addresses.
+pub(crate) fn ensure_dialing(shared: &Arc<Shared>, peer: DeviceId, addrs: Vec<SocketAddr>) {
+    if shared.my_id >= peer {
+        return;
+    }
+    let mut dialing = lock(&shared.dialing);
+    if let Some(tx) = dialing.get(&peer) {
+        let mut merged = addrs;
+        for a in tx.borrow().iter() {
+            if !merged.contains(a) {
+                merged.push(*a);
+            }
+        }
+        let _ = tx.send(merged);
+        return;
+    }
+    let (tx, rx) = watch::channel(addrs.clone());
+    dialing.insert(peer, tx);
+    tokio::spawn(dial_known(shared.clone(), peer, rx));
+}
+
+async fn dial_known(
+    shared: Arc<Shared>,
+    peer: DeviceId,
+    mut addrs: watch::Receiver<Vec<SocketAddr>>,
+) {
+    let list = addrs.borrow_and_update().clone();
+    let (tx, mut rx) = watch::channel(list);
+    tokio::spawn(async move {
+        while addrs.changed().await.is_ok() {
+            let v = addrs.borrow_and_update().clone();
+            if tx.send(v).is_err() {
+                return;
+            }
+        }
+    });
+    dial_loop_inner(shared, Some(peer), &mut rx, false).await;
+}
+
+/// Dials `addrs` until shut down, reconnecting with exponential backoff.
+/// `explicit`: addresses the user gave (`--connect`), dialled whatever the
+/// IDs; the peer's identity is learnt from the first connection.
+pub(crate) async fn dial_loop(
+    shared: Arc<Shared>,
+    expect: Option<DeviceId>,
+    addrs: Vec<SocketAddr>,
+    explicit: bool,
+) {
+    let (_tx, mut rx) = watch::channel(addrs);
+    dial_loop_inner(shared, expect, &mut rx, explicit).await;
+}
+
+async fn dial_loop_inner(
+    shared: Arc<Shared>,
+    mut expect: Option<DeviceId>,
+    addrs: &mut watch::Receiver<Vec<SocketAddr>>,
+    explicit: bool,
+) {
+    let mut stop = shared.shutdown.subscribe();
+    let mut backoff = shared.timing.backoff_min;
+    let mut last_error: Option<String> = None;
+    loop {
+        if *stop.borrow() || shared.stopped.load(Ordering::SeqCst) {
+            return;
+        }
+        // Already connected (either direction): wait until that changes.
+        if let Some(id) = expect {
+            if shared.is_up(&id) {
+                let notified = shared.peers_changed.notified();
+                tokio::pin!(notified);
+                notified.as_mut().enable();
+                if shared.is_up(&id) {
+                    tokio::select! {
+                        _ = notified => {}
+                        _ = stop.changed() => return,
+                    }
+                    continue;
+                }
+            }
+        }
+        let list = addrs.borrow_and_update().clone();
+        // None: every address failed (back off); Some(pause): a connection
+        // was made and ended.
+        let mut after: Option<Duration> = None;
+        for addr in list {
+            let entering =
+                explicit && matches!(*lock(&shared.pairing), Some(PairingMode::Enter(_)));
+            let policy = match expect {
+                _ if entering => PeerPolicy::AnyForPairing,
+                Some(id) => PeerPolicy::Expect(id),
+                None => PeerPolicy::Pinned(shared.pins.clone()),
+            };
+            let cfg = match shared.client_config(policy) {
+                Ok(c) => c,
+                Err(e) => {
+                    shared
+                        .emit(LinkEvent::Error {
+                            peer: expect,
+                            kind: ErrorKind::Local,
+                            message: e.to_string(),
+                        })
+                        .await;
+                    return;
+                }
+            };
+            let connecting =
+                match shared
+                    .endpoint
+                    .connect_with(cfg, addr, telextiles_certs::SERVER_NAME)
+                {
+                    Ok(c) => c,
+                    Err(e) => {
+                        report_once(
+                            &shared,
+                            &mut last_error,
+                            expect,
+                            ErrorKind::Connection,
+                            format!("cannot dial {addr}: {e}"),
+                        )
+                        .await;
+                        continue;
+                    }
+                };
+            let conn = tokio::select! {
+                c = tokio::time::timeout(shared.timing.connect_timeout, connecting) => match c {
+                    Ok(c) => c,
+                    Err(_) => Err(quinn::ConnectionError::TimedOut),
+                },
+                _ = stop.changed() => return,
+            };
+            match conn {
+                Ok(conn) => {
+                    if let Some(id) = peer_cert(&conn).and_then(|c| peer_device_id(&[c]).ok()) {
+                        if expect.is_none() {
+                            expect = Some(id);
+                        }
+                    }
+                    let end = tokio::select! {
+                        e = run_connection(shared.clone(), conn, true) => e,
+                        _ = stop.changed() => return,
+                    };
+                    match end {
+                        Ok(()) => {
+                            last_error = None;
+                            backoff = shared.timing.backoff_min;
+                            after = Some(backoff);
+                        }
+                        Err(end) => {
+                            if end.report {
+                                report_once(
+                                    &shared,
+                                    &mut last_error,
+                                    expect,
+                                    end.kind.clone(),
+                                    end.message,
+                                )
+                                .await;
+                            }
+                            after = match end.kind {
+                                // No quick retry: the users must act.
+                                ErrorKind::Incompatible(_)
+                                | ErrorKind::Pairing
+                                | ErrorKind::RefusedByPeer => Some(shared.timing.backoff_max * 10),
+                                _ => None,
+                            };
+                        }
+                    }
+                    break;
+                }
+                Err(e) => {
+                    let text = format!("cannot connect to {addr}: {e}");
+                    report_once(
+                        &shared,
+                        &mut last_error,
+                        expect,
+                        ErrorKind::Connection,
+                        text,
+                    )
+                    .await;
+                }
+            }
+        }
+        let pause = match after {
+            Some(p) => p,
+            None => {
+                let p = backoff;
+                backoff = (backoff * 2).min(shared.timing.backoff_max);
+                p
+            }
+        };
+        let jitter =
+            Duration::from_micros(rand::random::<u64>() % (pause.as_micros() as u64 / 4 + 1));
+        tokio::select! {
+            _ = tokio::time::sleep(pause + jitter) => {}
+            _ = stop.changed() => return,
+        }
+    }
+}
+
+async fn report_once(
+    shared: &Shared,
+    last: &mut Option<String>,
+    peer: Option<DeviceId>,
+    kind: ErrorKind,
+    message: String,
+) {
+    if last.as_deref() == Some(message.as_str()) {
+        return;
+    }
+    *last = Some(message.clone());
+    shared
+        .emit(LinkEvent::Error {
+            peer,
+            kind,
+            message,
+        })
+        .await;
+}
+
+pub(crate) async fn discovery_loop(
+    shared: Arc<Shared>,
+    mut found: mpsc::UnboundedReceiver<Discovered>,
+    enter_mode: bool,
+) {
+    let mut pairing_dialled = false;
+    while let Some(d) = found.recv().await {
+        if d.device_id == shared.my_id || d.addrs.is_empty() {
+            continue;
+        }
+        shared
+            .emit(LinkEvent::Discovered {
+                peer: d.device_id,
+                addrs: d.addrs.clone(),
+                paired: shared.pins.contains(&d.device_id),
+                pairing: d.pairing,
+            })
+            .await;
+        if d.protocol_version != peer::PROTOCOL_VERSION {
+            shared
+                .emit(LinkEvent::Error {
+                    peer: Some(d.device_id),
+                    kind: ErrorKind::Incompatible(vec![peer::MismatchReason::ProtocolVersion {
+                        ours: peer::PROTOCOL_VERSION,
+                        theirs: d.protocol_version,
+                    }]),
+                    message: format!(
+                        "found device {} on the network, but it speaks protocol {} (this one {}); update both daemons",
+                        d.device_id.short(),
+                        d.protocol_version,
+                        peer::PROTOCOL_VERSION
+                    ),
+                })
+                .await;
+            continue;
+        }
+        if shared.pins.contains(&d.device_id) {
+            ensure_dialing(&shared, d.device_id, d.addrs);
+        } else if enter_mode && d.pairing && !pairing_dialled && shared.pairing_mode() {
+            // The device showing a code: dial it once for pairing.
+            pairing_dialled = true;
+            tokio::spawn(dial_loop(shared.clone(), None, d.addrs, true));
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// One connection
+// ---------------------------------------------------------------------------
+
+struct Ctrl {
+    send: SendStream,
+    recv: RecvStream,
+    dec: FrameDecoder,
+    buf: Vec<u8>,
+}
+
+impl Ctrl {
+    async fn write(&mut self, msg: &Control) -> Result<(), String> {
+        let bytes = peer::encode_control(msg).map_err(|e| e.to_string())?;
+        self.send.write_all(&bytes).await.map_err(|e| e.to_string())
+    }
+
+    async fn read(&mut self) -> Result<Control, ReadFail> {
+        loop {
+            match self.dec.next_message() {
+                Ok(Some(m)) => return Ok(m),
+                Ok(None) => {}
+                Err(e) => return Err(ReadFail::Protocol(e.to_string())),
+            }
+            match self.recv.read(&mut self.buf).await {
+                Ok(Some(n)) => {
+                    let chunk = self.buf[..n].to_vec();
+                    self.dec.push(&chunk);
+                }
+                Ok(None) => {
+                    return Err(ReadFail::Closed(
+                        "the peer closed the control stream".into(),
+                    ))
+                }
+                Err(quinn::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
+                Err(e) => return Err(ReadFail::Closed(e.to_string())),
+            }
+        }
+    }
+}
+
+enum ReadFail {
+    Conn(ConnectionError),
+    Closed(String),
+    Protocol(String),
+}
+
+impl ReadFail {
+    fn into_end(self, addr: SocketAddr) -> End {
+        match self {
+            ReadFail::Conn(e) => explain(&e, addr),
+            ReadFail::Closed(s) => End::quiet(s),
+            ReadFail::Protocol(s) => End::err(
+                ErrorKind::Protocol,
+                format!("the device at {addr} sent a bad message: {s}"),
+            ),
+        }
+    }
+}
+
+async fn open_ctrl(conn: &Connection, dialed: bool) -> Result<Ctrl, ConnectionError> {
+    let (send, recv) = if dialed {
+        conn.open_bi().await?
+    } else {
+        conn.accept_bi().await?
+    };
+    Ok(Ctrl {
+        send,
+        recv,
+        dec: FrameDecoder::new(),
+        buf: vec![0u8; 16 * 1024],
+    })
+}
+
+/// Runs a connection until it ends. `Ok` if it was up and ended normally.
+async fn run_connection(shared: Arc<Shared>, conn: Connection, dialed: bool) -> Result<(), End> {
+    let addr = conn.remote_address();
+    let result = run_connection_inner(&shared, &conn, dialed).await;
+    if let Err(end) = &result {
+        let code = match end.kind {
+            ErrorKind::Incompatible(_) => close_code::INCOMPATIBLE,
+            ErrorKind::Pairing | ErrorKind::RefusedPeer => close_code::PAIRING,
+            ErrorKind::Protocol => close_code::PROTOCOL,
+            _ => close_code::BYE,
+        };
+        if conn.close_reason().is_none() {
+            let reason = truncate_bytes(end.message.as_bytes(), 200);
+            conn.close(code.into(), reason);
+        }
+        if !dialed && end.report {
+            // Dialers report via their loop (deduplicated); acceptors here.
+            shared
+                .emit(LinkEvent::Error {
+                    peer: peer_cert(&conn).and_then(|c| peer_device_id(&[c]).ok()),
+                    kind: end.kind.clone(),
+                    message: end.message.clone(),
+                })
+                .await;
+        }
+    }
+    let _ = addr;
+    result
+}
+
+fn truncate_bytes(b: &[u8], n: usize) -> &[u8] {
+    &b[..b.len().min(n)]
+}
+
+async fn run_connection_inner(
+    shared: &Arc<Shared>,
+    conn: &Connection,
+    dialed: bool,
+) -> Result<(), End> {
+    let addr = conn.remote_address();
+    let cert = peer_cert(conn).ok_or_else(|| {
+        End::err(
+            ErrorKind::Protocol,
+            format!("the device at {addr} presented no certificate"),
+        )
+    })?;
+    let peer_id = peer_device_id(std::slice::from_ref(&cert))
+        .map_err(|e| End::err(ErrorKind::Protocol, e.to_string()))?;
+    if peer_id == shared.my_id {
+        return Err(End::quiet("connected to itself"));
+    }
+    let hs = shared.timing.handshake_timeout;
+    let mut ctrl = match tokio::time::timeout(hs, open_ctrl(conn, dialed)).await {
+        Ok(Ok(c)) => c,
+        Ok(Err(e)) => return Err(explain(&e, addr)),
+        Err(_) => {
+            return Err(End::err(
+                ErrorKind::Connection,
+                format!("the device at {addr} opened no control stream within {hs:?}"),
+            ))
+        }
+    };
+
+    let paired = shared.pins.contains(&peer_id);
+    if dialed {
+        if !paired {
+            tokio::time::timeout(
+                hs,
+                pair_as(
+                    shared,
+                    &mut ctrl,
+                    PairingRole::EntersCode,
+                    &cert,
+                    peer_id,
+                    addr,
+                    None,
+                ),
+            )
+            .await
+            .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
+        }
+        ctrl.write(&Control::Hello(shared.hello.clone()))
+            .await
+            .map_err(End::quiet)?;
+    }
+    // Hello phase (the acceptor learns from the first message whether the
+    // dialer wants to pair).
+    let first = tokio::time::timeout(hs, ctrl.read())
+        .await
+        .map_err(|_| {
+            End::err(
+                ErrorKind::Connection,
+                format!("no hello from {addr} within {hs:?}"),
+            )
+        })?
+        .map_err(|f| f.into_end(addr))?;
+    let their_hello = match first {
+        Control::Pair(PairingMessage::Start(start)) if !dialed => {
+            let show = matches!(*lock(&shared.pairing), Some(PairingMode::Show(_)));
+            if !show {
+                let _ = ctrl
+                    .write(&Control::Pair(PairingMessage::Abort(
+                        telextiles_certs::pairing::PairingAbort::NotPairing,
+                    )))
+                    .await;
+                let _ = ctrl.send.finish();
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                return Err(End::err(
+                    ErrorKind::RefusedPeer,
+                    format!("device {} at {addr} tried to pair, but this device is not showing a pairing code", peer_id.short()),
+                ));
+            }
+            let pending = Some(PairingMessage::Start(start));
+            tokio::time::timeout(
+                hs,
+                pair_as(
+                    shared,
+                    &mut ctrl,
+                    PairingRole::ShowsCode,
+                    &cert,
+                    peer_id,
+                    addr,
+                    pending,
+                ),
+            )
+            .await
+            .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
+            ctrl.write(&Control::Hello(shared.hello.clone()))
+                .await
+                .map_err(End::quiet)?;
+            match tokio::time::timeout(hs, ctrl.read()).await {
+                Ok(Ok(Control::Hello(h))) => h,
+                Ok(Ok(other)) => {
+                    return Err(End::err(
+                        ErrorKind::Protocol,
+                        format!("expected hello from {addr}, got {other:?}"),
+                    ))
+                }
+                Ok(Err(f)) => return Err(f.into_end(addr)),
+                Err(_) => return Err(End::err(ErrorKind::Connection, "no hello after pairing")),
+            }
+        }
+        Control::Hello(h) => {
+            if !dialed {
+                if !shared.pins.contains(&peer_id) {
+                    return Err(End::err(
+                        ErrorKind::RefusedPeer,
+                        format!(
+                            "refused device {} at {addr}: it is not paired with this device",
+                            peer_id.short()
+                        ),
+                    ));
+                }
+                ctrl.write(&Control::Hello(shared.hello.clone()))
+                    .await
+                    .map_err(End::quiet)?;
+            }
+            h
+        }
+        Control::Pair(PairingMessage::Abort(a)) => {
+            return Err(End::err(
+                ErrorKind::Pairing,
+                format!("the device at {addr}: {}", a.describe()),
+            ));
+        }
+        other => {
+            return Err(End::err(
+                ErrorKind::Protocol,
+                format!("expected hello from {addr}, got {other:?}"),
+            ));
+        }
+    };
+
+    if let Err(reasons) = check_hello(&shared.hello, &their_hello) {
+        let _ = ctrl
+            .write(&Control::Mismatch {
+                reasons: reasons.clone(),
+            })
+            .await;
+        let text: Vec<String> = reasons.iter().map(|r| r.to_string()).collect();
+        let message = format!(
+            "cannot stream with \"{}\" ({}): {}",
+            their_hello.device_name,
+            peer_id.short(),
+            text.join("; ")
+        );
+        // Give the mismatch message time to arrive before closing.
+        let _ = tokio::time::timeout(Duration::from_millis(300), ctrl.read()).await;
+        return Err(End::err(ErrorKind::Incompatible(reasons), message));
+    }
+    ctrl.write(&Control::HelloAck).await.map_err(End::quiet)?;
+    match tokio::time::timeout(hs, ctrl.read()).await {
+        Ok(Ok(Control::HelloAck)) => {}
+        Ok(Ok(Control::Mismatch { reasons })) => {
+            let text: Vec<String> = reasons.iter().map(|r| r.to_string()).collect();
+            return Err(End::err(
+                ErrorKind::Incompatible(reasons),
+                format!(
+                    "\"{}\" refused to stream: {}",
+                    their_hello.device_name,
+                    text.join("; ")
+                ),
+            ));
+        }
+        Ok(Ok(other)) => {
+            return Err(End::err(
+                ErrorKind::Protocol,
+                format!("expected hello ack from {addr}, got {other:?}"),
+            ))
+        }
+        Ok(Err(f)) => return Err(f.into_end(addr)),
+        Err(_) => return Err(End::err(ErrorKind::Connection, "no hello ack")),
+    }
+
+    // Up: register (resolving duplicates), then stream.
+    let (ctrl_tx, ctrl_rx) = mpsc::unbounded_channel();
+    let dialed_by_lower = dialed == (shared.my_id < peer_id);
+    {
+        let mut peers = lock(&shared.peers);
+        if let Some(old) = peers.get(&peer_id) {
+            if old.dialed_by_lower && !dialed_by_lower {
+                drop(peers);
+                conn.close(close_code::DUPLICATE.into(), b"duplicate connection");
+                return Err(End::quiet("duplicate connection"));
+            }
+            old.conn.close(
+                close_code::DUPLICATE.into(),
+                b"replaced by a newer connection",
+            );
+        }
+        peers.insert(
+            peer_id,
+            PeerSlot {
+                conn: conn.clone(),
+                ctrl: ctrl_tx.clone(),
+                dialed_by_lower,
+            },
+        );
+    }
+    shared.peers_changed.notify_waiters();
+    remember(shared, peer_id, addr, &their_hello.device_name);
+    shared
+        .emit(LinkEvent::PeerUp {
+            peer: peer_id,
+            name: their_hello.device_name.clone(),
+            addr,
+        })
+        .await;
+
+    let reason = stream(shared, conn, peer_id, ctrl, ctrl_tx, ctrl_rx).await;
+
+    let mine = {
+        let mut peers = lock(&shared.peers);
+        match peers.get(&peer_id) {
+            Some(s) if s.conn.stable_id() == conn.stable_id() => {
+                peers.remove(&peer_id);
+                true
+            }
+            _ => false,
+        }
+    };
+    if mine {
+        shared.peers_changed.notify_waiters();
+        shared
+            .emit(LinkEvent::PeerDown {
+                peer: peer_id,
+                reason,
+            })
+            .await;
+    }
+    Ok(())
+}
+
+/// Runs the pairing exchange on the control stream.
+async fn pair_as(
+    shared: &Arc<Shared>,
+    ctrl: &mut Ctrl,
+    role: PairingRole,
+    peer_cert: &CertificateDer<'static>,
+    peer_id: DeviceId,
+    addr: SocketAddr,
+    mut pending: Option<PairingMessage>,
+) -> Result<(), End> {
+    let code = {
+        let mut mode = lock(&shared.pairing);
+        match (&mut *mode, role) {
+            (Some(PairingMode::Show(offer)), PairingRole::ShowsCode) => {
+                match offer.take(std::time::Instant::now()) {
+                    Ok(c) => Ok(c),
+                    Err(e) => Err((e.abort_reason(), e.to_string())),
+                }
+            }
+            (Some(PairingMode::Enter(code)), PairingRole::EntersCode) => Ok(code.clone()),
+            _ => Err((
+                Some(telextiles_certs::pairing::PairingAbort::NotPairing),
+                format!(
+                    "device {} at {addr} is not paired with this device",
+                    peer_id.short()
+                ),
+            )),
+        }
+    };
+    let code = match code {
+        Ok(c) => c,
+        Err((abort, text)) => {
+            if let Some(a) = abort {
+                let _ = ctrl.write(&Control::Pair(PairingMessage::Abort(a))).await;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            return Err(End::err(ErrorKind::Pairing, text));
+        }
+    };
+    let mut rng = rand::rngs::OsRng;
+    let (mut session, start) =
+        PairingSession::start(role, code, shared.identity.cert_der(), peer_cert, &mut rng)
+            .map_err(|e| End::err(ErrorKind::Pairing, e.to_string()))?;
+    ctrl.write(&Control::Pair(start))
+        .await
+        .map_err(End::quiet)?;
+    let fail = |e: PairingError| {
+        End::err(
+            ErrorKind::Pairing,
+            format!("pairing with the device at {addr} failed: {e}"),
+        )
+    };
+    let paired = loop {
+        let next = match pending.take() {
+            Some(m) => Ok(Control::Pair(m)),
+            None => ctrl.read().await,
+        };
+        let msg = match next {
+            Ok(Control::Pair(m)) => m,
+            Ok(other) => {
+                return Err(End::err(
+                    ErrorKind::Protocol,
+                    format!("expected a pairing message, got {other:?}"),
+                ))
+            }
+            Err(f) => return Err(f.into_end(addr)),
+        };
+        match session.handle(&msg) {
+            Ok(PairingStep::Send(reply)) => {
+                ctrl.write(&Control::Pair(reply))
+                    .await
+                    .map_err(End::quiet)?;
+            }
+            Ok(PairingStep::Paired(p)) => break p,
+            Err(e) => {
+                if let Some(abort) = e.abort_message() {
+                    let _ = ctrl.write(&Control::Pair(abort)).await;
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
+                finish_pairing_mode(shared);
+                return Err(fail(e));
+            }
+        }
+    };
+    // Pin now; store if we have a data dir.
+    shared.pins.insert(paired.peer_id);
+    if let Some(dir) = shared.data_dir.clone() {
+        let cert = paired.peer_cert.clone();
+        let name = paired.peer_id.short();
+        let res = tokio::task::spawn_blocking(move || {
+            TrustStore::update(&dir, |s| {
+                let rec = PeerRecord::new(cert, &name, SystemTime::now());
+                match rec {
+                    Ok(mut r) => {
+                        r.last_addresses = vec![addr];
+                        s.insert(r);
+                        (true, Ok(()))
+                    }
+                    Err(e) => (false, Err(e.to_string())),
+                }
+            })
+        })
+        .await;
+        let err = match res {
+            Ok(Ok(Ok(()))) => None,
+            Ok(Ok(Err(e))) => Some(e),
+            Ok(Err(e)) => Some(e.to_string()),
+            Err(e) => Some(e.to_string()),
+        };
+        if let Some(e) = err {
+            shared
+                .emit(LinkEvent::Error {
+                    peer: Some(peer_id),
+                    kind: ErrorKind::Local,
+                    message: format!("paired, but could not save the trust store: {e}"),
+                })
+                .await;
+        }
+    }
+    finish_pairing_mode(shared);
+    shared
+        .emit(LinkEvent::Paired {
+            peer: paired.peer_id,
+            verification: paired.verification,
+        })
+        .await;
+    Ok(())
+}
+
+/// One attempt per code: after any pairing outcome the link stops pairing
+/// and only accepts pinned peers in the TLS handshake.
+fn finish_pairing_mode(shared: &Arc<Shared>) {
+    let was_show = matches!(lock(&shared.pairing).take(), Some(PairingMode::Show(_)));
+    if was_show {
+        let _ = shared.set_server_policy(PeerPolicy::Pinned(shared.pins.clone()));
+    }
+}
+
+/// Saves the peer's address and name in the trust store (best effort).
+fn remember(shared: &Arc<Shared>, peer: DeviceId, addr: SocketAddr, name: &str) {
+    let Some(dir) = shared.data_dir.clone() else {
+        return;
+    };
+    let name = name.to_string();
+    tokio::task::spawn_blocking(move || {
+        let _ = TrustStore::update(&dir, |s| {
+            let mut changed = s.note_addresses(&peer, &[addr], SystemTime::now());
+            if let Some(rec) = s.get(&peer) {
+                let clean = telextiles_certs::trust::sanitize_name(&name);
+                if rec.name != clean {
+                    let mut r = rec.clone();
+                    r.name = clean;
+                    s.insert(r);
+                    changed = true;
+                }
+            }
+            (changed, ())
+        });
+    });
+}
+
+/// The live session: control reader, control writer, pings, datagrams.
+async fn stream(
+    shared: &Arc<Shared>,
+    conn: &Connection,
+    peer_id: DeviceId,
+    ctrl: Ctrl,
+    ctrl_tx: mpsc::UnboundedSender<Control>,
+    mut ctrl_rx: mpsc::UnboundedReceiver<Control>,
+) -> String {
+    let Ctrl {
+        mut send,
+        recv,
+        dec,
+        buf,
+    } = ctrl;
+    let clock = Arc::new(Mutex::new(ClockOffset::new(16)));
+
+    // Writer.
+    let writer = tokio::spawn(async move {
+        while let Some(msg) = ctrl_rx.recv().await {
+            let msg = match msg {
+                // Stamp pongs as late as possible.
+                Control::Pong {
+                    id, t1_us, t2_us, ..
+                } => Control::Pong {
+                    id,
+                    t1_us,
+                    t2_us,
+                    t3_us: now_us(),
+                },
+                Control::Ping { id, .. } => Control::Ping {
+                    id,
+                    t1_us: now_us(),
+                },
+                m => m,
+            };
+            let Ok(bytes) = peer::encode_control(&msg) else {
+                continue;
+            };
+            if send.write_all(&bytes).await.is_err() {
+                return;
+            }
+        }
+    });
+
+    // Pinger.
+    let ping_tx = ctrl_tx.clone();
+    let interval = shared.timing.ping_interval;
+    let pinger = tokio::spawn(async move {
+        let mut id = 0u32;
+        let mut tick = tokio::time::interval(interval);
+        loop {
+            tick.tick().await;
+            id = id.wrapping_add(1);
+            if ping_tx.send(Control::Ping { id, t1_us: 0 }).is_err() {
+                return;
+            }
+        }
+    });
+
+    // Datagrams.
+    let dconn = conn.clone();
+    let dshared = shared.clone();
+    let dclock = clock.clone();
+    let datagrams = tokio::spawn(async move {
+        let mut latest = LatestWins::new();
+        while let Ok(bytes) = dconn.read_datagram().await {
+            let recv_us = now_us();
+            let frame = match LatentFrame::decode(&bytes) {
+                Ok(f) => f,
+                Err(e) => {
+                    dshared.emit_now(LinkEvent::Error {
+                        peer: Some(peer_id),
+                        kind: ErrorKind::Protocol,
+                        message: format!("dropped a bad latent datagram: {e}"),
+                    });
+                    continue;
+                }
+            };
+            if !latest.accept(frame.seq) {
+                continue;
+            }
+            let one_way = lock(&dclock).one_way_us(frame.capture_us, recv_us);
+            dshared.emit_now(LinkEvent::Latent(Latent {
+                peer: peer_id,
+                seq: frame.seq,
+                press_id: frame.press_id,
+                capture_us: frame.capture_us,
+                is_final: frame.is_final(),
+                vector: frame.vector.dequantize(),
+                wire_bytes: bytes.len(),
+                one_way_latency_us: one_way,
+            }));
+        }
+    });
+
+    // Control reader (this task).
+    let mut ctrl = ReaderOnly { recv, dec, buf };
+    let reason = loop {
+        match ctrl.read().await {
+            Ok(Control::Ping { id, t1_us }) => {
+                let t2 = now_us();
+                let _ = ctrl_tx.send(Control::Pong {
+                    id,
+                    t1_us,
+                    t2_us: t2,
+                    t3_us: t2,
+                });
+            }
+            Ok(Control::Pong {
+                t1_us,
+                t2_us,
+                t3_us,
+                ..
+            }) => {
+                let t4 = now_us();
+                lock(&clock).add(ClockSample {
+                    t1: t1_us,
+                    t2: t2_us,
+                    t3: t3_us,
+                    t4,
+                });
+            }
+            Ok(Control::Hello(_) | Control::HelloAck) => {}
+            Ok(msg) => {
+                shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
+            }
+            Err(ReadFail::Conn(e)) => break explain(&e, conn.remote_address()).message,
+            Err(ReadFail::Closed(s)) => break s,
+            Err(ReadFail::Protocol(s)) => {
+                conn.close(close_code::PROTOCOL.into(), b"bad control message");
+                break format!("the peer sent a bad control message: {s}");
+            }
+        }
+    };
+    writer.abort();
+    pinger.abort();
+    datagrams.abort();
+    if conn.close_reason().is_none() {
+        conn.close(close_code::BYE.into(), b"session ended");
+    }
+    reason
+}
+
+struct ReaderOnly {
+    recv: RecvStream,
+    dec: FrameDecoder,
+    buf: Vec<u8>,
+}
+
+impl ReaderOnly {
+    async fn read(&mut self) -> Result<Control, ReadFail> {
+        loop {
+            match self.dec.next_message() {
+                Ok(Some(m)) => return Ok(m),
+                Ok(None) => {}
+                Err(e) => return Err(ReadFail::Protocol(e.to_string())),
+            }
+            match self.recv.read(&mut self.buf).await {
+                Ok(Some(n)) => {
+                    let chunk = self.buf[..n].to_vec();
+                    self.dec.push(&chunk);
+                }
+                Ok(None) => {
+                    return Err(ReadFail::Closed(
+                        "the peer closed the control stream".into(),
+                    ))
+                }
+                Err(quinn::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
+                Err(e) => return Err(ReadFail::Closed(e.to_string())),
+            }
+        }
+    }
+}

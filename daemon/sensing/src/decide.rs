@@ -1,0 +1,487 @@
+//! Decisions: which textile is being touched, and which roller slot shows it.
+//!
+//! Within a press the decider keeps the running mean of the L2-normalised
+//! embeddings (re-normalised) and looks it up in the index. The first
+//! decision is made once `min_frames` embeddings are in and the same textile
+//! has been nearest for `confirm_frames` frames in a row. After that the
+//! decision switches only when another textile is nearer than the current one
+//! by at least `switch_margin` for `switch_frames` consecutive frames
+//! (hysteresis: no flip-flop between two close textiles). A textile further
+//! than `unknown_distance` from everything is reported as its nearest known
+//! textile with `unknown = true`.
+//!
+//! Confidence is `(d2 - d1) / d2` in 0..=1, where `d1` is the distance to
+//! the decided textile and `d2` to the nearest other one: 0 for a tie, 1 for
+//! an exact match.
+//!
+//! Pure and deterministic: no clocks (timestamps are passed in), no I/O, and
+//! nothing allocated per frame.
+
+/// Nearest and second-nearest entry for a query.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Nearest2 {
+    /// Nearest entry.
+    pub best: usize,
+    /// Its distance.
+    pub best_dist: f32,
+    /// Runner-up, if the index has two or more entries.
+    pub second: Option<usize>,
+    /// Its distance (`f32::INFINITY` if none).
+    pub second_dist: f32,
+}
+
+/// What the decider needs from a textile index. Implemented for
+/// [`telextiles_index::Index`] and for the in-memory [`FlatIndex`].
+pub trait TextileIndex {
+    /// Embedding dimension.
+    fn dim(&self) -> usize;
+    /// Number of textiles.
+    fn len(&self) -> usize;
+    /// Whether the index has no textiles.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Textile id of an entry.
+    fn id(&self, entry: usize) -> &str;
+    /// Euclidean distance from an L2-normalised query to an entry.
+    fn distance(&self, entry: usize, q: &[f32]) -> f32;
+    /// Nearest roller slot for an entry.
+    fn slot_of(&self, entry: usize) -> usize;
+    /// Nearest and second-nearest entries.
+    fn nearest2(&self, q: &[f32]) -> Nearest2 {
+        let mut best = (usize::MAX, f32::INFINITY);
+        let mut second = (usize::MAX, f32::INFINITY);
+        for i in 0..self.len() {
+            let d = self.distance(i, q);
+            if d < best.1 {
+                second = best;
+                best = (i, d);
+            } else if d < second.1 {
+                second = (i, d);
+            }
+        }
+        Nearest2 {
+            best: best.0,
+            best_dist: best.1,
+            second: (second.0 != usize::MAX).then_some(second.0),
+            second_dist: second.1,
+        }
+    }
+}
+
+impl TextileIndex for telextiles_index::Index {
+    fn dim(&self) -> usize {
+        self.dim
+    }
+    fn len(&self) -> usize {
+        self.entries.len()
+    }
+    fn id(&self, entry: usize) -> &str {
+        &self.entries[entry].id
+    }
+    fn distance(&self, entry: usize, q: &[f32]) -> f32 {
+        self.entry_distance(entry, q)
+    }
+    fn slot_of(&self, entry: usize) -> usize {
+        self.slot_of_entry(entry)
+    }
+    fn nearest2(&self, q: &[f32]) -> Nearest2 {
+        let n = self.nearest(q);
+        Nearest2 {
+            best: n.best,
+            best_dist: n.best_dist,
+            second: n.second,
+            second_dist: n.second_dist,
+        }
+    }
+}
+
+/// A minimal in-memory index: one L2-normalised centroid per textile and a
+/// slot for each (tests, benchmarks, and indexes built on the fly).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlatIndex {
+    dim: usize,
+    ids: Vec<String>,
+    centroids: Vec<Vec<f32>>,
+    slots: Vec<usize>,
+}
+
+impl FlatIndex {
+    /// From `(id, embeddings)` pairs: each textile's centroid is the
+    /// normalised mean of its (normalised) embeddings; slot = position.
+    pub fn from_embeddings(textiles: &[(String, Vec<Vec<f32>>)]) -> Result<FlatIndex, String> {
+        let dim = textiles
+            .first()
+            .and_then(|(_, e)| e.first())
+            .map(|e| e.len())
+            .ok_or("no embeddings to build an index from")?;
+        let mut ids = Vec::new();
+        let mut centroids = Vec::new();
+        for (id, embs) in textiles {
+            if embs.is_empty() || embs.iter().any(|e| e.len() != dim) {
+                return Err(format!("textile {id}: no embeddings or wrong dimension"));
+            }
+            let mut c = vec![0f32; dim];
+            for e in embs {
+                let n = norm(e).max(1e-12);
+                for (a, v) in c.iter_mut().zip(e) {
+                    *a += v / n;
+                }
+            }
+            normalise(&mut c);
+            ids.push(id.clone());
+            centroids.push(c);
+        }
+        let slots = (0..ids.len()).collect();
+        Ok(FlatIndex {
+            dim,
+            ids,
+            centroids,
+            slots,
+        })
+    }
+    /// Override the slot of each entry.
+    pub fn with_slots(mut self, slots: Vec<usize>) -> Result<FlatIndex, String> {
+        if slots.len() != self.ids.len() {
+            return Err(format!(
+                "{} slots for {} textiles",
+                slots.len(),
+                self.ids.len()
+            ));
+        }
+        self.slots = slots;
+        Ok(self)
+    }
+    /// Entry index of an id.
+    pub fn entry_by_id(&self, id: &str) -> Option<usize> {
+        self.ids.iter().position(|i| i == id)
+    }
+}
+
+impl TextileIndex for FlatIndex {
+    fn dim(&self) -> usize {
+        self.dim
+    }
+    fn len(&self) -> usize {
+        self.ids.len()
+    }
+    fn id(&self, entry: usize) -> &str {
+        &self.ids[entry]
+    }
+    fn distance(&self, entry: usize, q: &[f32]) -> f32 {
+        self.centroids[entry]
+            .iter()
+            .zip(q)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f32>()
+            .sqrt()
+    }
+    fn slot_of(&self, entry: usize) -> usize {
+        self.slots[entry]
+    }
+}
+
+fn norm(v: &[f32]) -> f32 {
+    v.iter().map(|x| x * x).sum::<f32>().sqrt()
+}
+
+fn normalise(v: &mut [f32]) {
+    let n = norm(v);
+    if n > 0.0 && n.is_finite() {
+        v.iter_mut().for_each(|x| *x /= n);
+    }
+}
+
+/// Decider tuning.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecideConfig {
+    /// Embeddings needed before the first decision.
+    pub min_frames: u32,
+    /// Frames the same textile must stay nearest for the first decision.
+    pub confirm_frames: u32,
+    /// Distance lead a challenger needs over the current decision.
+    pub switch_margin: f32,
+    /// Consecutive frames the challenger must lead by `switch_margin`.
+    pub switch_frames: u32,
+    /// Beyond this distance the nearest known textile is flagged unknown.
+    pub unknown_distance: f32,
+}
+
+impl Default for DecideConfig {
+    fn default() -> Self {
+        DecideConfig {
+            min_frames: 4,
+            confirm_frames: 4,
+            switch_margin: 0.02,
+            switch_frames: 8,
+            unknown_distance: 0.5,
+        }
+    }
+}
+
+/// The current decision.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Decision {
+    /// Index entry decided.
+    pub entry: usize,
+    /// Its roller slot.
+    pub slot: usize,
+    /// Distance from the press's mean embedding.
+    pub distance: f32,
+    /// Distance to the nearest other textile minus `distance` (negative while
+    /// a challenger leads but has not yet taken over).
+    pub margin: f32,
+    /// `(d2 - d1) / d2`, clamped to 0..=1.
+    pub confidence: f32,
+    /// Further than `unknown_distance` from every known textile.
+    pub unknown: bool,
+    /// When this decision was first made (frame timestamp).
+    pub since_us: u64,
+}
+
+/// Result of feeding one embedding.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DecideStep {
+    /// The nearest entry to the running mean on this frame (before hysteresis).
+    pub nearest: Nearest2,
+    /// The decision after this frame, if one has been made.
+    pub decision: Option<Decision>,
+    /// Whether the decision was made or changed on this frame.
+    pub changed: bool,
+}
+
+/// Summary of a finished press.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PressOutcome {
+    /// Press start (contact) timestamp.
+    pub start_us: u64,
+    /// Press end timestamp.
+    pub end_us: u64,
+    /// Final decision (None if the press was too short to decide).
+    pub decision: Option<Decision>,
+    /// Timestamp of the first decision.
+    pub first_decision_us: Option<u64>,
+    /// Timestamp of the last change of decision.
+    pub stable_since_us: Option<u64>,
+    /// How many times the decision changed after the first one.
+    pub switches: u32,
+    /// Embeddings seen.
+    pub frames: u32,
+}
+
+/// The decider (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Decider {
+    cfg: DecideConfig,
+    sum: Vec<f32>,
+    mean: Vec<f32>,
+    frames: u32,
+    start_us: u64,
+    in_press: bool,
+    current: Option<Decision>,
+    challenger: Option<(usize, u32)>,
+    first_decision_us: Option<u64>,
+    switches: u32,
+}
+
+impl Decider {
+    /// A decider for embeddings of dimension `dim`.
+    pub fn new(cfg: DecideConfig, dim: usize) -> Decider {
+        Decider {
+            cfg,
+            sum: vec![0.0; dim],
+            mean: vec![0.0; dim],
+            frames: 0,
+            start_us: 0,
+            in_press: false,
+            current: None,
+            challenger: None,
+            first_decision_us: None,
+            switches: 0,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DecideConfig {
+        &self.cfg
+    }
+
+    /// Start a new press (forgets the previous one).
+    pub fn press_start(&mut self, t_us: u64) {
+        self.sum.iter_mut().for_each(|x| *x = 0.0);
+        self.frames = 0;
+        self.start_us = t_us;
+        self.in_press = true;
+        self.current = None;
+        self.challenger = None;
+        self.first_decision_us = None;
+        self.switches = 0;
+    }
+
+    /// Whether a press is in progress.
+    pub fn in_press(&self) -> bool {
+        self.in_press
+    }
+
+    /// The decision so far in this press.
+    pub fn current(&self) -> Option<Decision> {
+        self.current
+    }
+
+    /// The running mean (L2-normalised) of this press's embeddings.
+    pub fn mean(&self) -> &[f32] {
+        &self.mean
+    }
+
+    /// Feed one L2-normalised embedding taken at `t_us`: [`Decider::accumulate`],
+    /// the index search, then [`Decider::decide`]. Outside a press (before
+    /// [`Decider::press_start`]) nothing is decided.
+    pub fn on_embedding<I: TextileIndex + ?Sized>(
+        &mut self,
+        index: &I,
+        t_us: u64,
+        emb: &[f32],
+    ) -> DecideStep {
+        if !self.in_press {
+            let nearest = index.nearest2(emb);
+            return DecideStep {
+                nearest,
+                decision: None,
+                changed: false,
+            };
+        }
+        self.accumulate(emb);
+        let nearest = index.nearest2(&self.mean);
+        self.decide(index, t_us, nearest)
+    }
+
+    /// Add an embedding to the press's running mean; returns the mean
+    /// (L2-normalised). Ignored outside a press.
+    pub fn accumulate(&mut self, emb: &[f32]) -> &[f32] {
+        assert_eq!(emb.len(), self.sum.len(), "embedding dimension");
+        if self.in_press {
+            let n = norm(emb).max(1e-12);
+            for (s, v) in self.sum.iter_mut().zip(emb) {
+                *s += v / n;
+            }
+            self.frames += 1;
+            self.mean.copy_from_slice(&self.sum);
+            normalise(&mut self.mean);
+        }
+        &self.mean
+    }
+
+    /// Apply the hysteresis rules given the index's answer for the current
+    /// mean (`nearest = index.nearest2(self.mean())`).
+    pub fn decide<I: TextileIndex + ?Sized>(
+        &mut self,
+        index: &I,
+        t_us: u64,
+        nearest: Nearest2,
+    ) -> DecideStep {
+        assert_eq!(index.dim(), self.sum.len(), "index dimension");
+        let mut changed = false;
+        if self.in_press && self.frames >= self.cfg.min_frames {
+            match self.current {
+                None => {
+                    let run = self.bump(nearest.best, true);
+                    if run >= self.cfg.confirm_frames.max(1) {
+                        self.current = Some(self.make(index, nearest.best, t_us, &nearest));
+                        self.first_decision_us = Some(t_us);
+                        self.challenger = None;
+                        changed = true;
+                    }
+                }
+                Some(cur) if nearest.best == cur.entry => self.challenger = None,
+                Some(cur) => {
+                    let d_cur = index.distance(cur.entry, &self.mean);
+                    let leads = d_cur - nearest.best_dist >= self.cfg.switch_margin;
+                    let run = self.bump(nearest.best, leads);
+                    if run >= self.cfg.switch_frames.max(1) {
+                        self.current = Some(self.make(index, nearest.best, t_us, &nearest));
+                        self.challenger = None;
+                        self.switches += 1;
+                        changed = true;
+                    }
+                }
+            }
+            if !changed {
+                if let Some(cur) = self.current {
+                    let since = cur.since_us;
+                    self.current = Some(self.make(index, cur.entry, since, &nearest));
+                }
+            }
+        }
+        DecideStep {
+            nearest,
+            decision: self.current,
+            changed,
+        }
+    }
+
+    /// Count consecutive frames for a challenger (reset when `counts` is false
+    /// or the challenger changes). Returns the run length.
+    fn bump(&mut self, entry: usize, counts: bool) -> u32 {
+        if !counts {
+            self.challenger = None;
+            return 0;
+        }
+        let run = match self.challenger {
+            Some((e, r)) if e == entry => r + 1,
+            _ => 1,
+        };
+        self.challenger = Some((entry, run));
+        run
+    }
+
+    fn make<I: TextileIndex + ?Sized>(
+        &self,
+        index: &I,
+        entry: usize,
+        since_us: u64,
+        n: &Nearest2,
+    ) -> Decision {
+        let d1 = if entry == n.best {
+            n.best_dist
+        } else {
+            index.distance(entry, &self.mean)
+        };
+        let d2 = if entry == n.best {
+            n.second_dist
+        } else {
+            n.best_dist
+        };
+        let margin = d2 - d1;
+        let confidence = if d2.is_finite() && d2 > 0.0 {
+            (margin / d2).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        Decision {
+            entry,
+            slot: index.slot_of(entry),
+            distance: d1,
+            margin: if margin.is_finite() { margin } else { f32::MAX },
+            confidence,
+            unknown: d1 > self.cfg.unknown_distance,
+            since_us,
+        }
+    }
+
+    /// End the press; returns its outcome (None if no press was in progress).
+    pub fn press_end(&mut self, t_us: u64) -> Option<PressOutcome> {
+        if !self.in_press {
+            return None;
+        }
+        self.in_press = false;
+        Some(PressOutcome {
+            start_us: self.start_us,
+            end_us: t_us,
+            decision: self.current,
+            first_decision_us: self.first_decision_us,
+            stable_since_us: self.current.map(|c| c.since_us),
+            switches: self.switches,
+            frames: self.frames,
+        })
+    }
+}

@@ -1,0 +1,11 @@
+//! Frame sources (V4L2 DIGIT, recorded, simulated), contact detection, ONNX encoding and decisions
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod contact;
+pub mod decide;
+pub mod encoder;
+pub mod frame;
+pub mod pipeline;
+pub mod preprocess;
+pub mod source;

@@ -1,0 +1,215 @@
+//! The simulator as a live frame source: presses of one textile, one after
+//! another, separated by no-contact frames; the textile, person, sensor and
+//! jig can be changed while running through a [`SimHandle`].
+
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use telextiles_sim::{PressSpec, Simulator};
+
+use super::recorded::Pace;
+use super::{FrameSource, SourceError};
+use crate::frame::Frame;
+
+/// A change to the simulated press.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SimCommand {
+    /// Press another textile.
+    Textile(String),
+    /// Another person.
+    Person(u32),
+    /// Another sensor unit.
+    Sensor(u32),
+    /// With or without the jig.
+    Jig(bool),
+    /// Replace the whole spec.
+    Spec(PressSpec),
+    /// Press this once (after the gap), then rest lifted.
+    PressOnce(PressSpec),
+    /// Lift the sensor now and rest (no-contact frames) until the next command.
+    Lift,
+}
+
+/// Controls a running [`SimSource`] from any thread.
+#[derive(Clone, Debug)]
+pub struct SimHandle(Sender<SimCommand>);
+
+impl SimHandle {
+    /// Send a change; it takes effect at the next frame (the current press is
+    /// abandoned, a no-contact gap follows, then the new press). False if the
+    /// source is gone.
+    pub fn send(&self, cmd: SimCommand) -> bool {
+        self.0.send(cmd).is_ok()
+    }
+    /// Press another textile.
+    pub fn set_textile(&self, id: &str) -> bool {
+        self.send(SimCommand::Textile(id.to_string()))
+    }
+}
+
+/// Live simulated frames (see the module docs).
+pub struct SimSource {
+    sim: Arc<Simulator>,
+    spec: PressSpec,
+    rx: Receiver<SimCommand>,
+    gap_frames: usize,
+    /// Position: `gap_frames` background frames, then the press frames.
+    pos: usize,
+    background: Option<(u32, image::RgbImage)>,
+    pace: Pace,
+    started: Option<Instant>,
+    seq: u64,
+    presses: u64,
+    /// Lifted: deliver no-contact frames only.
+    idle: bool,
+    /// Rest after the current press instead of repeating it.
+    once: bool,
+}
+
+/// Frame period at 60 fps, microseconds (rounded as the simulator does).
+fn frame_time_us(seq: u64) -> u64 {
+    (seq * 1_000_000 + 30) / 60
+}
+
+impl SimSource {
+    /// Start with `spec`; each press is preceded by `gap_frames` no-contact frames.
+    pub fn new(
+        sim: Arc<Simulator>,
+        spec: PressSpec,
+        gap_frames: usize,
+        pace: Pace,
+    ) -> Result<(SimSource, SimHandle), SourceError> {
+        sim.press_meta(&spec)
+            .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+        let (tx, rx) = channel();
+        Ok((
+            SimSource {
+                sim,
+                spec,
+                rx,
+                gap_frames,
+                pos: 0,
+                background: None,
+                pace,
+                started: None,
+                seq: 0,
+                presses: 0,
+                idle: false,
+                once: false,
+            },
+            SimHandle(tx),
+        ))
+    }
+
+    /// Start lifted (no-contact frames) until a command says what to press.
+    pub fn start_idle(mut self) -> Self {
+        self.idle = true;
+        self
+    }
+
+    /// The press being (or last) simulated.
+    pub fn spec(&self) -> &PressSpec {
+        &self.spec
+    }
+
+    /// Presses completed so far.
+    pub fn presses(&self) -> u64 {
+        self.presses
+    }
+
+    fn apply(&mut self, cmd: SimCommand) -> Result<(), SourceError> {
+        let mut spec = self.spec.clone();
+        self.once = false;
+        match cmd {
+            SimCommand::Lift => {
+                self.idle = true;
+                self.pos = 0;
+                return Ok(());
+            }
+            SimCommand::PressOnce(s) => {
+                spec = s;
+                self.once = true;
+            }
+            SimCommand::Textile(t) => spec.textile = t,
+            SimCommand::Person(p) => spec.person = p,
+            SimCommand::Sensor(s) => spec.sensor = s,
+            SimCommand::Jig(j) => spec.jig = j,
+            SimCommand::Spec(s) => spec = s,
+        }
+        match self.sim.press_meta(&spec) {
+            Ok(_) => {
+                tracing::info!(
+                    "simulator: now pressing {} (person {}, sensor {}, jig {})",
+                    spec.textile,
+                    spec.person,
+                    spec.sensor,
+                    spec.jig
+                );
+                self.spec = spec;
+                self.pos = 0;
+                self.idle = false;
+                Ok(())
+            }
+            Err(e) => {
+                tracing::warn!("simulator: change refused: {e}");
+                Ok(())
+            }
+        }
+    }
+}
+
+impl FrameSource for SimSource {
+    fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+        while let Ok(cmd) = self.rx.try_recv() {
+            self.apply(cmd)?;
+        }
+        let t = frame_time_us(self.seq);
+        if self.pace == Pace::RealTime {
+            let start = *self.started.get_or_insert_with(Instant::now);
+            let due = start + Duration::from_micros(t);
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
+        if self.idle || self.pos < self.gap_frames {
+            let sensor = self.spec.sensor;
+            if self.background.as_ref().map(|(s, _)| *s) != Some(sensor) {
+                self.background = Some((sensor, self.sim.background(sensor)));
+            }
+            let bg = &self.background.as_ref().expect("set above").1;
+            out.image.clone_from(bg);
+        } else {
+            let i = self.pos - self.gap_frames;
+            out.image = self
+                .sim
+                .render_frame(&self.spec, i)
+                .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+        }
+        out.timestamp_us = t;
+        out.seq = self.seq;
+        self.seq += 1;
+        if self.idle {
+            return Ok(());
+        }
+        self.pos += 1;
+        if self.pos >= self.gap_frames + self.spec.frames {
+            self.pos = 0;
+            self.presses += 1;
+            self.spec.seed = self.spec.seed.wrapping_add(1);
+            if self.once {
+                self.idle = true;
+                self.once = false;
+            }
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "simulator ({} person {} sensor {} jig {})",
+            self.spec.textile, self.spec.person, self.spec.sensor, self.spec.jig
+        )
+    }
+}

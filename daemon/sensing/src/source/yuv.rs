@@ -1,0 +1,319 @@
+//! Pure parts of DIGIT capture: stream-format negotiation, decoding of YUYV
+//! and MJPG buffers, and the rotation to the portrait frames
+//! `digit-interface` returns.
+//!
+//! Orientation: the DIGIT's image sensor streams landscape (320x240 QVGA).
+//! `digit-interface` `get_frame()` applies `cv2.transpose` then
+//! `cv2.flip(frame, 0)` (flip about the horizontal axis), i.e. a rotation by
+//! 90 degrees counter-clockwise: output pixel (x, y) = sensor pixel
+//! (W-1-y, x), giving 240 wide x 320 tall. VGA (640x480) is rotated the same
+//! way and then averaged 2x2 down to 240x320 so the rest of the pipeline sees
+//! one geometry.
+
+use image::RgbImage;
+
+use crate::frame::{FrameError, FRAME_H, FRAME_W};
+
+/// Pixel formats we can decode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PixelFormat {
+    /// Packed 4:2:2 `YUYV` (Y0 U Y1 V), BT.601 limited range.
+    Yuyv,
+    /// Motion JPEG, one baseline JPEG per buffer.
+    Mjpg,
+}
+
+impl PixelFormat {
+    /// The V4L2 fourcc.
+    pub fn fourcc(self) -> [u8; 4] {
+        match self {
+            PixelFormat::Yuyv => *b"YUYV",
+            PixelFormat::Mjpg => *b"MJPG",
+        }
+    }
+    /// From a V4L2 fourcc.
+    pub fn from_fourcc(f: [u8; 4]) -> Option<PixelFormat> {
+        match &f {
+            b"YUYV" => Some(PixelFormat::Yuyv),
+            b"MJPG" => Some(PixelFormat::Mjpg),
+            _ => None,
+        }
+    }
+}
+
+/// The DIGIT's stream modes (`DigitHandler.STREAMS`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StreamMode {
+    /// 320x240 at 60 fps (the default).
+    Qvga60,
+    /// 320x240 at 30 fps.
+    Qvga30,
+    /// 640x480 at 30 fps.
+    Vga30,
+    /// 640x480 at 15 fps.
+    Vga15,
+}
+
+impl StreamMode {
+    /// Sensor-orientation width, height and frame rate.
+    pub fn geometry(self) -> (u32, u32, u32) {
+        match self {
+            StreamMode::Qvga60 => (320, 240, 60),
+            StreamMode::Qvga30 => (320, 240, 30),
+            StreamMode::Vga30 => (640, 480, 30),
+            StreamMode::Vga15 => (640, 480, 15),
+        }
+    }
+    /// Modes to try, the wanted one first, then the DIGIT defaults in order.
+    pub fn fallbacks(self) -> Vec<StreamMode> {
+        let mut v = vec![self];
+        for m in [
+            StreamMode::Qvga60,
+            StreamMode::Qvga30,
+            StreamMode::Vga30,
+            StreamMode::Vga15,
+        ] {
+            if m != self {
+                v.push(m);
+            }
+        }
+        v
+    }
+}
+
+/// One (format, size) the device offers, with its frame rates.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OfferedFormat {
+    /// V4L2 fourcc.
+    pub fourcc: [u8; 4],
+    /// Width in pixels (sensor orientation).
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Frame rates (whole fps) offered at this size.
+    pub fps: Vec<u32>,
+}
+
+/// What to ask the driver for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Negotiated {
+    /// Pixel format.
+    pub format: PixelFormat,
+    /// Mode (size and rate).
+    pub mode: StreamMode,
+}
+
+/// Pick a format for `want`: the wanted mode if offered (YUYV preferred over
+/// MJPG: no decode cost, no compression artefacts), else the first fallback
+/// mode offered. Error if the device offers none of the DIGIT modes in a
+/// format we decode.
+pub fn negotiate(offered: &[OfferedFormat], want: StreamMode) -> Result<Negotiated, String> {
+    for mode in want.fallbacks() {
+        let (w, h, fps) = mode.geometry();
+        for format in [PixelFormat::Yuyv, PixelFormat::Mjpg] {
+            let ok = offered.iter().any(|o| {
+                o.fourcc == format.fourcc() && o.width == w && o.height == h && o.fps.contains(&fps)
+            });
+            if ok {
+                return Ok(Negotiated { format, mode });
+            }
+        }
+    }
+    let list: Vec<String> = offered
+        .iter()
+        .map(|o| {
+            format!(
+                "{} {}x{} @ {:?} fps",
+                String::from_utf8_lossy(&o.fourcc),
+                o.width,
+                o.height,
+                o.fps
+            )
+        })
+        .collect();
+    Err(format!(
+        "the camera offers none of the DIGIT modes (320x240 @ 60/30, 640x480 @ 30/15 in YUYV or MJPG); it offers: {}",
+        if list.is_empty() { "nothing".to_string() } else { list.join("; ") }
+    ))
+}
+
+#[inline]
+fn clamp_u8(v: i32) -> u8 {
+    v.clamp(0, 255) as u8
+}
+
+#[inline]
+fn yuv_to_rgb(y: u8, u: u8, v: u8) -> [u8; 3] {
+    // BT.601 limited range, 16.16 fixed point (as OpenCV's YUV2RGB_YUYV).
+    let c = (y as i32 - 16).max(0) * 76284; // 1.164
+    let d = u as i32 - 128;
+    let e = v as i32 - 128;
+    let r = (c + 104595 * e + 32768) >> 16; // 1.596
+    let g = (c - 25625 * d - 53281 * e + 32768) >> 16; // 0.391, 0.813
+    let b = (c + 132252 * d + 32768) >> 16; // 2.018
+    [clamp_u8(r), clamp_u8(g), clamp_u8(b)]
+}
+
+/// Decode a YUYV buffer of `width` x `height` (sensor orientation) into
+/// `rgb` (resized to `width*height*3`, reused between calls).
+pub fn decode_yuyv(
+    buf: &[u8],
+    width: u32,
+    height: u32,
+    rgb: &mut Vec<u8>,
+) -> Result<(), FrameError> {
+    let (w, h) = (width as usize, height as usize);
+    if w == 0 || h == 0 || w % 2 != 0 {
+        return Err(FrameError::Decode(format!(
+            "YUYV needs an even, non-zero width, got {width}x{height}"
+        )));
+    }
+    let need = w * h * 2;
+    // Drivers may pad the buffer; shorter is a truncated frame.
+    if buf.len() < need {
+        return Err(FrameError::Decode(format!(
+            "YUYV buffer holds {} bytes, a {width}x{height} frame needs {need}",
+            buf.len()
+        )));
+    }
+    rgb.resize(w * h * 3, 0);
+    for (src, dst) in buf[..need].chunks_exact(4).zip(rgb.chunks_exact_mut(6)) {
+        let (y0, u, y1, v) = (src[0], src[1], src[2], src[3]);
+        dst[..3].copy_from_slice(&yuv_to_rgb(y0, u, v));
+        dst[3..].copy_from_slice(&yuv_to_rgb(y1, u, v));
+    }
+    Ok(())
+}
+
+/// Decode one MJPG buffer (a JPEG) into `rgb`; checks it is `width` x `height`.
+/// Truncated frames (a known UVC failure: the JPEG decoder would fill the
+/// missing part with grey) are rejected by checking the end-of-image marker.
+pub fn decode_mjpg(
+    buf: &[u8],
+    width: u32,
+    height: u32,
+    rgb: &mut Vec<u8>,
+) -> Result<(), FrameError> {
+    if !buf.starts_with(&[0xff, 0xd8]) {
+        return Err(FrameError::Decode(
+            "MJPG buffer does not start with a JPEG start-of-image marker".into(),
+        ));
+    }
+    // Some cameras pad the buffer with zeros after the end-of-image marker.
+    let end = buf.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    if end < 4 || buf[end - 2..end] != [0xff, 0xd9] {
+        return Err(FrameError::Decode(
+            "truncated MJPG frame (no JPEG end-of-image marker)".into(),
+        ));
+    }
+    let img = image::load_from_memory_with_format(buf, image::ImageFormat::Jpeg)
+        .map_err(|e| FrameError::Decode(format!("MJPG buffer is not a valid JPEG: {e}")))?;
+    if (img.width(), img.height()) != (width, height) {
+        return Err(FrameError::Decode(format!(
+            "MJPG frame is {}x{}, the stream was negotiated at {width}x{height}",
+            img.width(),
+            img.height()
+        )));
+    }
+    let img = img.into_rgb8();
+    rgb.clear();
+    rgb.extend_from_slice(img.as_raw());
+    Ok(())
+}
+
+/// Rotate a sensor-orientation RGB buffer (`width` x `height`, landscape)
+/// into the 240x320 portrait frame: 90 degrees counter-clockwise
+/// (digit-interface's transpose + vertical flip). 320x240 maps 1:1; 640x480
+/// is rotated and averaged over 2x2 blocks.
+pub fn rotate_to_frame(
+    rgb: &[u8],
+    width: u32,
+    height: u32,
+    out: &mut RgbImage,
+) -> Result<(), FrameError> {
+    let (w, h) = (width as usize, height as usize);
+    if rgb.len() != w * h * 3 {
+        return Err(FrameError::Decode(format!(
+            "RGB buffer holds {} bytes, {width}x{height} needs {}",
+            rgb.len(),
+            w * h * 3
+        )));
+    }
+    let scale = match (width, height) {
+        (320, 240) => 1,
+        (640, 480) => 2,
+        _ => {
+            return Err(FrameError::Decode(format!(
+                "cannot map a {width}x{height} sensor frame to {FRAME_W}x{FRAME_H}"
+            )))
+        }
+    };
+    if (out.width(), out.height()) != (FRAME_W, FRAME_H) {
+        *out = RgbImage::new(FRAME_W, FRAME_H);
+    }
+    let ow = FRAME_W as usize;
+    let dst = &mut **out;
+    // Rotated (full-resolution) pixel (X, Y) = sensor pixel (w-1-Y, X).
+    for oy in 0..FRAME_H as usize {
+        for ox in 0..ow {
+            let d = (oy * ow + ox) * 3;
+            if scale == 1 {
+                let s = (ox * w + (w - 1 - oy)) * 3;
+                dst[d..d + 3].copy_from_slice(&rgb[s..s + 3]);
+            } else {
+                let mut acc = [0u32; 3];
+                for dy in 0..2 {
+                    for dx in 0..2 {
+                        let (rx, ry) = (ox * 2 + dx, oy * 2 + dy);
+                        let s = (rx * w + (w - 1 - ry)) * 3;
+                        for c in 0..3 {
+                            acc[c] += rgb[s + c] as u32;
+                        }
+                    }
+                }
+                for c in 0..3 {
+                    dst[d + c] = ((acc[c] + 2) / 4) as u8;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Decode a captured buffer and rotate it into `out`. `scratch` is reused.
+pub fn decode_buffer(
+    buf: &[u8],
+    format: PixelFormat,
+    width: u32,
+    height: u32,
+    scratch: &mut Vec<u8>,
+    out: &mut RgbImage,
+) -> Result<(), FrameError> {
+    match format {
+        PixelFormat::Yuyv => decode_yuyv(buf, width, height, scratch)?,
+        PixelFormat::Mjpg => decode_mjpg(buf, width, height, scratch)?,
+    }
+    rotate_to_frame(scratch, width, height, out)
+}
+
+/// Encode an RGB buffer as YUYV (BT.601 limited range); the inverse of
+/// [`decode_yuyv`] up to rounding and chroma subsampling. Used to make
+/// synthetic capture buffers for tests and benchmarks.
+pub fn encode_yuyv(rgb: &[u8], width: u32, height: u32) -> Vec<u8> {
+    let (w, h) = (width as usize, height as usize);
+    let mut out = Vec::with_capacity(w * h * 2);
+    let yuv = |p: &[u8]| {
+        let (r, g, b) = (p[0] as f32, p[1] as f32, p[2] as f32);
+        let y = 16.0 + 0.257 * r + 0.504 * g + 0.098 * b;
+        let u = 128.0 - 0.148 * r - 0.291 * g + 0.439 * b;
+        let v = 128.0 + 0.439 * r - 0.368 * g - 0.071 * b;
+        (y, u, v)
+    };
+    for px in rgb.chunks_exact(6).take(w * h / 2) {
+        let (y0, u0, v0) = yuv(&px[..3]);
+        let (y1, u1, v1) = yuv(&px[3..]);
+        let q = |x: f32| x.round().clamp(0.0, 255.0) as u8;
+        out.extend_from_slice(&[q(y0), q((u0 + u1) / 2.0), q(y1), q((v0 + v1) / 2.0)]);
+    }
+    out
+}

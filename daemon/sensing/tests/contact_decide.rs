@@ -1,0 +1,306 @@
+//! Contact detection and decisions: gating, hysteresis, stale references,
+//! no flip-flop under noise, unknown textiles.
+
+mod common;
+
+use image::{Rgb, RgbImage};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use telextiles_sensing::contact::{ContactConfig, ContactDetector, ContactEvent, EndReason};
+use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, TextileIndex};
+use telextiles_sim::PressSpec;
+
+fn events(det: &mut ContactDetector, frames: &[RgbImage], t0: u64) -> Vec<(usize, ContactEvent)> {
+    frames
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| det.update(f, t0 + i as u64 * 16_667).event.map(|e| (i, e)))
+        .collect()
+}
+
+#[test]
+fn simulated_presses_start_and_end_around_the_true_contact() {
+    let sim = common::sim();
+    for (id, seed) in [("T030", 1), ("T020", 2), ("T100", 3)] {
+        let spec = PressSpec {
+            release: Some(true),
+            ..PressSpec::new(id, seed)
+        };
+        let press = sim.render_press(&spec).unwrap();
+        let params = press.meta.params.clone().unwrap();
+        // Reference captured from 10 noisy untouched frames first.
+        let mut frames: Vec<RgbImage> = (0..10).map(|_| press.frames[0].clone()).collect();
+        frames.extend(press.frames.iter().cloned());
+        // ... and 20 untouched frames after.
+        frames.extend((0..20).map(|_| sim.render_frame(&spec, 0).unwrap()));
+        let mut det = ContactDetector::new(ContactConfig::default());
+        let ev = events(&mut det, &frames, 0);
+        let starts: Vec<usize> = ev
+            .iter()
+            .filter(|(_, e)| matches!(e, ContactEvent::PressStart { .. }))
+            .map(|(i, _)| *i)
+            .collect();
+        let ends: Vec<_> = ev
+            .iter()
+            .filter(|(_, e)| matches!(e, ContactEvent::PressEnd { .. }))
+            .collect();
+        assert_eq!(starts.len(), 1, "{id}: {ev:?}");
+        assert_eq!(ends.len(), 1, "{id}: {ev:?}");
+        let c = 10 + params.contact_frame as usize;
+        assert!(
+            starts[0] >= c && starts[0] <= 10 + params.hold_frame as usize + 3,
+            "{id}: start at {} contact {c} hold {}",
+            starts[0],
+            10 + params.hold_frame
+        );
+        let r = 10 + params.release_frame.unwrap() as usize;
+        assert!(
+            ends[0].0 >= r,
+            "{id}: ended at {} before release {r}",
+            ends[0].0
+        );
+        assert!(matches!(
+            ends[0].1,
+            ContactEvent::PressEnd {
+                reason: EndReason::Released,
+                ..
+            }
+        ));
+    }
+}
+
+#[test]
+fn noise_and_slow_drift_never_start_a_press() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let base = common::sim().background(0);
+    // 16 noise fields (camera noise, sigma 2) reused; the drift is added on top.
+    let fields: Vec<Vec<f32>> = (0..16)
+        .map(|_| {
+            base.iter()
+                .map(|&v| {
+                    v as f32 + (rng.gen::<f32>() + rng.gen::<f32>() + rng.gen::<f32>() - 1.5) * 4.0
+                })
+                .collect()
+        })
+        .collect();
+    let mut det = ContactDetector::new(ContactConfig::default());
+    let mut f = base.clone();
+    // 50 s at 60 fps with a drift of +6 grey levels (LED warm-up, much
+    // faster than the real one) under camera noise.
+    for i in 0..3000u32 {
+        let off = 6.0 * i as f32 / 3000.0;
+        let field = &fields[(i as usize * 7) % 16];
+        for (p, v) in f.iter_mut().zip(field) {
+            *p = (v + off).round().clamp(0.0, 255.0) as u8;
+        }
+        let u = det.update(&f, i as u64 * 16_667);
+        assert!(!u.in_contact, "contact at frame {i} (score {})", u.score);
+        assert!(!matches!(u.event, Some(ContactEvent::PressStart { .. })));
+    }
+    assert!(det.floor() < 1.5, "floor {}", det.floor());
+}
+
+#[test]
+fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
+    let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
+    let touched = RgbImage::from_pixel(240, 320, Rgb([104, 104, 104]));
+    let cfg = ContactConfig {
+        reference_frames: 2,
+        stale_after_frames: 0,
+        ..Default::default()
+    };
+    let mut det = ContactDetector::new(cfg);
+    let seq = |pattern: &str| {
+        pattern
+            .chars()
+            .map(|c| {
+                if c == 'x' {
+                    touched.clone()
+                } else {
+                    base.clone()
+                }
+            })
+            .collect::<Vec<_>>()
+    };
+    // 2 reference frames, a 2-frame blip (ignored), a press, a 3-frame gap (held), then release.
+    let frames = seq("..__xx__xxxxxx...xxxx______");
+    let ev = events(&mut det, &frames, 0);
+    let kinds: Vec<String> = ev
+        .iter()
+        .map(|(i, e)| {
+            format!(
+                "{i}:{}",
+                match e {
+                    ContactEvent::ReferenceCaptured { .. } => "ref",
+                    ContactEvent::PressStart { .. } => "start",
+                    ContactEvent::PressEnd { .. } => "end",
+                }
+            )
+        })
+        .collect();
+    assert_eq!(kinds, ["1:ref", "10:start", "25:end"]);
+    // The start carries the timestamp of the first touched frame of its run.
+    assert!(matches!(ev[1].1, ContactEvent::PressStart { t_us } if t_us == 8 * 16_667));
+}
+
+#[test]
+fn a_stale_reference_is_recaptured_and_recapture_works_on_command() {
+    let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
+    let shifted = RgbImage::from_pixel(240, 320, Rgb([110, 110, 110]));
+    let cfg = ContactConfig {
+        reference_frames: 2,
+        stale_after_frames: 50,
+        ..Default::default()
+    };
+    let mut det = ContactDetector::new(cfg);
+    det.update(&base, 0);
+    det.update(&base, 1);
+    // The gel/LEDs changed: a flat "contact" that never varies.
+    let mut ended = None;
+    for i in 0..80 {
+        if let Some(ContactEvent::PressEnd { reason, .. }) = det.update(&shifted, 10 + i).event {
+            ended = Some((i, reason));
+        }
+    }
+    assert_eq!(ended.map(|e| e.1), Some(EndReason::StaleReference));
+    assert!(!det.in_contact(), "the new reference absorbed the change");
+    assert!(det.update(&shifted, 200).score < 0.5);
+    // On command, while touching: the press ends, the next frames are the reference.
+    let mut det = ContactDetector::new(ContactConfig {
+        reference_frames: 2,
+        ..Default::default()
+    });
+    for i in 0..2 {
+        det.update(&base, i);
+    }
+    for i in 2..10 {
+        det.update(&shifted, i);
+    }
+    assert!(det.in_contact());
+    det.recapture();
+    assert!(det.capturing());
+    assert!(matches!(
+        det.update(&shifted, 10).event,
+        Some(ContactEvent::PressEnd {
+            reason: EndReason::Recapture,
+            ..
+        })
+    ));
+    det.update(&shifted, 11);
+    assert!(!det.update(&shifted, 12).in_contact);
+}
+
+fn unit(v: &[f32]) -> Vec<f32> {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    v.iter().map(|x| x / n).collect()
+}
+
+/// Three textiles along orthogonal axes in 8-d.
+fn toy_index() -> FlatIndex {
+    let e = |k: usize| {
+        let mut v = vec![0f32; 8];
+        v[k] = 1.0;
+        v
+    };
+    FlatIndex::from_embeddings(&[
+        ("A".into(), vec![e(0)]),
+        ("B".into(), vec![e(1)]),
+        ("C".into(), vec![e(2)]),
+    ])
+    .unwrap()
+    .with_slots(vec![3, 7, 11])
+    .unwrap()
+}
+
+#[test]
+fn no_decision_outside_a_press() {
+    let idx = toy_index();
+    let mut d = Decider::new(DecideConfig::default(), 8);
+    let a = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    for t in 0..50 {
+        assert_eq!(d.on_embedding(&idx, t, &a).decision, None);
+    }
+    assert_eq!(d.press_end(60), None);
+    d.press_start(100);
+    let mut first = None;
+    for t in 101..120 {
+        if let Some(dec) = d.on_embedding(&idx, t, &a).decision {
+            first.get_or_insert(t);
+            assert_eq!((idx.id(dec.entry), dec.slot, dec.unknown), ("A", 3, false));
+        }
+    }
+    let cfg = DecideConfig::default();
+    // Counting starts at the min_frames-th embedding; confirm_frames in a row.
+    assert_eq!(
+        first,
+        Some(100 + (cfg.min_frames + cfg.confirm_frames - 1) as u64)
+    );
+    let out = d.press_end(130).unwrap();
+    assert_eq!((out.first_decision_us, out.switches), (first, 0));
+}
+
+#[test]
+fn no_flip_flop_between_close_textiles_under_noise() {
+    let idx = toy_index();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut d = Decider::new(DecideConfig::default(), 8);
+    d.press_start(0);
+    let mut changes = 0;
+    // Frames halfway between A and B (A very slightly nearer) with heavy noise.
+    for t in 1..600u64 {
+        let mut v: Vec<f32> = (0..8).map(|_| rng.gen_range(-0.6f32..0.6)).collect();
+        v[0] += 1.0;
+        v[1] += 0.97;
+        if d.on_embedding(&idx, t, &unit(&v)).changed {
+            changes += 1;
+        }
+    }
+    let o = d.press_end(600).unwrap();
+    assert_eq!(changes, 1, "decided once, never switched");
+    assert_eq!(o.switches, 0);
+}
+
+#[test]
+fn a_real_change_of_textile_switches_after_k_frames() {
+    let idx = toy_index();
+    let cfg = DecideConfig {
+        switch_frames: 5,
+        ..Default::default()
+    };
+    let mut d = Decider::new(cfg, 8);
+    d.press_start(0);
+    let a = unit(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let c = unit(&[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    for t in 1..=20 {
+        d.on_embedding(&idx, t, &a);
+    }
+    let mut switched_at = None;
+    for t in 21..=200 {
+        let s = d.on_embedding(&idx, t, &c);
+        if s.changed {
+            switched_at = Some(t);
+            assert_eq!(idx.id(s.decision.unwrap().entry), "C");
+            break;
+        }
+    }
+    // The running mean must first move past the midpoint (frame 40: 20 A + 20 C),
+    // then lead by the margin for 5 frames.
+    let t = switched_at.expect("switched");
+    assert!(t > 40 && t <= 60, "switched at {t}");
+}
+
+#[test]
+fn far_textiles_get_the_nearest_known_flagged_unknown() {
+    let idx = toy_index();
+    let mut d = Decider::new(DecideConfig::default(), 8);
+    d.press_start(0);
+    let far = unit(&[0.3, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+    let mut last = None;
+    for t in 1..20 {
+        last = d.on_embedding(&idx, t, &far).decision.or(last);
+    }
+    let dec = last.unwrap();
+    assert_eq!(idx.id(dec.entry), "A");
+    assert!(dec.unknown && dec.distance > 0.5, "{dec:?}");
+    assert!(dec.confidence >= 0.0 && dec.confidence <= 1.0);
+}

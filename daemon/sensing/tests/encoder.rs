@@ -1,0 +1,167 @@
+//! The ONNX encoder with the real ONNX Runtime and the fixture models.
+
+mod common;
+
+use image::{Rgb, RgbImage};
+use telextiles_sensing::encoder::{Encoder, EncoderError, EncoderOptions};
+use telextiles_sensing::preprocess::{PreprocessSpec, Preprocessor};
+
+fn open(name: &str) -> Result<Encoder, EncoderError> {
+    Encoder::open(&common::fixture(name), &EncoderOptions::default())
+}
+
+fn contract_msg(name: &str) -> String {
+    match open(name) {
+        Err(EncoderError::Contract { msg, .. }) => msg,
+        Err(e) => panic!("{name}: expected a contract error, got {e}"),
+        Ok(_) => panic!("{name}: accepted"),
+    }
+}
+
+#[test]
+fn fixture_model_loads_with_its_metadata() {
+    let enc = common::fixture_encoder();
+    let info = enc.info();
+    assert_eq!(info.dim, 64);
+    assert_eq!(info.preprocess.size, 64);
+    assert_eq!(info.preprocess.crop, 224);
+    assert_eq!(
+        info.preprocess.mean,
+        [0.379_323_63, 0.413_103_4, 0.383_360_82]
+    );
+    assert_eq!(info.background, "none");
+    assert!(info.arch.starts_with("fixture"));
+    let hash =
+        telextiles_sensing::encoder::file_sha256(&common::fixture("fixture_encoder.onnx")).unwrap();
+    assert_eq!(info.sha256, hash);
+}
+
+#[test]
+fn embeddings_are_normalised_deterministic_and_depend_on_the_frame() {
+    let sim = common::sim();
+    let mut enc = common::fixture_encoder();
+    let spec = telextiles_sim::PressSpec::new("T030", 1);
+    let a = sim.render_frame(&spec, 100).unwrap();
+    let b = sim
+        .render_frame(&telextiles_sim::PressSpec::new("T110", 1), 100)
+        .unwrap();
+    let ea = enc.encode(&a).unwrap().to_vec();
+    let eb = enc.encode(&b).unwrap().to_vec();
+    let ea2 = enc.encode(&a).unwrap().to_vec();
+    assert_eq!(ea.len(), 64);
+    let n: f32 = ea.iter().map(|x| x * x).sum::<f32>().sqrt();
+    assert!((n - 1.0).abs() < 1e-5);
+    // The bound input tensor really is rewritten in place for every frame.
+    assert_eq!(ea, ea2);
+    let d: f32 = ea
+        .iter()
+        .zip(&eb)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f32>()
+        .sqrt();
+    assert!(
+        d > 1e-3,
+        "different textiles give different embeddings ({d})"
+    );
+    // A second session on the same model agrees (no hidden state).
+    let mut enc2 = common::fixture_encoder();
+    let eb2 = enc2.encode(&b).unwrap().to_vec();
+    for (x, y) in eb.iter().zip(&eb2) {
+        assert!((x - y).abs() < 1e-5);
+    }
+    // Threads are configurable and do not change the result beyond rounding.
+    let mut enc4 = Encoder::open(
+        &common::fixture("fixture_encoder.onnx"),
+        &EncoderOptions {
+            threads: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let ea4 = enc4.encode(&a).unwrap();
+    for (x, y) in ea.iter().zip(ea4) {
+        assert!((x - y).abs() < 1e-4);
+    }
+}
+
+#[test]
+fn models_breaking_the_contract_are_refused_at_start_up() {
+    let m = contract_msg("bad_no_metadata.onnx");
+    assert!(
+        m.contains("telextiles.format") && m.contains("missing"),
+        "{m}"
+    );
+    let m = contract_msg("bad_input_size.onnx");
+    assert!(m.contains("[N,3,64,64]") && m.contains("32"), "{m}");
+    let m = contract_msg("bad_output_dim.onnx");
+    assert!(m.contains("[N,64]") && m.contains("32"), "{m}");
+    let m = contract_msg("bad_input_name.onnx");
+    assert!(m.contains("\"frames\"") && m.contains("images"), "{m}");
+}
+
+#[test]
+fn missing_or_corrupt_model_files_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("none.onnx");
+    match Encoder::open(&missing, &EncoderOptions::default()) {
+        Err(e @ EncoderError::Model { .. }) => assert!(e.to_string().contains("none.onnx"), "{e}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("opened a missing model"),
+    }
+    let junk = dir.path().join("junk.onnx");
+    std::fs::write(&junk, b"this is not a protobuf").unwrap();
+    assert!(matches!(
+        Encoder::open(&junk, &EncoderOptions::default()),
+        Err(EncoderError::Model { .. })
+    ));
+}
+
+#[test]
+fn wrong_sized_frames_are_rejected_not_encoded() {
+    let mut enc = common::fixture_encoder();
+    let e = enc.encode(&RgbImage::new(320, 240)).unwrap_err();
+    assert!(e.to_string().contains("320x240"), "{e}");
+}
+
+#[test]
+fn preprocessing_crops_resizes_and_normalises_as_specified() {
+    let spec = PreprocessSpec {
+        crop: 4,
+        size: 2,
+        mean: [0.5, 0.25, 0.0],
+        std: [0.5, 0.25, 1.0],
+    };
+    let pre = Preprocessor::new(spec).unwrap();
+    // Centre crop of 4x4 starts at (118, 158); fill it with known values.
+    let mut img = RgbImage::from_pixel(240, 320, Rgb([0, 0, 0]));
+    for y in 0..4 {
+        for x in 0..4 {
+            img.put_pixel(118 + x, 158 + y, Rgb([(x * 60) as u8, (y * 60) as u8, 255]));
+        }
+    }
+    let mut out = vec![0f32; pre.len()];
+    pre.run(&img, &mut out);
+    // Output (0,0) samples source 0.5 -> mix of columns/rows 0 and 1.
+    let r00 = ((30.0 / 255.0) - 0.5) / 0.5;
+    assert!((out[0] - r00).abs() < 1e-5, "{} vs {r00}", out[0]);
+    let g10 = ((150.0 / 255.0) - 0.25) / 0.25; // output row 1 samples source row 2.5
+    assert!((out[4 + 2] - g10).abs() < 1e-5, "{} vs {g10}", out[4 + 2]);
+    assert!(
+        out[8..].iter().all(|b| (b - 1.0).abs() < 1e-6),
+        "blue plane"
+    );
+    assert!(Preprocessor::new(PreprocessSpec {
+        crop: 300,
+        size: 2,
+        mean: [0.0; 3],
+        std: [1.0; 3]
+    })
+    .is_err());
+    assert!(Preprocessor::new(PreprocessSpec {
+        crop: 10,
+        size: 2,
+        mean: [0.0; 3],
+        std: [0.0; 3]
+    })
+    .is_err());
+}

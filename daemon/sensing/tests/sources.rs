@@ -1,0 +1,497 @@
+//! Frame sources: DIGIT discovery on fake sysfs trees, format negotiation,
+//! YUYV/MJPG decoding and orientation, LED control values, recorded replay,
+//! and the resilient wrapper (missing camera, unplugging, bad frames).
+
+use std::os::unix::fs::symlink;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use image::{Rgb, RgbImage};
+use proptest::prelude::*;
+use telextiles_sensing::frame::{Frame, FrameError, FRAME_H, FRAME_W};
+use telextiles_sensing::source::digit::{led_control_value, LedIntensity};
+use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+use telextiles_sensing::source::sysfs::{find_digit, find_digits};
+use telextiles_sensing::source::yuv::{
+    decode_buffer, decode_mjpg, decode_yuyv, encode_yuyv, negotiate, rotate_to_frame,
+    OfferedFormat, PixelFormat, StreamMode,
+};
+use telextiles_sensing::source::{Backoff, FrameSource, Resilient, SourceError};
+
+fn write(p: &Path, s: &str) {
+    std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+    std::fs::write(p, format!("{s}\n")).unwrap();
+}
+
+/// A fake USB camera: /sys/devices/.../<usb>/{idVendor,...} and
+/// /sys/class/video4linux/<node>/device -> <usb>/<usb>:1.0
+fn fake_camera(root: &Path, usb: &str, nodes: &[(&str, &str)], attrs: &[(&str, &str)]) {
+    let dev = root.join("devices/pci0000:00/usb1").join(usb);
+    for (k, v) in attrs {
+        write(&dev.join(k), v);
+    }
+    let iface = dev.join(format!("{usb}:1.0"));
+    std::fs::create_dir_all(&iface).unwrap();
+    for (node, index) in nodes {
+        let class = root.join("class/video4linux").join(node);
+        std::fs::create_dir_all(&class).unwrap();
+        write(&class.join("index"), index);
+        write(&class.join("name"), "DIGIT: DIGIT");
+        symlink(&iface, class.join("device")).unwrap();
+    }
+}
+
+fn digit_attrs(serial: &str) -> Vec<(&'static str, String)> {
+    vec![
+        ("idVendor", "2833".into()),
+        ("idProduct", "0209".into()),
+        ("product", "DIGIT".into()),
+        ("manufacturer", "Facebook".into()),
+        ("serial", serial.into()),
+        ("bcdDevice", "0200".into()),
+    ]
+}
+
+fn fake_sysfs() -> tempfile::TempDir {
+    let t = tempfile::tempdir().unwrap();
+    let a1 = digit_attrs("D20118");
+    let a1: Vec<(&str, &str)> = a1.iter().map(|(k, v)| (*k, v.as_str())).collect();
+    fake_camera(t.path(), "1-1", &[("video0", "0"), ("video1", "1")], &a1);
+    let webcam = [
+        ("idVendor", "046d"),
+        ("idProduct", "0825"),
+        ("product", "Webcam C270"),
+        ("serial", "ABC"),
+    ];
+    fake_camera(
+        t.path(),
+        "1-2",
+        &[("video2", "0"), ("video3", "1")],
+        &webcam,
+    );
+    let a2 = digit_attrs("D00045");
+    let a2: Vec<(&str, &str)> = a2.iter().map(|(k, v)| (*k, v.as_str())).collect();
+    fake_camera(t.path(), "1-3", &[("video10", "0"), ("video11", "1")], &a2);
+    t
+}
+
+#[test]
+fn sysfs_walk_finds_digits_by_usb_id_and_serial() {
+    let t = fake_sysfs();
+    let dev = Path::new("/dev");
+    let all = find_digits(t.path(), dev);
+    let names: Vec<_> = all
+        .iter()
+        .map(|d| (d.name.as_str(), d.serial.as_str()))
+        .collect();
+    assert_eq!(
+        names,
+        [("video0", "D20118"), ("video10", "D00045")],
+        "capture nodes only, webcam skipped"
+    );
+    assert_eq!(all[0].node, Path::new("/dev/video0"));
+    assert_eq!(all[0].model, "DIGIT");
+    assert_eq!(all[0].manufacturer, "Facebook");
+    assert_eq!(all[0].revision, 200);
+    let d = find_digit(t.path(), dev, Some("D00045")).unwrap();
+    assert_eq!(d.node, Path::new("/dev/video10"));
+    assert_eq!(find_digit(t.path(), dev, None).unwrap().serial, "D20118");
+    match find_digit(t.path(), dev, Some("D99999")) {
+        Err(SourceError::Unavailable(m)) => {
+            assert!(
+                m.contains("D99999") && m.contains("D20118") && m.contains("D00045"),
+                "{m}"
+            )
+        }
+        other => panic!("expected Unavailable, got {other:?}"),
+    }
+}
+
+#[test]
+fn sysfs_matches_on_product_name_alone_and_reports_absence_clearly() {
+    let t = tempfile::tempdir().unwrap();
+    // Another firmware's USB id, product string still DIGIT.
+    fake_camera(
+        t.path(),
+        "2-1",
+        &[("video4", "0")],
+        &[
+            ("idVendor", "1234"),
+            ("idProduct", "5678"),
+            ("product", "DIGIT"),
+            ("serial", "D1"),
+        ],
+    );
+    assert_eq!(find_digits(t.path(), Path::new("/dev")).len(), 1);
+    let empty = tempfile::tempdir().unwrap();
+    match find_digit(empty.path(), Path::new("/dev"), None) {
+        Err(SourceError::Unavailable(m)) => {
+            assert!(m.contains("2833:0209") && m.contains("plugged in"), "{m}")
+        }
+        other => panic!("expected Unavailable, got {other:?}"),
+    }
+}
+
+fn offer(f: &[u8; 4], w: u32, h: u32, fps: &[u32]) -> OfferedFormat {
+    OfferedFormat {
+        fourcc: *f,
+        width: w,
+        height: h,
+        fps: fps.to_vec(),
+    }
+}
+
+#[test]
+fn negotiation_prefers_yuyv_qvga60_and_falls_back() {
+    let digit = [
+        offer(b"YUYV", 320, 240, &[60, 30]),
+        offer(b"YUYV", 640, 480, &[30, 15]),
+        offer(b"MJPG", 320, 240, &[60, 30]),
+    ];
+    let n = negotiate(&digit, StreamMode::Qvga60).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, StreamMode::Qvga60));
+    let n = negotiate(&digit, StreamMode::Vga30).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, StreamMode::Vga30));
+    let mjpg_only = [offer(b"MJPG", 320, 240, &[60, 30])];
+    assert_eq!(
+        negotiate(&mjpg_only, StreamMode::Qvga60).unwrap().format,
+        PixelFormat::Mjpg
+    );
+    let qvga30 = [offer(b"YUYV", 320, 240, &[30])];
+    assert_eq!(
+        negotiate(&qvga30, StreamMode::Qvga60).unwrap().mode,
+        StreamMode::Qvga30
+    );
+    let webcam = [
+        offer(b"YUYV", 1280, 720, &[10]),
+        offer(b"H264", 320, 240, &[60]),
+    ];
+    let e = negotiate(&webcam, StreamMode::Qvga60).unwrap_err();
+    assert!(e.contains("1280x720") && e.contains("H264"), "{e}");
+}
+
+/// A landscape sensor image with a gradient and a red square at sensor
+/// x 300..310, y 10..20.
+fn sensor_image(w: u32, h: u32) -> RgbImage {
+    RgbImage::from_fn(w, h, |x, y| {
+        let (sx, sy) = (x * 320 / w, y * 240 / h);
+        if (300..310).contains(&sx) && (10..20).contains(&sy) {
+            Rgb([220, 30, 30])
+        } else {
+            Rgb([(40 + sx / 4) as u8, (60 + sy / 4) as u8, 120])
+        }
+    })
+}
+
+fn close(a: &[u8], b: &[u8], tol: i32) -> bool {
+    a.iter()
+        .zip(b)
+        .all(|(x, y)| (*x as i32 - *y as i32).abs() <= tol)
+}
+
+#[test]
+fn yuyv_decodes_and_rotates_like_digit_interface() {
+    let src = sensor_image(320, 240);
+    let yuyv = encode_yuyv(src.as_raw(), 320, 240);
+    assert_eq!(yuyv.len(), 320 * 240 * 2);
+    let mut scratch = Vec::new();
+    let mut out = RgbImage::new(FRAME_W, FRAME_H);
+    decode_buffer(&yuyv, PixelFormat::Yuyv, 320, 240, &mut scratch, &mut out).unwrap();
+    assert_eq!((out.width(), out.height()), (240, 320));
+    // digit-interface: cv2.transpose then cv2.flip(0): out(x, y) = in(319 - y, x).
+    for (x, y) in [(0u32, 0u32), (239, 319), (15, 14), (100, 200), (5, 300)] {
+        let want = src.get_pixel(319 - y, x).0;
+        let got = out.get_pixel(x, y).0;
+        assert!(
+            close(&want, &got, 6),
+            "({x},{y}): want {want:?} got {got:?}"
+        );
+    }
+    // The red square (sensor x 300..310, y 10..20) lands at x 10..20, y 10..20.
+    assert!(out.get_pixel(15, 14).0[0] > 180 && out.get_pixel(15, 14).0[1] < 80);
+    assert!(
+        out.get_pixel(15, 300).0[0] < 150,
+        "not mirrored to the bottom"
+    );
+}
+
+#[test]
+fn vga_is_rotated_and_averaged_to_the_same_frame() {
+    let src = sensor_image(640, 480);
+    let mut out = RgbImage::new(1, 1);
+    rotate_to_frame(src.as_raw(), 640, 480, &mut out).unwrap();
+    assert_eq!((out.width(), out.height()), (240, 320));
+    assert!(
+        out.get_pixel(15, 14).0[0] > 180,
+        "red square in the same place as at QVGA"
+    );
+    assert!(matches!(
+        rotate_to_frame(&[0; 30], 5, 2, &mut out),
+        Err(FrameError::Decode(_))
+    ));
+}
+
+#[test]
+fn truncated_or_odd_yuyv_is_a_decode_error() {
+    let mut scratch = Vec::new();
+    assert!(
+        matches!(decode_yuyv(&[0; 1000], 320, 240, &mut scratch), Err(FrameError::Decode(m)) if m.contains("1000 bytes"))
+    );
+    assert!(decode_yuyv(&[0; 100], 5, 10, &mut scratch).is_err());
+    // A padded buffer (drivers may round up) decodes.
+    assert!(decode_yuyv(&vec![128; 320 * 240 * 2 + 64], 320, 240, &mut scratch).is_ok());
+}
+
+#[test]
+fn mjpg_decodes_and_rejects_garbage_and_wrong_sizes() {
+    let src = sensor_image(320, 240);
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+        .encode_image(&src)
+        .unwrap();
+    let mut scratch = Vec::new();
+    let mut out = RgbImage::new(FRAME_W, FRAME_H);
+    decode_buffer(&jpeg, PixelFormat::Mjpg, 320, 240, &mut scratch, &mut out).unwrap();
+    assert!(close(
+        &out.get_pixel(100, 200).0,
+        &src.get_pixel(119, 100).0,
+        12
+    ));
+    assert!(matches!(
+        decode_mjpg(b"not a jpeg", 320, 240, &mut scratch),
+        Err(FrameError::Decode(_))
+    ));
+    let small = sensor_image(160, 120);
+    let mut jpeg2 = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new(&mut jpeg2)
+        .encode_image(&small)
+        .unwrap();
+    match decode_mjpg(&jpeg2, 320, 240, &mut scratch) {
+        Err(FrameError::Decode(m)) => assert!(m.contains("160x120"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    // Truncated JPEG.
+    assert!(decode_mjpg(&jpeg[..jpeg.len() / 3], 320, 240, &mut scratch).is_err());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #[test]
+    fn decoding_random_buffers_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..4096), mjpg in any::<bool>(), w in 0u32..700, h in 0u32..500) {
+        let mut scratch = Vec::new();
+        let mut out = RgbImage::new(FRAME_W, FRAME_H);
+        let f = if mjpg { PixelFormat::Mjpg } else { PixelFormat::Yuyv };
+        let _ = decode_buffer(&bytes, f, w, h, &mut scratch, &mut out);
+        let mut jpegish = vec![0xff, 0xd8, 0xff, 0xe0];
+        jpegish.extend_from_slice(&bytes);
+        let _ = decode_mjpg(&jpegish, 320, 240, &mut scratch);
+    }
+}
+
+#[test]
+fn led_values_follow_the_digit_firmware() {
+    assert_eq!(led_control_value(LedIntensity::MAX, 200), Ok(0xfff));
+    assert_eq!(
+        led_control_value(LedIntensity { r: 1, g: 2, b: 3 }, 201),
+        Ok(0x123)
+    );
+    assert_eq!(led_control_value(LedIntensity::uniform(0), 200), Ok(0));
+    assert_eq!(
+        led_control_value(LedIntensity::MAX, 101),
+        Ok(255),
+        "old firmware: one 0..255 level"
+    );
+    assert!(led_control_value(LedIntensity { r: 16, g: 0, b: 0 }, 200).is_err());
+}
+
+/// A scripted source: yields the given results in order, then Ended.
+struct Script(Vec<Result<RgbImage, SourceError>>, u64);
+impl FrameSource for Script {
+    fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+        if self.0.is_empty() {
+            return Err(SourceError::Ended);
+        }
+        let img = self.0.remove(0)?;
+        out.image = img;
+        out.timestamp_us = self.1;
+        self.1 += 16_667;
+        Ok(())
+    }
+    fn describe(&self) -> String {
+        "script".into()
+    }
+}
+
+fn good() -> RgbImage {
+    RgbImage::from_pixel(FRAME_W, FRAME_H, Rgb([90, 100, 110]))
+}
+
+#[test]
+fn missing_camera_is_retried_with_backoff_then_reported() {
+    let delays = Arc::new(Mutex::new(Vec::new()));
+    let d2 = delays.clone();
+    let t = tempfile::tempdir().unwrap();
+    let root = t.path().to_path_buf();
+    let mut src = Resilient::new(move || {
+        find_digit(&root, Path::new("/dev"), Some("D20118"))?;
+        unreachable!("no camera in an empty sysfs")
+    })
+    .with_backoff(Backoff::new(
+        Duration::from_millis(100),
+        Duration::from_millis(400),
+    ))
+    .with_max_attempts(5)
+    .with_sleeper(move |d| d2.lock().unwrap().push(d));
+    let mut f = Frame::blank();
+    match src.next_frame(&mut f) {
+        Err(SourceError::Unavailable(m)) => {
+            assert!(m.contains("gave up after 5") && m.contains("D20118"), "{m}")
+        }
+        other => panic!("{other:?}"),
+    }
+    let ms: Vec<u128> = delays
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_millis())
+        .collect();
+    assert_eq!(ms, [100, 200, 400, 400]);
+    assert_eq!(src.stats().open_failures, 5);
+}
+
+#[test]
+fn unplug_replug_and_bad_frames_are_survived_and_counted() {
+    let opens = Arc::new(Mutex::new(0u32));
+    let o2 = opens.clone();
+    let mut src = Resilient::new(move || {
+        let mut n = o2.lock().unwrap();
+        *n += 1;
+        match *n {
+            1 => Ok(Box::new(Script(
+                vec![
+                    Ok(good()),
+                    Ok(RgbImage::new(320, 240)), // landscape: wrong size
+                    Err(SourceError::BadFrame(FrameError::Decode("corrupt".into()))),
+                    Ok(good()),
+                    Err(SourceError::Unavailable("unplugged".into())),
+                ],
+                0,
+            )) as Box<dyn FrameSource>),
+            2 => Err(SourceError::Unavailable("not back yet".into())),
+            _ => Ok(Box::new(Script(vec![Ok(good())], 1_000_000))),
+        }
+    })
+    .with_sleeper(|_| {});
+    let mut f = Frame::blank();
+    let mut got = 0;
+    loop {
+        match src.next_frame(&mut f) {
+            Ok(()) => {
+                assert_eq!((f.image.width(), f.image.height()), (FRAME_W, FRAME_H));
+                got += 1
+            }
+            Err(SourceError::Ended) => break,
+            Err(e) => panic!("{e}"),
+        }
+    }
+    assert_eq!(got, 3);
+    let s = src.stats();
+    assert_eq!(
+        (s.frames, s.bad_frames, s.reopens, s.open_failures),
+        (3, 2, 1, 1)
+    );
+}
+
+#[test]
+fn endless_bad_frames_trigger_a_reopen() {
+    let opens = Arc::new(Mutex::new(0u32));
+    let o2 = opens.clone();
+    let mut src = Resilient::new(move || {
+        *o2.lock().unwrap() += 1;
+        Ok(Box::new(Script(
+            (0..10).map(|_| Ok(RgbImage::new(2, 2))).collect(),
+            0,
+        )) as Box<dyn FrameSource>)
+    })
+    .with_max_consecutive_bad(4)
+    .with_max_attempts(3)
+    .with_sleeper(|_| {});
+    let mut f = Frame::blank();
+    match src.next_frame(&mut f) {
+        Err(SourceError::Unavailable(m)) => assert!(
+            m.contains("4 bad frames in a row") && m.contains("gave up after 3"),
+            "{m}"
+        ),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        *opens.lock().unwrap(),
+        3,
+        "reopened after every 4 bad frames in a row"
+    );
+    assert_eq!(src.stats().bad_frames, 12);
+}
+
+#[test]
+fn recorded_replay_fast_real_time_and_errors() {
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let spec = telextiles_sim::PressSpec {
+        frames: 12,
+        ..telextiles_sim::PressSpec::new("T030", 3)
+    };
+    let press = sim.render_press(&spec).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let pdir = dir.path().join("p");
+    telextiles_sim::recording::write_press(&pdir, &press).unwrap();
+    let mut src = RecordedSource::open(&pdir, Pace::AsFastAsPossible).unwrap();
+    let mut f = Frame::blank();
+    let mut ts = Vec::new();
+    while src.next_frame(&mut f).is_ok() {
+        ts.push(f.timestamp_us);
+        assert_eq!(f.image, press.frames[ts.len() - 1]);
+    }
+    assert_eq!(ts, press.meta.timestamps_us);
+    // Real time: 12 frames at 60 fps take about 183 ms (11 periods).
+    let mut src = RecordedSource::open(&pdir, Pace::RealTime).unwrap();
+    let t0 = std::time::Instant::now();
+    while src.next_frame(&mut f).is_ok() {}
+    assert!(
+        t0.elapsed() >= Duration::from_millis(180),
+        "{:?}",
+        t0.elapsed()
+    );
+    // Looping keeps timestamps increasing.
+    let mut src =
+        RecordedSource::from_press(press.clone(), Pace::AsFastAsPossible, "x").looping(true);
+    let mut last = None;
+    for _ in 0..30 {
+        src.next_frame(&mut f).unwrap();
+        assert!(last.is_none_or(|l| f.timestamp_us > l));
+        last = Some(f.timestamp_us);
+    }
+    // A frame of the wrong size in a recording is a counted bad frame.
+    let mut bad = press.clone();
+    bad.frames[2] = RgbImage::new(320, 240);
+    let mut src = Resilient::new({
+        let mut once = Some(bad);
+        move || {
+            let p = once.take().ok_or(SourceError::Ended)?;
+            Ok(
+                Box::new(RecordedSource::from_press(p, Pace::AsFastAsPossible, "bad"))
+                    as Box<dyn FrameSource>,
+            )
+        }
+    });
+    let mut n = 0;
+    while src.next_frame(&mut f).is_ok() {
+        n += 1;
+    }
+    assert_eq!((n, src.stats().bad_frames), (11, 1));
+    // A missing recording is a clear error.
+    match RecordedSource::open(&dir.path().join("nope"), Pace::AsFastAsPossible) {
+        Err(SourceError::Fatal(m)) => assert!(m.contains("nope"), "{m}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("opened a missing recording"),
+    }
+}

@@ -1,0 +1,451 @@
+//! `telextilesd classify`: run the sensing pipeline (contact → encoder →
+//! index → decision) on recorded or simulated presses and print, per press,
+//! the decided textile, its roller slot, the time from contact to a stable
+//! decision and per-stage timings.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Context, Result};
+use telextiles_index::Index;
+use telextiles_sensing::encoder::{Encoder, EncoderOptions};
+use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
+use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+use telextiles_sensing::source::sim::SimSource;
+use telextiles_sim::{PressSpec, Simulator};
+
+/// Options of `telextilesd classify`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Recorded press directory (or a tree of them); may be repeated.
+    #[arg(long, required_unless_present = "sim")]
+    pub press: Vec<PathBuf>,
+    /// Simulate presses of this textile id instead (e.g. T030).
+    #[arg(long, conflicts_with = "press")]
+    pub sim: Option<String>,
+    /// Seed of the first simulated press.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Simulated person.
+    #[arg(long, default_value_t = 0)]
+    pub person: u32,
+    /// Simulated sensor unit.
+    #[arg(long, default_value_t = 0)]
+    pub sensor: u32,
+    /// Simulated presses held by hand, without the jig.
+    #[arg(long)]
+    pub no_jig: bool,
+    /// Number of simulated presses.
+    #[arg(long, default_value_t = 1)]
+    pub presses: u32,
+    /// Replay at the recorded pace (60 fps) instead of as fast as possible.
+    #[arg(long)]
+    pub real_time: bool,
+    /// Encoder (ONNX).
+    #[arg(long, default_value = "models/encoder.onnx")]
+    pub model: PathBuf,
+    /// Textile index.
+    #[arg(long, default_value = "models/index.tlxi")]
+    pub index: PathBuf,
+    /// Accept an index built with another encoder file.
+    #[arg(long)]
+    pub allow_encoder_mismatch: bool,
+    /// Encoder threads.
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// One JSON object per press on its own line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    if root.join("press.json").is_file() {
+        out.push(root.to_path_buf());
+        return Ok(());
+    }
+    let rd = std::fs::read_dir(root)
+        .with_context(|| format!("cannot read press directory {}", root.display()))?;
+    let mut entries: Vec<_> = rd.collect::<Result<_, _>>()?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        if e.file_type()?.is_dir() {
+            find_presses(&e.path(), out)?;
+        }
+    }
+    Ok(())
+}
+
+fn print(
+    out: &mut dyn Write,
+    args: &Args,
+    source: &str,
+    n: usize,
+    r: &PressReport,
+    index: &Index,
+) -> Result<()> {
+    if args.json {
+        let mut v = serde_json::to_value(r)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("source".into(), source.into());
+            o.insert("press".into(), n.into());
+            let name = r
+                .textile
+                .as_deref()
+                .and_then(|id| index.entry_by_id(id))
+                .map(|e| index.entries[e].name.clone());
+            o.insert("name".into(), name.into());
+        }
+        writeln!(out, "{}", serde_json::to_string(&v)?)?;
+        return Ok(());
+    }
+    match (&r.textile, r.slot) {
+        (Some(id), Some(slot)) => {
+            let name = index
+                .entry_by_id(id)
+                .map(|e| index.entries[e].name.as_str())
+                .unwrap_or("");
+            writeln!(
+                out,
+                "press {n} ({source}): {id} \"{name}\"{} -> roller slot {slot}; distance {:.3}, margin {:.3}, confidence {:.2}",
+                if r.unknown { " (unknown textile: nearest known)" } else { "" },
+                r.distance.unwrap_or(f32::NAN),
+                r.margin.unwrap_or(f32::NAN),
+                r.confidence.unwrap_or(f32::NAN),
+            )?;
+            writeln!(
+                out,
+                "  decided {:.0} ms after contact, stable since {:.0} ms ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
+                r.decision_ms.unwrap_or(f64::NAN),
+                r.stable_ms.unwrap_or(f64::NAN),
+                r.switches,
+                r.duration_ms,
+                r.frames,
+                r.ended
+            )?;
+        }
+        _ => writeln!(
+            out,
+            "press {n} ({source}): no decision ({} frames encoded, {:.0} ms)",
+            r.frames, r.duration_ms
+        )?,
+    }
+    let stages: Vec<String> = r
+        .stages
+        .iter()
+        .filter(|(_, s)| s.frames > 0)
+        .map(|(k, s)| format!("{k} {:.3}", s.p50_ms))
+        .collect();
+    writeln!(
+        out,
+        "  per-frame p50 ms: {}; whole frame {:.3} (p90 {:.3})",
+        stages.join(", "),
+        r.frame_total.p50_ms,
+        r.frame_total.p90_ms
+    )?;
+    Ok(())
+}
+
+/// Run the command, printing to stdout.
+pub fn run(args: Args) -> Result<()> {
+    let stdout = std::io::stdout();
+    let mut lock = stdout.lock();
+    run_to(args, &mut lock)
+}
+
+/// Run the command, printing to `out`.
+pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
+    if !args.model.is_file() {
+        bail!(
+            "encoder model {} not found (train one with telextiles-lab, or pass --model)",
+            args.model.display()
+        );
+    }
+    if !args.index.is_file() {
+        bail!(
+            "textile index {} not found (build one with `telextilesd index build`, or pass --index)",
+            args.index.display()
+        );
+    }
+    let opts = EncoderOptions {
+        threads: args.threads.max(1),
+        ..Default::default()
+    };
+    let enc = Encoder::open(&args.model, &opts)?;
+    let index = Index::read(&args.index)
+        .with_context(|| format!("cannot read index {}", args.index.display()))?;
+    if index.encoder_hash != enc.info().sha256 && !args.allow_encoder_mismatch {
+        bail!(
+            "index {} was built for encoder {}, but {} is {} (rebuild the index, or --allow-encoder-mismatch)",
+            args.index.display(),
+            index.encoder_hash,
+            args.model.display(),
+            enc.info().sha256
+        );
+    }
+    let pace = if args.real_time {
+        Pace::RealTime
+    } else {
+        Pace::AsFastAsPossible
+    };
+    let mut n = 0usize;
+    if let Some(id) = &args.sim {
+        let sim = Arc::new(Simulator::new()?);
+        let spec = PressSpec {
+            person: args.person,
+            sensor: args.sensor,
+            jig: !args.no_jig,
+            ..PressSpec::new(id.clone(), args.seed)
+        };
+        let frames = spec.frames;
+        let gap = 20;
+        let (mut src, _handle) =
+            SimSource::new(sim, spec, gap, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None)
+            .map_err(anyhow::Error::msg)?;
+        let total = (gap + frames) as u64 * args.presses as u64;
+        let mut err = Ok(());
+        run_source(&mut pipeline, &mut src, Some(total), |r| {
+            n += 1;
+            if err.is_ok() {
+                err = print(out, &args, &format!("sim {id}"), n, &r, &index);
+            }
+        })
+        .map_err(anyhow::Error::msg)?;
+        err?;
+        return Ok(());
+    }
+    let mut dirs = Vec::new();
+    for p in &args.press {
+        find_presses(p, &mut dirs)?;
+    }
+    if dirs.is_empty() {
+        bail!(
+            "no recorded presses (directories with press.json) under {:?}",
+            args.press
+        );
+    }
+    let sim = Simulator::new()?;
+    let mut enc = Some(enc);
+    let mut pipeline: Option<Pipeline<Index>> = None;
+    for dir in dirs {
+        let src = RecordedSource::open(&dir, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
+        // Simulated recordings come with a known no-contact frame; real ones
+        // have their reference captured from their first frames.
+        let reference = (src.meta().source == "sim").then(|| sim.background(src.meta().sensor));
+        let e = match pipeline.take() {
+            Some(p) => p.into_encoder(),
+            None => enc.take().expect("encoder"),
+        };
+        let mut p = Pipeline::new(
+            e,
+            index.clone(),
+            PipelineConfig::default(),
+            reference.as_ref(),
+        )
+        .map_err(anyhow::Error::msg)?;
+        let mut src = src;
+        let name = dir.display().to_string();
+        let mut err = Ok(());
+        run_source(&mut p, &mut src, None, |r| {
+            n += 1;
+            if err.is_ok() {
+                err = print(out, &args, &name, n, &r, &index);
+            }
+        })
+        .map_err(anyhow::Error::msg)?;
+        err?;
+        pipeline = Some(p);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use telextiles_index::{IndexBuilder, TextileRecord};
+    use telextiles_sensing::encoder::file_sha256;
+
+    const TEXTILES: [&str; 4] = ["T010", "T030", "T080", "T110"];
+
+    fn fixture_model() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_encoder.onnx")
+    }
+
+    /// An index of a few textiles built from one simulated press each (seed 1).
+    fn index_file(dir: &Path) -> PathBuf {
+        let model = fixture_model();
+        let sim = Simulator::new().unwrap();
+        let mut enc = Encoder::open(&model, &EncoderOptions::default()).unwrap();
+        let mut b = IndexBuilder::new(
+            &file_sha256(&model).unwrap(),
+            &enc.info().arch,
+            enc.dim(),
+            0,
+        );
+        b.roller_n = 4;
+        for id in TEXTILES {
+            let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
+            let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
+            let embeddings = p.frames[hold..]
+                .iter()
+                .map(|f| enc.encode(f).unwrap().to_vec())
+                .collect();
+            b.add(TextileRecord {
+                id: id.into(),
+                name: format!("textile {id}"),
+                seen: true,
+                structure: String::new(),
+                attributes: Vec::new(),
+                embeddings,
+                exemplars: Vec::new(),
+            })
+            .unwrap();
+        }
+        let path = dir.join("index.tlxi");
+        b.build().unwrap().write(&path).unwrap();
+        path
+    }
+
+    fn args(model: PathBuf, index: PathBuf) -> Args {
+        Args {
+            press: Vec::new(),
+            sim: None,
+            seed: 2,
+            person: 0,
+            sensor: 0,
+            no_jig: false,
+            presses: 1,
+            real_time: false,
+            model,
+            index,
+            allow_encoder_mismatch: false,
+            threads: 1,
+            json: true,
+        }
+    }
+
+    fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {
+        String::from_utf8(out.to_vec())
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn classify_sim_and_recorded_presses_prints_one_json_object_per_press() {
+        let dir = tempfile::tempdir().unwrap();
+        let index = index_file(dir.path());
+        let idx = Index::read(&index).unwrap();
+        // --sim T030 --seed 2 --presses 2 --json
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                sim: Some("T030".into()),
+                presses: 2,
+                ..args(fixture_model(), index.clone())
+            },
+            &mut out,
+        )
+        .unwrap();
+        let lines = json_lines(&out);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        for v in &lines {
+            for key in ["textile", "slot", "distance", "decision_ms", "stages"] {
+                assert!(!v[key].is_null(), "{key} missing in {v}");
+            }
+            assert_eq!(v["textile"], "T030", "{v}");
+            let entry = idx.entry_by_id("T030").unwrap();
+            assert_eq!(v["slot"], idx.slot_of_entry(entry), "{v}");
+            assert!(v["stages"]["encode"]["p50_ms"].as_f64().unwrap() > 0.0);
+            assert!(v["decision_ms"].as_f64().unwrap() > 0.0);
+        }
+        // --press <tree>: recorded presses, found recursively.
+        let sim = Simulator::new().unwrap();
+        for id in ["T080", "T110"] {
+            let p = sim.render_press(&PressSpec::new(id, 2)).unwrap();
+            telextiles_sim::recording::write_press(&dir.path().join("presses").join(id), &p)
+                .unwrap();
+        }
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                press: vec![dir.path().join("presses")],
+                ..args(fixture_model(), index.clone())
+            },
+            &mut out,
+        )
+        .unwrap();
+        let got: Vec<_> = json_lines(&out)
+            .iter()
+            .map(|v| v["textile"].as_str().unwrap().to_string())
+            .collect();
+        assert_eq!(got, ["T080", "T110"]);
+        // Text output names the textile, slot and timings.
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                json: false,
+                press: vec![dir.path().join("presses/T080")],
+                ..args(fixture_model(), index)
+            },
+            &mut out,
+        )
+        .unwrap();
+        let text = String::from_utf8(out).unwrap();
+        assert!(
+            text.contains("T080")
+                && text.contains("roller slot")
+                && text.contains("after contact")
+                && text.contains("encode"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn missing_files_and_foreign_indexes_are_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut out = Vec::new();
+        let e = run_to(
+            Args {
+                sim: Some("T030".into()),
+                ..args(dir.path().join("none.onnx"), dir.path().join("i"))
+            },
+            &mut out,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("none.onnx") && e.to_string().contains("not found"),
+            "{e}"
+        );
+        let e = run_to(
+            Args {
+                sim: Some("T030".into()),
+                ..args(fixture_model(), dir.path().join("none.tlxi"))
+            },
+            &mut out,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("none.tlxi"), "{e}");
+        // An index built for another encoder file.
+        let index = index_file(dir.path());
+        let other = dir.path().join("copy.onnx");
+        let bytes = std::fs::read(fixture_model()).unwrap();
+        std::fs::write(&other, &bytes).unwrap();
+        let mut idx = Index::read(&index).unwrap();
+        idx.encoder_hash = "ab".repeat(32);
+        let foreign = dir.path().join("foreign.tlxi");
+        idx.write(&foreign).unwrap();
+        let e = run_to(
+            Args {
+                sim: Some("T030".into()),
+                ..args(other, foreign)
+            },
+            &mut out,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("built for encoder"), "{e}");
+    }
+}

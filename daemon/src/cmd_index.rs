@@ -1,0 +1,462 @@
+//! `telextilesd index build|inspect`: make and look at the textile index.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args as ClapArgs, Subcommand};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
+use telextiles_sensing::contact::{ContactConfig, ContactDetector};
+use telextiles_sensing::encoder::{Encoder, EncoderOptions};
+use telextiles_sim::catalogue::{Book, Catalogue};
+use telextiles_sim::dataset::Protocol;
+use telextiles_sim::{Press, Simulator};
+
+/// Frame embeddings and per-press means of one textile.
+type FrameAndPressEmbeddings = (Vec<Vec<f32>>, Vec<Vec<f32>>);
+
+/// `telextilesd index ...`
+#[derive(Subcommand, Debug)]
+pub enum Args {
+    /// Build an index from recorded presses (or from simulated ones).
+    Build(BuildArgs),
+    /// Print an index file's contents and fingerprint.
+    Inspect(InspectArgs),
+}
+
+/// `telextilesd index build`
+#[derive(ClapArgs, Debug)]
+pub struct BuildArgs {
+    /// The ONNX encoder the index is for.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Directory of recorded presses (each a folder with press.json and
+    /// frames), searched recursively; presses are grouped by textile id.
+    #[arg(long, conflicts_with = "sim")]
+    pub presses: Option<PathBuf>,
+    /// Use simulated presses of the built-in catalogue instead.
+    #[arg(long)]
+    pub sim: bool,
+    /// Simulated people (0..N) whose presses build the index (with --sim).
+    #[arg(long, default_value_t = 3)]
+    pub people: u32,
+    /// Also index the unseen sample book (with --sim; off by default, so
+    /// that unseen textiles stay unknown to the index).
+    #[arg(long)]
+    pub include_unseen: bool,
+    /// Keep every press's mean embedding as an exemplar.
+    #[arg(long)]
+    pub exemplars: bool,
+    /// Use every n-th contact frame.
+    #[arg(long, default_value_t = 4)]
+    pub stride: usize,
+    /// Roller slots.
+    #[arg(long, default_value_t = 16)]
+    pub slots: usize,
+    /// Roller selection: umap1d (the paper), farthest, kmedoids, random.
+    #[arg(long, default_value = "kmedoids")]
+    pub method: SelectionMethod,
+    /// Seed of the map layout.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Encoder threads.
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Output file.
+    #[arg(long, short, default_value = "models/index.tlxi")]
+    pub out: PathBuf,
+}
+
+/// `telextilesd index inspect`
+#[derive(ClapArgs, Debug)]
+pub struct InspectArgs {
+    /// The index file.
+    pub file: PathBuf,
+    /// Check that the index matches this ONNX encoder.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    match args {
+        Args::Build(a) => build(a),
+        Args::Inspect(a) => inspect(a),
+    }
+}
+
+/// Embeddings of the in-contact frames of a press (every `stride`-th), with
+/// the first frame as the no-contact reference.
+pub fn press_embeddings(enc: &mut Encoder, press: &Press, stride: usize) -> Result<Vec<Vec<f32>>> {
+    let Some(first) = press.frames.first() else {
+        return Ok(Vec::new());
+    };
+    let mut contact = ContactDetector::with_reference(ContactConfig::default(), first);
+    let mut out = Vec::new();
+    let mut k = 0usize;
+    for (frame, &t) in press.frames.iter().zip(&press.meta.timestamps_us) {
+        if contact.update(frame, t).in_contact {
+            if k.is_multiple_of(stride.max(1)) {
+                out.push(enc.encode(frame)?.to_vec());
+            }
+            k += 1;
+        }
+    }
+    Ok(out)
+}
+
+fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    if root.join("press.json").is_file() {
+        out.push(root.to_path_buf());
+        return Ok(());
+    }
+    let mut entries: Vec<_> = std::fs::read_dir(root)
+        .with_context(|| format!("cannot read {}", root.display()))?
+        .collect::<Result<_, _>>()?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        if e.file_type()?.is_dir() {
+            find_presses(&e.path(), out)?;
+        }
+    }
+    Ok(())
+}
+
+fn record(
+    cat: &Catalogue,
+    id: &str,
+    embeddings: Vec<Vec<f32>>,
+    exemplars: Vec<Vec<f32>>,
+) -> TextileRecord {
+    match cat.get(id) {
+        Some(t) => TextileRecord {
+            id: id.to_string(),
+            name: t.name.clone(),
+            seen: t.book == Book::Training,
+            structure: t.structure.label(),
+            attributes: [
+                "roughness",
+                "density",
+                "softness",
+                "fuzziness",
+                "thickness",
+                "stretch",
+                "slipperiness",
+            ]
+            .iter()
+            .zip(t.attributes.to_vec())
+            .map(|(n, v)| (n.to_string(), v))
+            .collect(),
+            embeddings,
+            exemplars,
+        },
+        // A user's own fabric: no catalogue entry, seen by definition.
+        None => TextileRecord {
+            id: id.to_string(),
+            name: id.to_string(),
+            seen: true,
+            structure: String::new(),
+            attributes: Vec::new(),
+            embeddings,
+            exemplars,
+        },
+    }
+}
+
+fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
+    let mut m = vec![0.0; vs[0].len()];
+    for v in vs {
+        m.iter_mut()
+            .zip(v)
+            .for_each(|(a, b)| *a += b / vs.len() as f32);
+    }
+    m
+}
+
+fn build(a: BuildArgs) -> Result<()> {
+    let mut enc = Encoder::open(
+        &a.model,
+        &EncoderOptions {
+            threads: a.threads,
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("cannot load the encoder {}", a.model.display()))?;
+    let info = enc.info().clone();
+    let cat = Catalogue::builtin();
+    // textile id -> (frame embeddings, per-press means)
+    let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
+    let mut add = |id: &str, embs: Vec<Vec<f32>>| {
+        if embs.is_empty() {
+            return;
+        }
+        let slot = by_textile.entry(id.to_string()).or_default();
+        slot.1.push(mean(&embs));
+        slot.0.extend(embs);
+    };
+    let mut presses = 0usize;
+    if let Some(root) = &a.presses {
+        let mut dirs = Vec::new();
+        find_presses(root, &mut dirs)?;
+        if dirs.is_empty() {
+            bail!(
+                "no presses (folders with press.json) under {}",
+                root.display()
+            );
+        }
+        for d in dirs {
+            let press = telextiles_sim::recording::read_press(&d)?;
+            let embs = press_embeddings(&mut enc, &press, a.stride)?;
+            if embs.is_empty() {
+                eprintln!(
+                    "warning: {}: no contact detected, press skipped",
+                    d.display()
+                );
+            }
+            add(&press.meta.textile, embs);
+            presses += 1;
+        }
+    } else if a.sim {
+        let sim = Simulator::new()?;
+        let mut protocol = Protocol::paper();
+        protocol.people = a.people;
+        protocol.sensors = vec![0];
+        protocol.jig = vec![true];
+        if !a.include_unseen {
+            protocol.books = vec![Book::Training];
+        }
+        let total = protocol.len(&cat);
+        for spec in protocol.specs(&cat) {
+            let press = sim.render_press(&spec)?;
+            add(&spec.textile, press_embeddings(&mut enc, &press, a.stride)?);
+            presses += 1;
+            if presses.is_multiple_of(50) || presses == total {
+                eprint!("\rindexed {presses}/{total} presses");
+            }
+        }
+        eprintln!();
+    } else {
+        bail!("say where the presses come from: --presses <dir> or --sim");
+    }
+    let mut builder = IndexBuilder::new(&info.sha256, &info.arch, info.dim, cat.version);
+    builder.roller_n = a.slots;
+    builder.method = a.method;
+    builder.seed = a.seed;
+    for (id, (embs, means)) in by_textile {
+        builder.add(record(
+            &cat,
+            &id,
+            embs,
+            if a.exemplars { means } else { Vec::new() },
+        ))?;
+    }
+    let index = builder.build()?;
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    index.write(&a.out)?;
+    println!(
+        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, fingerprint {})",
+        a.out.display(),
+        index.entries.len(),
+        index.dim,
+        index.roller.n(),
+        index.roller.method,
+        &index.fingerprint()[..16]
+    );
+    // Unseen textiles (not in the index) as the roller has to cover them:
+    // one jig press of each by each simulated person, mean embedding.
+    let mut unseen = Vec::new();
+    if a.sim && !a.include_unseen {
+        let sim = Simulator::new()?;
+        let mut protocol = Protocol::paper();
+        protocol.people = a.people;
+        protocol.sensors = vec![0];
+        protocol.jig = vec![true];
+        protocol.books = vec![Book::Unseen];
+        for spec in protocol.specs(&cat) {
+            let press = sim.render_press(&spec)?;
+            let embs = press_embeddings(&mut enc, &press, a.stride)?;
+            if let Some(m) = mean_normalised(&embs) {
+                unseen.push(m);
+            }
+        }
+    }
+    print!("{}", coverage_report(&index, &unseen, a.slots, a.seed));
+    Ok(())
+}
+
+/// The L2-normalised mean of L2-normalised vectors (None when empty).
+fn mean_normalised(v: &[Vec<f32>]) -> Option<Vec<f32>> {
+    let first = v.first()?;
+    let mut m = vec![0.0f32; first.len()];
+    for x in v {
+        let n = x.iter().map(|a| a * a).sum::<f32>().sqrt().max(1e-12);
+        m.iter_mut().zip(x).for_each(|(s, a)| *s += a / n);
+    }
+    telextiles_index::l2_normalise(&mut m);
+    Some(m)
+}
+
+/// Roller coverage of every selection method: mean and worst Euclidean
+/// distance (of L2-normalised embeddings) from a textile (the index's centroids; the unseen presses) to
+/// its nearest roller textile. `random` is the mean of 20 seeds.
+pub fn coverage_report(index: &Index, unseen: &[Vec<f32>], slots: usize, seed: u64) -> String {
+    use std::fmt::Write;
+    use telextiles_index::select::{coverage, select};
+    let pts: Vec<Vec<f32>> = index.entries.iter().map(|e| e.centroid.clone()).collect();
+    let slots = slots.min(pts.len());
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "roller coverage ({slots} slots; Euclidean distance between L2-normalised embeddings, to the nearest roller textile; {} indexed textiles, {} unseen presses)",
+        pts.len(),
+        unseen.len()
+    );
+    let _ = writeln!(
+        out,
+        "  method     indexed mean  indexed max  unseen mean  unseen max"
+    );
+    for m in [
+        SelectionMethod::Umap1d,
+        SelectionMethod::FarthestPoint,
+        SelectionMethod::KMedoids,
+        SelectionMethod::Random,
+    ] {
+        let runs: Vec<u64> = if m == SelectionMethod::Random {
+            (0..20).map(|k| seed + k).collect()
+        } else {
+            vec![seed]
+        };
+        let (mut sm, mut sx, mut um, mut ux) = (0.0, 0.0, 0.0, 0.0);
+        for &s in &runs {
+            let chosen: Vec<Vec<f32>> = select(&pts, slots, m, s)
+                .into_iter()
+                .map(|i| pts[i].clone())
+                .collect();
+            let c = coverage(&pts, &chosen);
+            let u = coverage(unseen, &chosen);
+            sm += c.mean;
+            sx += c.max;
+            um += u.mean;
+            ux += u.max;
+        }
+        let n = runs.len() as f32;
+        let unseen_cols = if unseen.is_empty() {
+            format!("{:>12} {:>11}", "-", "-")
+        } else {
+            format!("{:>12.4} {:>11.4}", um / n, ux / n)
+        };
+        let _ = writeln!(
+            out,
+            "  {:<10} {:>12.4} {:>12.4} {unseen_cols}",
+            m.to_string(),
+            sm / n,
+            sx / n
+        );
+    }
+    out
+}
+
+fn inspect(a: InspectArgs) -> Result<()> {
+    let index = Index::read(&a.file)?;
+    if let Some(model) = &a.model {
+        let hash = telextiles_sensing::encoder::file_sha256(model)
+            .with_context(|| format!("cannot read {}", model.display()))?;
+        index.check_encoder(&hash)?;
+    }
+    let fp = index.fingerprint();
+    if a.json {
+        let v = serde_json::json!({
+            "file": a.file,
+            "fingerprint": fp,
+            "encoder_hash": index.encoder_hash,
+            "encoder_arch": index.encoder_arch,
+            "dim": index.dim,
+            "catalogue_version": index.catalogue_version,
+            "textiles": index.entries.iter().map(|e| serde_json::json!({
+                "id": e.id, "name": e.name, "seen": e.seen, "structure": e.structure,
+                "exemplars": e.exemplars.len(), "map": e.map_xy,
+            })).collect::<Vec<_>>(),
+            "roller": {
+                "method": index.roller.method.to_string(),
+                "slots": index.roller.slots.iter().map(|&i| &index.entries[i].id).collect::<Vec<_>>(),
+            },
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    println!("index        {}", a.file.display());
+    println!("fingerprint  {fp}");
+    println!(
+        "encoder      {} ({})",
+        index.encoder_hash, index.encoder_arch
+    );
+    println!("dimension    {}", index.dim);
+    println!("catalogue    v{}", index.catalogue_version);
+    let seen = index.entries.iter().filter(|e| e.seen).count();
+    println!(
+        "textiles     {} ({} seen, {} unseen)",
+        index.entries.len(),
+        seen,
+        index.entries.len() - seen
+    );
+    println!(
+        "roller       {} slots, chosen by {}",
+        index.roller.n(),
+        index.roller.method
+    );
+    for (slot, &i) in index.roller.slots.iter().enumerate() {
+        let e = &index.entries[i];
+        println!(
+            "  slot {slot:>2} {:>6.1} deg  {:<6} {}",
+            slot as f32 * 360.0 / index.roller.n() as f32,
+            e.id,
+            e.name
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rows of the report: (method, numbers).
+    fn rows(r: &str) -> Vec<(String, Vec<f32>)> {
+        r.lines()
+            .skip(2)
+            .map(|l| {
+                let mut w = l.split_whitespace();
+                let m = w.next().unwrap().to_string();
+                (m, w.filter_map(|x| x.parse().ok()).collect())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn coverage_report_covers_every_method_and_beats_random() {
+        let index = telextiles_map::demo::catalogue_index(Some(60), 8, 3).unwrap();
+        let unseen: Vec<Vec<f32>> = index.entries[..10]
+            .iter()
+            .map(|e| e.centroid.clone())
+            .collect();
+        let r = coverage_report(&index, &unseen, 8, 0);
+        let rows = rows(&r);
+        assert_eq!(rows.len(), 4, "{r}");
+        for (m, v) in &rows {
+            assert_eq!(v.len(), 4, "{m}: {r}");
+            assert!(v[0] <= v[1] && v[2] <= v[3], "mean <= max: {r}");
+            assert!(v.iter().all(|x| x.is_finite() && *x >= 0.0), "{r}");
+        }
+        let get = |name: &str| rows.iter().find(|(m, _)| m == name).unwrap().1.clone();
+        let random = get("random");
+        // The coverage-optimal methods are no worse than random choice.
+        assert!(get("kmedoids")[0] <= random[0], "{r}");
+        assert!(get("farthest")[1] <= random[1], "{r}");
+        // Without unseen presses their columns say so.
+        let r2 = coverage_report(&index, &[], 8, 0);
+        assert!(r2.lines().nth(2).unwrap().trim_end().ends_with('-'), "{r2}");
+    }
+}

@@ -1,0 +1,356 @@
+//! `telextilesd sim`: simulated DIGIT presses, the paper's dataset protocol
+//! and the contact sheet (crate `telextiles-sim`).
+
+use anyhow::{bail, Context, Result};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use telextiles_sim::catalogue::Book;
+use telextiles_sim::dataset::{self, Protocol};
+use telextiles_sim::{recording, sheet, PressSpec, Simulator};
+
+/// Render a simulated press, a dataset or the contact sheet.
+#[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct Args {
+    #[command(subcommand)]
+    cmd: Option<SimCmd>,
+    #[command(flatten)]
+    press: PressArgs,
+}
+
+/// Options of one press (`telextilesd sim --textile T001 --seed 1 --out dir`).
+#[derive(clap::Args, Debug)]
+struct PressArgs {
+    /// Textile id: T001..T119 (training) or U01..U20 (unseen).
+    #[arg(long)]
+    textile: Option<String>,
+    /// Seed of the press (same seed, same frames).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Output directory (must not exist; written atomically).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Simulated person 0..10.
+    #[arg(long, default_value_t = 0)]
+    person: u32,
+    /// Simulated sensor unit (0 = nominal real calibration).
+    #[arg(long, default_value_t = 0)]
+    sensor: u32,
+    /// Press with the spring jig (the default).
+    #[arg(long, conflicts_with = "no_jig")]
+    jig: bool,
+    /// Press hand-held: tilt, partial contact, force wobble, slip.
+    #[arg(long)]
+    no_jig: bool,
+    /// In-plane rotation in degrees (default: the person's habit).
+    #[arg(long, allow_hyphen_values = true)]
+    rotation: Option<f32>,
+    /// Force in newtons (default: jig spring or the person's habit).
+    #[arg(long)]
+    force: Option<f32>,
+    /// Number of frames.
+    #[arg(long, default_value_t = telextiles_sim::PRESS_FRAMES)]
+    frames: usize,
+    /// Turn camera noise off.
+    #[arg(long)]
+    no_noise: bool,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum SimCmd {
+    /// Write (or stream as JSON lines) the paper's protocol.
+    Dataset(DatasetArgs),
+    /// Write the contact sheet PNG.
+    ContactSheet {
+        /// Output PNG.
+        #[arg(long, default_value = "docs/contact-sheet.png")]
+        out: PathBuf,
+    },
+    /// List the textile catalogue.
+    List,
+}
+
+#[derive(clap::Args, Debug)]
+struct DatasetArgs {
+    /// Output root (`<root>/<textile>/p<person>-s<sensor>-<jig|hand>-<seed>/`).
+    #[arg(long, required_unless_present = "stream")]
+    out: Option<PathBuf>,
+    /// Print the press specs as JSON lines instead of rendering them.
+    #[arg(long)]
+    stream: bool,
+    /// Number of people.
+    #[arg(long, default_value_t = telextiles_sim::PEOPLE)]
+    people: u32,
+    /// Sensor units, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [0u32, 1, 2])]
+    sensors: Vec<u32>,
+    /// Only jig presses.
+    #[arg(long, conflicts_with = "hand_only")]
+    jig_only: bool,
+    /// Only hand-held presses.
+    #[arg(long)]
+    hand_only: bool,
+    /// Only the training book.
+    #[arg(long, conflicts_with = "unseen_only")]
+    training_only: bool,
+    /// Only the unseen book.
+    #[arg(long)]
+    unseen_only: bool,
+    /// Presses per (sensor, jig mode, person, textile).
+    #[arg(long, default_value_t = 1)]
+    presses: u32,
+    /// Base seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Frames per press.
+    #[arg(long, default_value_t = telextiles_sim::PRESS_FRAMES)]
+    frames: usize,
+    /// Stop after this many presses.
+    #[arg(long)]
+    limit: Option<usize>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    match args.cmd {
+        Some(SimCmd::Dataset(d)) => dataset_cmd(d),
+        Some(SimCmd::ContactSheet { out }) => contact_sheet(&out),
+        Some(SimCmd::List) => list(),
+        None => press(args.press),
+    }
+}
+
+fn press(a: PressArgs) -> Result<()> {
+    let (Some(textile), Some(out)) = (a.textile, a.out) else {
+        bail!("usage: telextilesd sim --textile <id> --seed <n> --out <dir> (or a subcommand: dataset, contact-sheet, list)");
+    };
+    let sim = Simulator::new()?;
+    let spec = PressSpec {
+        person: a.person,
+        sensor: a.sensor,
+        jig: !a.no_jig,
+        rotation_deg: a.rotation,
+        force: a.force,
+        frames: a.frames,
+        noise: !a.no_noise,
+        ..PressSpec::new(textile, a.seed)
+    };
+    let press = sim.render_press(&spec)?;
+    recording::write_press(&out, &press)?;
+    let p = press.meta.params.as_ref();
+    println!(
+        "wrote {} frames of {} to {} (rotation {:.1} deg, force {:.2} N)",
+        press.frames.len(),
+        spec.textile,
+        out.display(),
+        p.map_or(0.0, |p| p.rotation_deg),
+        p.map_or(0.0, |p| p.force_n)
+    );
+    Ok(())
+}
+
+fn dataset_cmd(d: DatasetArgs) -> Result<()> {
+    let protocol = Protocol {
+        people: d.people,
+        sensors: d.sensors,
+        jig: if d.jig_only {
+            vec![true]
+        } else if d.hand_only {
+            vec![false]
+        } else {
+            vec![true, false]
+        },
+        books: if d.training_only {
+            vec![Book::Training]
+        } else if d.unseen_only {
+            vec![Book::Unseen]
+        } else {
+            vec![Book::Training, Book::Unseen]
+        },
+        presses: d.presses,
+        seed: d.seed,
+        frames: d.frames,
+    };
+    let sim = Simulator::new()?;
+    let cat = sim.catalogue();
+    let total = protocol.len(cat).min(d.limit.unwrap_or(usize::MAX));
+    let specs = protocol.specs(cat).take(total);
+    if d.stream {
+        let stdout = std::io::stdout();
+        let mut w = std::io::BufWriter::new(stdout.lock());
+        for s in specs {
+            writeln!(w, "{}", s.to_json())?;
+        }
+        w.flush()?;
+        return Ok(());
+    }
+    let out = d.out.context("--out is required unless --stream")?;
+    let n = dataset::write(&sim, specs, &out, |n, s| {
+        if n % 50 == 0 || n == total {
+            eprintln!("{n}/{total} presses ({})", s.textile);
+        }
+    })?;
+    println!(
+        "wrote {n} presses under {} ({total} in the protocol slice)",
+        out.display()
+    );
+    Ok(())
+}
+
+fn contact_sheet(out: &Path) -> Result<()> {
+    let sim = Simulator::new()?;
+    let (img, tiles) = sheet::contact_sheet(&sim)?;
+    if let Some(dir) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let tmp = out.with_extension(format!("tmp-{}.png", std::process::id()));
+    img.save_with_format(&tmp, image_png())
+        .with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, out).with_context(|| format!("renaming to {}", out.display()))?;
+    for (i, t) in tiles.iter().enumerate() {
+        println!("{i:2} {}: {}", t.label, t.description);
+    }
+    Ok(())
+}
+
+fn image_png() -> telextiles_sim::ImageFormat {
+    telextiles_sim::ImageFormat::Png
+}
+
+fn list() -> Result<()> {
+    let sim = Simulator::new()?;
+    for t in &sim.catalogue().textiles {
+        println!(
+            "{}\t{:?}\t{:?}\t{}{}",
+            t.id,
+            t.book,
+            t.structure.family(),
+            t.name,
+            t.twin_of
+                .as_ref()
+                .map(|x| format!(" (near-twin of {x})"))
+                .unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn parse(v: &[&str]) -> Args {
+        let mut all = vec!["sim"];
+        all.extend_from_slice(v);
+        Cli::try_parse_from(all).expect("arguments parse").args
+    }
+
+    #[test]
+    fn press_command_writes_a_readable_press() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("press");
+        let o = out.to_str().unwrap();
+        run(parse(&[
+            "--textile",
+            "T042",
+            "--seed",
+            "7",
+            "--person",
+            "3",
+            "--no-jig",
+            "--rotation",
+            "-30",
+            "--force",
+            "5.5",
+            "--frames",
+            "4",
+            "--out",
+            o,
+        ]))
+        .unwrap();
+        let p = recording::read_press(&out).unwrap();
+        assert_eq!(p.frames.len(), 4);
+        assert_eq!(
+            (p.meta.textile.as_str(), p.meta.person, p.meta.jig),
+            ("T042", 3, false)
+        );
+        let params = p.meta.params.unwrap();
+        assert_eq!((params.rotation_deg, params.force_n), (-30.0, 5.5));
+        // same seed, same frames; refuses to overwrite
+        let again = tmp.path().join("again");
+        run(parse(&[
+            "--textile",
+            "T042",
+            "--seed",
+            "7",
+            "--person",
+            "3",
+            "--no-jig",
+            "--rotation",
+            "-30",
+            "--force",
+            "5.5",
+            "--frames",
+            "4",
+            "--out",
+            again.to_str().unwrap(),
+        ]))
+        .unwrap();
+        assert_eq!(recording::read_press(&again).unwrap().frames, p.frames);
+        let e = run(parse(&["--textile", "T042", "--frames", "2", "--out", o])).unwrap_err();
+        assert!(e.to_string().contains("already exists"), "{e}");
+    }
+
+    #[test]
+    fn bad_press_arguments_are_clear_errors() {
+        let tmp = tempfile::tempdir().unwrap();
+        let o = tmp.path().join("x");
+        let e = run(parse(&["--textile", "X9", "--out", o.to_str().unwrap()])).unwrap_err();
+        assert!(e.to_string().contains("X9"), "{e}");
+        let e = run(parse(&["--textile", "T001"])).unwrap_err();
+        assert!(e.to_string().contains("--out"), "{e}");
+        assert!(Cli::try_parse_from(["sim", "--jig", "--no-jig"]).is_err());
+    }
+
+    #[test]
+    fn dataset_and_contact_sheet_commands() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("ds");
+        run(parse(&[
+            "dataset",
+            "--out",
+            root.to_str().unwrap(),
+            "--limit",
+            "2",
+            "--frames",
+            "2",
+            "--sensors",
+            "1",
+            "--hand-only",
+        ]))
+        .unwrap();
+        let presses: Vec<_> = std::fs::read_dir(root.join("T001")).unwrap().collect();
+        assert_eq!(presses.len(), 1);
+        assert!(root.join("T002").is_dir());
+        run(parse(&["dataset", "--stream", "--limit", "3"])).unwrap();
+        let sheet = tmp.path().join("docs/sheet.png");
+        run(parse(&["contact-sheet", "--out", sheet.to_str().unwrap()])).unwrap();
+        let img = image_dims(&sheet);
+        assert_eq!(img, (6 * 240, 2 * (320 + 22)));
+    }
+
+    fn image_dims(p: &Path) -> (u32, u32) {
+        let bytes = std::fs::read(p).unwrap();
+        // PNG IHDR: width and height at bytes 16..24
+        (
+            u32::from_be_bytes(bytes[16..20].try_into().unwrap()),
+            u32::from_be_bytes(bytes[20..24].try_into().unwrap()),
+        )
+    }
+}

@@ -1,0 +1,1005 @@
+//! The daemon's configuration: a TOML file, environment variables and
+//! command-line flags, merged with the precedence
+//! **flag > environment (`TELEXTILESD_*`) > file > default**.
+//!
+//! Every file key `foo_bar` is also the flag `--foo-bar` and the variable
+//! `TELEXTILESD_FOO_BAR` (see [`KEYS`]; a test checks all three exist).
+//! The file is `$XDG_CONFIG_HOME/telextiles/telextilesd.toml` (or
+//! `~/.config/...`; `/etc/telextiles/telextilesd.toml` in system mode), or
+//! the one named by `--config` / `TELEXTILESD_CONFIG`. Unknown keys are an
+//! error naming the key. Documented in `docs/configuration.md`.
+//!
+//! Environment lookups go through an injectable function so resolution is
+//! deterministic in tests; clap parses only the flags.
+
+// Parts of the public surface (socket_spec, to_toml, KEYS) are for the
+// daemon's `run` wiring; until it lands they are unused in the binary.
+#![allow(dead_code)]
+
+use clap::builder::BoolishValueParser;
+use serde::Deserialize;
+use std::ffi::OsString;
+use std::fmt;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// Prefix of every environment variable.
+pub const ENV_PREFIX: &str = "TELEXTILESD_";
+
+/// Every configuration key (file key; flag = `--` + key with `-`; env =
+/// `TELEXTILESD_` + uppercase key).
+pub const KEYS: &[&str] = &[
+    "name",
+    "state_dir",
+    "data_dir",
+    "runtime_dir",
+    "socket",
+    "system",
+    "group",
+    "sensor",
+    "model",
+    "index",
+    "roller",
+    "listen",
+    "connect",
+    "mdns",
+    "mdns_allow",
+    "mdns_deny",
+    "map",
+    "map_bind",
+    "log",
+];
+
+/// Default QUIC listen address.
+pub const DEFAULT_LISTEN: &str = "[::]:47800";
+/// Default map (HTTP) bind address: loopback only.
+pub const DEFAULT_MAP_BIND: &str = "127.0.0.1:47880";
+
+/// Where frames come from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SensorSource {
+    /// A DIGIT sensor over V4L2; `serial` picks one (e.g. `D20001`), else the first found.
+    Digit { serial: Option<String> },
+    /// The built-in simulator, pressing `textile` (e.g. `T012`) or cycling through the catalogue.
+    Sim { textile: Option<String> },
+    /// Recorded presses from a directory.
+    Replay { dir: PathBuf },
+}
+
+impl FromStr for SensorSource {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (kind, rest) = match s.split_once(':') {
+            Some((k, r)) => (k, Some(r)),
+            None => (s, None),
+        };
+        let nonempty = |r: Option<&str>| r.filter(|r| !r.is_empty()).map(str::to_string);
+        match kind {
+            "digit" => Ok(SensorSource::Digit {
+                serial: nonempty(rest),
+            }),
+            "sim" => Ok(SensorSource::Sim {
+                textile: nonempty(rest),
+            }),
+            "replay" => match nonempty(rest) {
+                Some(d) => Ok(SensorSource::Replay { dir: d.into() }),
+                None => Err("`replay` needs a directory: replay:<dir>".into()),
+            },
+            _ => Err(format!(
+                "unknown sensor source `{s}`; expected digit[:serial], sim[:textile] or replay:<dir>"
+            )),
+        }
+    }
+}
+
+impl fmt::Display for SensorSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SensorSource::Digit { serial: None } => f.write_str("digit"),
+            SensorSource::Digit { serial: Some(s) } => write!(f, "digit:{s}"),
+            SensorSource::Sim { textile: None } => f.write_str("sim"),
+            SensorSource::Sim { textile: Some(t) } => write!(f, "sim:{t}"),
+            SensorSource::Replay { dir } => write!(f, "replay:{}", dir.display()),
+        }
+    }
+}
+
+/// Which roller to drive.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RollerSource {
+    /// Find the roller among serial ports.
+    Auto,
+    /// The host simulator (firmware core on a pseudo-terminal).
+    Sim,
+    /// No roller (a sender-only daemon).
+    None,
+    /// This serial device, e.g. `/dev/ttyUSB0`.
+    Path(PathBuf),
+}
+
+impl FromStr for RollerSource {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(RollerSource::Auto),
+            "sim" => Ok(RollerSource::Sim),
+            "none" => Ok(RollerSource::None),
+            p if p.contains('/') => Ok(RollerSource::Path(p.into())),
+            _ => Err(format!(
+                "unknown roller `{s}`; expected auto, sim, none or a serial device path like /dev/ttyUSB0"
+            )),
+        }
+    }
+}
+
+impl fmt::Display for RollerSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RollerSource::Auto => f.write_str("auto"),
+            RollerSource::Sim => f.write_str("sim"),
+            RollerSource::None => f.write_str("none"),
+            RollerSource::Path(p) => write!(f, "{}", p.display()),
+        }
+    }
+}
+
+/// Configuration flags (flatten into a subcommand with `#[command(flatten)]`).
+/// Each flag can also be set by its environment variable or in the file.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+#[command(next_help_heading = "Configuration (flag > TELEXTILESD_* env > file > default)")]
+pub struct ConfigArgs {
+    /// Config file [env: TELEXTILESD_CONFIG] [default: $XDG_CONFIG_HOME/telextiles/telextilesd.toml]
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// This daemon's name shown to peers [env: TELEXTILESD_NAME] [default: host name]
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Identity, trust store, calibration [env: TELEXTILESD_STATE_DIR] [default: $XDG_STATE_HOME/telextiles]
+    #[arg(long, value_name = "DIR")]
+    pub state_dir: Option<PathBuf>,
+    /// Model and index [env: TELEXTILESD_DATA_DIR] [default: $XDG_DATA_HOME/telextiles]
+    #[arg(long, value_name = "DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Runtime directory holding the control socket [env: TELEXTILESD_RUNTIME_DIR] [default: $XDG_RUNTIME_DIR/telextilesd]
+    #[arg(long, value_name = "DIR")]
+    pub runtime_dir: Option<PathBuf>,
+    /// Control socket path [env: TELEXTILESD_SOCKET] [default: <runtime_dir>/control.sock]
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// System-wide mode: /etc, /var/lib, /run/telextilesd, group-shared socket [env: TELEXTILESD_SYSTEM]
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
+    pub system: Option<bool>,
+    /// Group allowed on the system-wide socket [env: TELEXTILESD_GROUP] [default: telextiles]
+    #[arg(long)]
+    pub group: Option<String>,
+    /// Frame source: digit[:serial] | sim[:textile] | replay:<dir> [env: TELEXTILESD_SENSOR] [default: digit]
+    #[arg(long, value_name = "SOURCE")]
+    pub sensor: Option<SensorSource>,
+    /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
+    #[arg(long, value_name = "FILE")]
+    pub model: Option<PathBuf>,
+    /// Textile index [env: TELEXTILESD_INDEX] [default: <data_dir>/index.tlxi]
+    #[arg(long, value_name = "FILE")]
+    pub index: Option<PathBuf>,
+    /// Roller: auto | sim | none | serial device path [env: TELEXTILESD_ROLLER] [default: auto]
+    #[arg(long, value_name = "ROLLER")]
+    pub roller: Option<RollerSource>,
+    /// QUIC listen address [env: TELEXTILESD_LISTEN] [default: [::]:47800]
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub listen: Option<SocketAddr>,
+    /// Peers to connect to directly, besides mDNS (repeat or comma-separate) [env: TELEXTILESD_CONNECT]
+    #[arg(long, value_name = "HOST:PORT", value_delimiter = ',')]
+    pub connect: Option<Vec<String>>,
+    /// mDNS discovery on/off [env: TELEXTILESD_MDNS] [default: true]
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
+    pub mdns: Option<bool>,
+    /// Only these interfaces for mDNS (repeat or comma-separate) [env: TELEXTILESD_MDNS_ALLOW] [default: all]
+    #[arg(long, value_name = "IFACE", value_delimiter = ',')]
+    pub mdns_allow: Option<Vec<String>>,
+    /// Never these interfaces for mDNS [env: TELEXTILESD_MDNS_DENY]
+    #[arg(long, value_name = "IFACE", value_delimiter = ',')]
+    pub mdns_deny: Option<Vec<String>>,
+    /// Serve the 2D textile map over HTTP [env: TELEXTILESD_MAP] [default: false]
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
+    pub map: Option<bool>,
+    /// Map HTTP bind address [env: TELEXTILESD_MAP_BIND] [default: 127.0.0.1:47880]
+    #[arg(long, value_name = "ADDR:PORT")]
+    pub map_bind: Option<SocketAddr>,
+    /// Log filter (tracing EnvFilter syntax) [env: TELEXTILESD_LOG, then RUST_LOG] [default: info]
+    #[arg(long, value_name = "FILTER")]
+    pub log: Option<String>,
+}
+
+/// The file's shape: every key optional, unknown keys rejected.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileConfig {
+    name: Option<String>,
+    state_dir: Option<PathBuf>,
+    data_dir: Option<PathBuf>,
+    runtime_dir: Option<PathBuf>,
+    socket: Option<PathBuf>,
+    system: Option<bool>,
+    group: Option<String>,
+    sensor: Option<String>,
+    model: Option<PathBuf>,
+    index: Option<PathBuf>,
+    roller: Option<String>,
+    listen: Option<SocketAddr>,
+    connect: Option<Vec<String>>,
+    mdns: Option<bool>,
+    mdns_allow: Option<Vec<String>>,
+    mdns_deny: Option<Vec<String>>,
+    map: Option<bool>,
+    map_bind: Option<SocketAddr>,
+    log: Option<String>,
+}
+
+/// The resolved configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// The file that was read, if any.
+    pub config_file: Option<PathBuf>,
+    pub name: String,
+    pub state_dir: PathBuf,
+    pub data_dir: PathBuf,
+    pub runtime_dir: PathBuf,
+    pub socket: PathBuf,
+    pub system: bool,
+    pub group: String,
+    pub sensor: SensorSource,
+    pub model: PathBuf,
+    pub index: PathBuf,
+    pub roller: RollerSource,
+    pub listen: SocketAddr,
+    pub connect: Vec<String>,
+    pub mdns: bool,
+    pub mdns_allow: Vec<String>,
+    pub mdns_deny: Vec<String>,
+    pub map: bool,
+    pub map_bind: SocketAddr,
+    pub log: String,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid config file {path}: {message}")]
+    File { path: PathBuf, message: String },
+    #[error("invalid environment variable {var}={value:?}: {message}")]
+    Env {
+        var: String,
+        value: String,
+        message: String,
+    },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Looks up an environment variable (injectable for tests).
+pub type EnvLookup<'a> = &'a dyn Fn(&str) -> Option<OsString>;
+
+/// The process environment.
+pub fn process_env(key: &str) -> Option<OsString> {
+    std::env::var_os(key)
+}
+
+impl Config {
+    /// Resolves from flags, the process environment and the file.
+    pub fn load(args: &ConfigArgs) -> Result<Config, ConfigError> {
+        Self::resolve(args, &process_env)
+    }
+
+    /// Resolves with an explicit environment.
+    pub fn resolve(args: &ConfigArgs, env: EnvLookup<'_>) -> Result<Config, ConfigError> {
+        let e = Env(env);
+        let system = pick(args.system, e.get("SYSTEM", parse_bool)?, None).unwrap_or(false);
+        // The file: explicit (must exist) or default (may be absent).
+        let explicit = args.config.clone().or(e.get("CONFIG", parse_path)?);
+        let (file_path, must_exist) = match explicit {
+            Some(p) => (Some(p), true),
+            None => (default_config_file(system, &e), false),
+        };
+        let mut file = FileConfig::default();
+        let mut file_dir = PathBuf::new();
+        let mut config_file = None;
+        if let Some(path) = file_path {
+            match std::fs::read_to_string(&path) {
+                Ok(text) => {
+                    file = toml::from_str(&text).map_err(|err| ConfigError::File {
+                        path: path.clone(),
+                        message: err.to_string().trim_end().to_string(),
+                    })?;
+                    file_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+                    config_file = Some(path);
+                }
+                Err(err) if !must_exist && err.kind() == std::io::ErrorKind::NotFound => {}
+                Err(source) => return Err(ConfigError::Read { path, source }),
+            }
+        }
+        let file_err = |key: &str, message: String| ConfigError::File {
+            path: config_file.clone().unwrap_or_default(),
+            message: format!("key `{key}`: {message}"),
+        };
+        // Relative paths in the file are relative to the file's directory.
+        let rel = |p: Option<PathBuf>| p.map(|p| file_dir.join(p));
+
+        // `system` from the file also counts (flag/env already decided above if given).
+        let system = pick(args.system, e.get("SYSTEM", parse_bool)?, file.system).unwrap_or(system);
+
+        let name = match pick(args.name.clone(), e.get("NAME", parse_string)?, file.name) {
+            Some(n) if n.trim().is_empty() => {
+                return Err(ConfigError::Invalid("`name` must not be empty".into()))
+            }
+            Some(n) => n,
+            None => default_name(),
+        };
+        let state_dir = match pick(
+            args.state_dir.clone(),
+            e.get("STATE_DIR", parse_path)?,
+            rel(file.state_dir),
+        ) {
+            Some(p) => p,
+            None if system => PathBuf::from("/var/lib/telextilesd"),
+            None => xdg_dir(&e, "XDG_STATE_HOME", ".local/state", "state_dir")?.join("telextiles"),
+        };
+        let data_dir = match pick(
+            args.data_dir.clone(),
+            e.get("DATA_DIR", parse_path)?,
+            rel(file.data_dir),
+        ) {
+            Some(p) => p,
+            None if system => PathBuf::from("/usr/share/telextiles"),
+            None => xdg_dir(&e, "XDG_DATA_HOME", ".local/share", "data_dir")?.join("telextiles"),
+        };
+        let socket_given = pick(
+            args.socket.clone(),
+            e.get("SOCKET", parse_path)?,
+            rel(file.socket),
+        );
+        let runtime_dir = match pick(args.runtime_dir.clone(), e.get("RUNTIME_DIR", parse_path)?, rel(file.runtime_dir)) {
+            Some(p) => p,
+            None if system => PathBuf::from(telextiles_control::socket::SYSTEM_DIR),
+            None => match e.raw("XDG_RUNTIME_DIR") {
+                Some(rt) => PathBuf::from(rt).join(telextiles_control::socket::USER_DIR_NAME),
+                None => match &socket_given {
+                    // Only the socket lives in the runtime dir; its parent will do.
+                    Some(s) => s.parent().map(Path::to_path_buf).unwrap_or_default(),
+                    None => {
+                        return Err(ConfigError::Invalid(
+                            "XDG_RUNTIME_DIR is not set, so there is no per-user runtime directory for the control socket; set it, or pass --runtime-dir DIR or --socket PATH, or use --system".into(),
+                        ))
+                    }
+                },
+            },
+        };
+        let socket = socket_given
+            .unwrap_or_else(|| runtime_dir.join(telextiles_control::socket::SOCKET_NAME));
+        let group = pick(
+            args.group.clone(),
+            e.get("GROUP", parse_string)?,
+            file.group,
+        )
+        .unwrap_or_else(|| telextiles_control::socket::DEFAULT_GROUP.to_string());
+        let file_sensor = file
+            .sensor
+            .map(|s| s.parse::<SensorSource>().map_err(|m| file_err("sensor", m)))
+            .transpose()?
+            .map(|s| match s {
+                SensorSource::Replay { dir } => SensorSource::Replay {
+                    dir: file_dir.join(dir),
+                },
+                other => other,
+            });
+        let sensor = pick(
+            args.sensor.clone(),
+            e.get("SENSOR", parse_from_str)?,
+            file_sensor,
+        )
+        .unwrap_or(SensorSource::Digit { serial: None });
+        let model = pick(
+            args.model.clone(),
+            e.get("MODEL", parse_path)?,
+            rel(file.model),
+        )
+        .unwrap_or_else(|| data_dir.join("encoder.onnx"));
+        let index = pick(
+            args.index.clone(),
+            e.get("INDEX", parse_path)?,
+            rel(file.index),
+        )
+        .unwrap_or_else(|| data_dir.join("index.tlxi"));
+        let file_roller = file
+            .roller
+            .map(|s| s.parse::<RollerSource>().map_err(|m| file_err("roller", m)))
+            .transpose()?
+            .map(|r| match r {
+                RollerSource::Path(p) => RollerSource::Path(file_dir.join(p)),
+                other => other,
+            });
+        let roller = pick(
+            args.roller.clone(),
+            e.get("ROLLER", parse_from_str)?,
+            file_roller,
+        )
+        .unwrap_or(RollerSource::Auto);
+        let listen = pick(args.listen, e.get("LISTEN", parse_from_str)?, file.listen)
+            .unwrap_or_else(|| DEFAULT_LISTEN.parse().expect("valid default"));
+        let connect = pick(
+            args.connect.clone(),
+            e.get("CONNECT", parse_list)?,
+            file.connect,
+        )
+        .unwrap_or_default();
+        for c in &connect {
+            validate_host_port(c).map_err(|m| ConfigError::Invalid(format!("`connect`: {m}")))?;
+        }
+        let mdns = pick(args.mdns, e.get("MDNS", parse_bool)?, file.mdns).unwrap_or(true);
+        let mdns_allow = pick(
+            args.mdns_allow.clone(),
+            e.get("MDNS_ALLOW", parse_list)?,
+            file.mdns_allow,
+        )
+        .unwrap_or_default();
+        let mdns_deny = pick(
+            args.mdns_deny.clone(),
+            e.get("MDNS_DENY", parse_list)?,
+            file.mdns_deny,
+        )
+        .unwrap_or_default();
+        let map = pick(args.map, e.get("MAP", parse_bool)?, file.map).unwrap_or(false);
+        let map_bind = pick(
+            args.map_bind,
+            e.get("MAP_BIND", parse_from_str)?,
+            file.map_bind,
+        )
+        .unwrap_or_else(|| DEFAULT_MAP_BIND.parse().expect("valid default"));
+        // Logging: flag > TELEXTILESD_LOG > RUST_LOG > file > "info".
+        let log = match pick(args.log.clone(), e.get("LOG", parse_string)?, None) {
+            Some(l) => l,
+            None => match e.raw("RUST_LOG") {
+                Some(r) => r.to_string_lossy().into_owned(),
+                None => file.log.unwrap_or_else(|| "info".into()),
+            },
+        };
+        Ok(Config {
+            config_file,
+            name,
+            state_dir,
+            data_dir,
+            runtime_dir,
+            socket,
+            system,
+            group,
+            sensor,
+            model,
+            index,
+            roller,
+            listen,
+            connect,
+            mdns,
+            mdns_allow,
+            mdns_deny,
+            map,
+            map_bind,
+            log,
+        })
+    }
+
+    /// The control socket to bind: user-only under the runtime dir, or
+    /// group-shared in system mode (the group is resolved here).
+    pub fn socket_spec(&self) -> Result<telextiles_control::SocketSpec, ConfigError> {
+        use telextiles_control::{socket, Access, SocketSpec};
+        let access = if self.system {
+            let gid = socket::resolve_group(&self.group)
+                .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+            Access::Group { gid }
+        } else {
+            Access::User
+        };
+        // The runtime dir is ours to manage only when the socket is inside it.
+        let manage_dir = self.socket.parent() == Some(self.runtime_dir.as_path());
+        Ok(SocketSpec {
+            path: self.socket.clone(),
+            access,
+            manage_dir,
+        })
+    }
+
+    /// The `tracing` filter for [`Config::log`]; an invalid filter is an
+    /// error naming the option (instead of being silently ignored).
+    pub fn env_filter(&self) -> Result<tracing_subscriber::EnvFilter, ConfigError> {
+        tracing_subscriber::EnvFilter::builder()
+            .parse(&self.log)
+            .map_err(|e| {
+                ConfigError::Invalid(format!(
+                    "invalid log filter `{}` (from --log, TELEXTILESD_LOG, RUST_LOG or `log`): {e}",
+                    self.log
+                ))
+            })
+    }
+
+    /// The resolved configuration as TOML (for `--print-config`-style output and docs).
+    pub fn to_toml(&self) -> String {
+        let q = |s: &str| toml_string(s);
+        let list = |v: &[String]| {
+            format!(
+                "[{}]",
+                v.iter().map(|s| q(s)).collect::<Vec<_>>().join(", ")
+            )
+        };
+        let p = |p: &Path| q(&p.display().to_string());
+        format!(
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            q(&self.name),
+            p(&self.state_dir),
+            p(&self.data_dir),
+            p(&self.runtime_dir),
+            p(&self.socket),
+            self.system,
+            q(&self.group),
+            q(&self.sensor.to_string()),
+            p(&self.model),
+            p(&self.index),
+            q(&self.roller.to_string()),
+            q(&self.listen.to_string()),
+            list(&self.connect),
+            self.mdns,
+            list(&self.mdns_allow),
+            list(&self.mdns_deny),
+            self.map,
+            q(&self.map_bind.to_string()),
+            q(&self.log),
+        )
+    }
+}
+
+fn toml_string(s: &str) -> String {
+    // JSON string escaping is valid TOML basic-string escaping.
+    serde_json::Value::from(s).to_string()
+}
+
+/// First of flag, env, file that is set.
+fn pick<T>(flag: Option<T>, env: Option<T>, file: Option<T>) -> Option<T> {
+    flag.or(env).or(file)
+}
+
+struct Env<'a>(EnvLookup<'a>);
+
+impl Env<'_> {
+    /// A non-empty raw variable.
+    fn raw(&self, var: &str) -> Option<OsString> {
+        (self.0)(var).filter(|v| !v.is_empty())
+    }
+    /// `TELEXTILESD_<key>` parsed; empty counts as unset.
+    fn get<T>(
+        &self,
+        key: &str,
+        parse: fn(&str) -> Result<T, String>,
+    ) -> Result<Option<T>, ConfigError> {
+        let var = format!("{ENV_PREFIX}{key}");
+        let Some(raw) = self.raw(&var) else {
+            return Ok(None);
+        };
+        let value = raw.to_str().ok_or_else(|| ConfigError::Env {
+            var: var.clone(),
+            value: raw.to_string_lossy().into_owned(),
+            message: "not valid UTF-8".into(),
+        })?;
+        parse(value).map(Some).map_err(|message| ConfigError::Env {
+            var,
+            value: value.to_string(),
+            message,
+        })
+    }
+}
+
+fn parse_string(s: &str) -> Result<String, String> {
+    Ok(s.to_string())
+}
+fn parse_path(s: &str) -> Result<PathBuf, String> {
+    Ok(PathBuf::from(s))
+}
+fn parse_bool(s: &str) -> Result<bool, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "1" | "true" | "yes" | "on" | "y" => Ok(true),
+        "0" | "false" | "no" | "off" | "n" => Ok(false),
+        _ => Err("expected true/false (or 1/0, yes/no, on/off)".into()),
+    }
+}
+fn parse_list(s: &str) -> Result<Vec<String>, String> {
+    Ok(s.split(',')
+        .map(str::trim)
+        .filter(|x| !x.is_empty())
+        .map(String::from)
+        .collect())
+}
+fn parse_from_str<T: FromStr>(s: &str) -> Result<T, String>
+where
+    T::Err: fmt::Display,
+{
+    s.parse::<T>().map_err(|e| e.to_string())
+}
+
+/// `host:port` or `[v6]:port` with a numeric port.
+fn validate_host_port(s: &str) -> Result<(), String> {
+    let (host, port) = s
+        .rsplit_once(':')
+        .ok_or_else(|| format!("`{s}` is not HOST:PORT"))?;
+    if host.is_empty() || port.parse::<u16>().is_err() {
+        return Err(format!("`{s}` is not HOST:PORT with a port 0..=65535"));
+    }
+    Ok(())
+}
+
+fn home(e: &Env<'_>, what: &str) -> Result<PathBuf, ConfigError> {
+    e.raw("HOME").map(PathBuf::from).ok_or_else(|| {
+        ConfigError::Invalid(format!(
+            "neither HOME nor the XDG variable is set, so `{what}` has no default; pass --{}",
+            what.replace('_', "-")
+        ))
+    })
+}
+
+fn xdg_dir(e: &Env<'_>, var: &str, fallback: &str, what: &str) -> Result<PathBuf, ConfigError> {
+    match e.raw(var) {
+        Some(v) if Path::new(&v).is_absolute() => Ok(PathBuf::from(v)),
+        _ => Ok(home(e, what)?.join(fallback)),
+    }
+}
+
+fn default_config_file(system: bool, e: &Env<'_>) -> Option<PathBuf> {
+    if system {
+        return Some(PathBuf::from("/etc/telextiles/telextilesd.toml"));
+    }
+    let base = match e.raw("XDG_CONFIG_HOME") {
+        Some(v) if Path::new(&v).is_absolute() => PathBuf::from(v),
+        _ => PathBuf::from(e.raw("HOME")?).join(".config"),
+    };
+    Some(base.join("telextiles").join("telextilesd.toml"))
+}
+
+fn default_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "telextiles".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::{CommandFactory, Parser};
+    use std::collections::HashMap;
+
+    #[derive(Parser)]
+    struct T {
+        #[command(flatten)]
+        c: ConfigArgs,
+    }
+
+    fn args(a: &[&str]) -> ConfigArgs {
+        T::try_parse_from(std::iter::once("t").chain(a.iter().copied()))
+            .unwrap_or_else(|e| panic!("{e}"))
+            .c
+    }
+
+    fn env_of(pairs: &[(&str, &str)]) -> impl Fn(&str) -> Option<OsString> {
+        let m: HashMap<String, OsString> = pairs
+            .iter()
+            .map(|(k, v)| (k.to_string(), OsString::from(v)))
+            .collect();
+        move |k| m.get(k).cloned()
+    }
+
+    fn base_env(dir: &Path) -> Vec<(String, String)> {
+        vec![
+            ("HOME".into(), dir.join("home").display().to_string()),
+            (
+                "XDG_RUNTIME_DIR".into(),
+                dir.join("run").display().to_string(),
+            ),
+        ]
+    }
+
+    fn resolve(a: &[&str], env: &[(&str, &str)]) -> Result<Config, ConfigError> {
+        Config::resolve(&args(a), &env_of(env))
+    }
+
+    #[test]
+    fn defaults_follow_xdg() {
+        let c = resolve(&[], &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/run/user/7")]).unwrap();
+        assert_eq!(c.state_dir, PathBuf::from("/h/.local/state/telextiles"));
+        assert_eq!(c.data_dir, PathBuf::from("/h/.local/share/telextiles"));
+        assert_eq!(c.runtime_dir, PathBuf::from("/run/user/7/telextilesd"));
+        assert_eq!(
+            c.socket,
+            PathBuf::from("/run/user/7/telextilesd/control.sock")
+        );
+        assert_eq!(
+            c.model,
+            PathBuf::from("/h/.local/share/telextiles/encoder.onnx")
+        );
+        assert_eq!(
+            c.index,
+            PathBuf::from("/h/.local/share/telextiles/index.tlxi")
+        );
+        assert_eq!(c.sensor, SensorSource::Digit { serial: None });
+        assert_eq!(c.roller, RollerSource::Auto);
+        assert_eq!(c.listen, DEFAULT_LISTEN.parse().unwrap());
+        assert!(c.mdns && !c.map && !c.system, "the map is off by default");
+        assert_eq!(c.log, "info");
+        assert_eq!(c.config_file, None, "absent default file is fine");
+        let spec = c.socket_spec().unwrap();
+        assert_eq!(spec.access, telextiles_control::Access::User);
+        assert!(spec.manage_dir);
+
+        let c = resolve(&["--system"], &[]).unwrap();
+        assert_eq!(c.socket, PathBuf::from("/run/telextilesd/control.sock"));
+        assert_eq!(c.state_dir, PathBuf::from("/var/lib/telextilesd"));
+        assert_eq!(c.group, "telextiles");
+
+        let err = resolve(&[], &[("HOME", "/h")]).unwrap_err().to_string();
+        assert!(err.contains("XDG_RUNTIME_DIR is not set"), "{err}");
+        // An explicit socket needs no runtime dir.
+        let c = resolve(&["--socket", "/tmp/x/ctl.sock"], &[("HOME", "/h")]).unwrap();
+        assert_eq!(c.socket, PathBuf::from("/tmp/x/ctl.sock"));
+    }
+
+    #[test]
+    fn precedence_flag_env_file_default() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        std::fs::write(
+            &cfg,
+            "name = \"from-file\"\nsensor = \"replay:presses\"\nroller = \"sim\"\nlisten = \"127.0.0.1:1000\"\nconnect = [\"a:1\"]\nmap = false\nlog = \"debug\"\nmodel = \"m.onnx\"\n",
+        )
+        .unwrap();
+        let base: Vec<(String, String)> = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+
+        // File over defaults; relative paths are relative to the file.
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!(c.config_file.as_deref(), Some(cfg.as_path()));
+        assert_eq!(c.name, "from-file");
+        assert_eq!(
+            c.sensor,
+            SensorSource::Replay {
+                dir: dir.path().join("presses")
+            }
+        );
+        assert_eq!(c.roller, RollerSource::Sim);
+        assert_eq!(c.listen, "127.0.0.1:1000".parse().unwrap());
+        assert_eq!(c.connect, vec!["a:1".to_string()]);
+        assert!(!c.map);
+        assert_eq!(c.model, dir.path().join("m.onnx"));
+        assert_eq!(c.log, "debug");
+
+        // Env over file.
+        let mut env2 = env.clone();
+        env2.extend([
+            ("TELEXTILESD_NAME", "from-env"),
+            ("TELEXTILESD_SENSOR", "sim:T012"),
+            ("TELEXTILESD_CONNECT", "b:2, c:3"),
+            ("TELEXTILESD_MAP", "yes"),
+            ("RUST_LOG", "warn"),
+        ]);
+        let c = resolve(&[], &env2).unwrap();
+        assert_eq!(c.name, "from-env");
+        assert_eq!(
+            c.sensor,
+            SensorSource::Sim {
+                textile: Some("T012".into())
+            }
+        );
+        assert_eq!(c.connect, vec!["b:2".to_string(), "c:3".to_string()]);
+        assert!(c.map);
+        assert_eq!(c.log, "warn", "RUST_LOG beats the file");
+        assert_eq!(
+            c.roller,
+            RollerSource::Sim,
+            "untouched keys still come from the file"
+        );
+
+        // Flags over env.
+        let c = resolve(
+            &[
+                "--name",
+                "from-flag",
+                "--sensor",
+                "digit:D20001",
+                "--connect",
+                "d:4",
+                "--map=false",
+                "--log",
+                "trace",
+            ],
+            &env2,
+        )
+        .unwrap();
+        assert_eq!(c.name, "from-flag");
+        assert_eq!(
+            c.sensor,
+            SensorSource::Digit {
+                serial: Some("D20001".into())
+            }
+        );
+        assert_eq!(c.connect, vec!["d:4".to_string()]);
+        assert!(!c.map);
+        assert_eq!(c.log, "trace");
+        env2.push(("TELEXTILESD_LOG", "error"));
+        assert_eq!(
+            resolve(&[], &env2).unwrap().log,
+            "error",
+            "TELEXTILESD_LOG beats RUST_LOG"
+        );
+
+        // An explicit --config that does not exist is an error.
+        let err = resolve(&["--config", "/nonexistent/t.toml"], &env)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cannot read config file /nonexistent/t.toml"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn bad_values_name_their_source() {
+        let dir = tempfile::tempdir().unwrap();
+        let base = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg = dir.path().join("t.toml");
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+
+        std::fs::write(&cfg, "name = \"x\"\nsnesor = \"sim\"\n").unwrap();
+        let err = resolve(&[], &env).unwrap_err().to_string();
+        assert!(err.contains("unknown field `snesor`"), "{err}");
+        assert!(err.contains(&cfg_s), "{err}");
+
+        std::fs::write(&cfg, "sensor = \"webcam\"\n").unwrap();
+        let err = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            err.contains("key `sensor`") && err.contains("unknown sensor source `webcam`"),
+            "{err}"
+        );
+
+        std::fs::write(&cfg, "listen = 47800\n").unwrap();
+        let err = resolve(&[], &env).unwrap_err().to_string();
+        assert!(err.contains("listen"), "{err}");
+
+        std::fs::write(&cfg, "").unwrap();
+        let mut e2 = env.clone();
+        e2.push(("TELEXTILESD_LISTEN", "nope"));
+        let err = resolve(&[], &e2).unwrap_err().to_string();
+        assert!(err.contains("TELEXTILESD_LISTEN=\"nope\""), "{err}");
+        let mut e3 = env.clone();
+        e3.push(("TELEXTILESD_MAP", "maybe"));
+        assert!(resolve(&[], &e3)
+            .unwrap_err()
+            .to_string()
+            .contains("TELEXTILESD_MAP"));
+        let mut e4 = env.clone();
+        e4.push(("TELEXTILESD_CONNECT", "hostonly"));
+        assert!(resolve(&[], &e4)
+            .unwrap_err()
+            .to_string()
+            .contains("`connect`"));
+
+        let mut c = resolve(&[], &env).unwrap();
+        assert!(c.env_filter().is_ok());
+        c.log = "info,telextiles_link=debug".into();
+        assert!(c.env_filter().is_ok());
+        c.log = "info,=[".into();
+        let err = c.env_filter().unwrap_err().to_string();
+        assert!(err.contains("invalid log filter `info,=[`"), "{err}");
+
+        assert!(T::try_parse_from(["t", "--roller", "wheel"]).is_err());
+        assert!("replay:"
+            .parse::<SensorSource>()
+            .unwrap_err()
+            .contains("replay:<dir>"));
+        assert_eq!(
+            "/dev/ttyUSB0".parse::<RollerSource>().unwrap(),
+            RollerSource::Path("/dev/ttyUSB0".into())
+        );
+    }
+
+    #[test]
+    fn every_key_is_a_file_key_a_flag_and_an_env_var() {
+        let cmd = T::command();
+        let longs: Vec<String> = cmd
+            .get_arguments()
+            .filter_map(|a| a.get_long().map(str::to_string))
+            .collect();
+        for key in KEYS {
+            let flag = key.replace('_', "-");
+            assert!(longs.contains(&flag), "no flag --{flag}");
+            let help = cmd
+                .get_arguments()
+                .find(|a| a.get_long() == Some(flag.as_str()))
+                .and_then(|a| a.get_help())
+                .map(|h| h.to_string())
+                .unwrap_or_default();
+            let var = format!("{ENV_PREFIX}{}", key.to_uppercase());
+            assert!(help.contains(&var), "--{flag} help does not mention {var}");
+            // The file accepts the key...
+            let line = format!("{key} = {}\n", sample_toml(key));
+            toml::from_str::<FileConfig>(&line).unwrap_or_else(|e| panic!("{line}: {e}"));
+        }
+        // ...and every flag but --config is a key.
+        assert_eq!(longs.len(), KEYS.len() + 1);
+        // The env var is honoured for each key (value differs from the default).
+        for key in KEYS {
+            let var = format!("{ENV_PREFIX}{}", key.to_uppercase());
+            let val = sample_env(key);
+            let c = resolve(
+                &[],
+                &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r"), (&var, val)],
+            )
+            .unwrap();
+            let d = resolve(&[], &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")]).unwrap();
+            assert_ne!(c, d, "{var} had no effect");
+        }
+        // Round trip through to_toml.
+        let c = resolve(
+            &["--connect", "a:1", "--sensor", "sim:T001"],
+            &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.toml");
+        std::fs::write(&p, c.to_toml()).unwrap();
+        let again = resolve(
+            &["--config", p.to_str().unwrap()],
+            &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
+        )
+        .unwrap();
+        assert_eq!(
+            Config {
+                config_file: None,
+                ..again
+            },
+            c
+        );
+    }
+
+    fn sample_toml(key: &str) -> &'static str {
+        match key {
+            "system" | "mdns" | "map" => "true",
+            "connect" | "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
+            "listen" | "map_bind" => "\"127.0.0.1:9\"",
+            "sensor" => "\"sim\"",
+            "roller" => "\"sim\"",
+            _ => "\"/x\"",
+        }
+    }
+
+    fn sample_env(key: &str) -> &'static str {
+        match key {
+            "system" => "1",
+            "mdns" => "false",
+            "map" => "true",
+            "connect" | "mdns_allow" | "mdns_deny" => "x:1",
+            "listen" | "map_bind" => "127.0.0.1:9",
+            "sensor" => "sim",
+            "roller" => "sim",
+            "group" => "wheel",
+            "log" => "debug",
+            _ => "/x",
+        }
+    }
+}

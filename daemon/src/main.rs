@@ -1,0 +1,77 @@
+//! `telextilesd`: the Telextiles daemon and its command line.
+use clap::{Parser, Subcommand};
+
+mod cmd_classify;
+mod cmd_ctl;
+mod cmd_demo;
+mod cmd_index;
+mod cmd_map;
+mod cmd_pair;
+mod cmd_peers;
+mod cmd_roller;
+mod cmd_sim;
+mod config;
+mod session;
+
+#[derive(Parser)]
+#[command(
+    name = "telextilesd",
+    version,
+    about = "Feel, at a distance, the fabric another person is touching"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run the sensing pipeline on recorded or simulated presses
+    Classify(cmd_classify::Args),
+    /// Control a running daemon over its local socket
+    Ctl(cmd_ctl::Args),
+    /// Build or inspect the textile index
+    #[command(subcommand)]
+    Index(cmd_index::Args),
+    /// Simulated DIGIT presses, the dataset protocol and the contact sheet
+    Sim(cmd_sim::Args),
+    /// Show this device's ID (creates the identity on first run)
+    Id(cmd_peers::IdArgs),
+    /// Pair with another device (show or enter a code), then run the live session
+    Pair(cmd_pair::Args),
+    /// Run the live session with the paired peers (as under systemd)
+    Run(cmd_pair::RunArgs),
+    /// Two daemons on this machine with simulated hardware: pair, press, feel
+    Demo(cmd_demo::Args),
+    /// List paired peers from the trust store
+    Peers(cmd_peers::PeersArgs),
+    /// Forget a paired peer (by device ID, unique ID prefix, or name)
+    Unpair(cmd_peers::UnpairArgs),
+    /// Serve the live 2D textile map in a browser (--demo: simulated presses)
+    Map(cmd_map::Args),
+    /// Drive a roller directly, or run the simulated roller on a pty
+    #[command(subcommand)]
+    Roller(cmd_roller::Args),
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::Classify(a) => cmd_classify::run(a),
+        Cmd::Ctl(a) => cmd_ctl::run(a),
+        Cmd::Index(a) => cmd_index::run(a),
+        Cmd::Sim(a) => cmd_sim::run(a),
+        Cmd::Id(a) => cmd_peers::id(a),
+        Cmd::Pair(a) => cmd_pair::run(a),
+        Cmd::Run(a) => cmd_pair::run_session(a),
+        Cmd::Demo(a) => cmd_demo::run(a),
+        Cmd::Peers(a) => cmd_peers::peers(a),
+        Cmd::Unpair(a) => cmd_peers::unpair(a),
+        Cmd::Map(a) => cmd_map::run(a),
+        Cmd::Roller(a) => cmd_roller::run(a),
+    }
+}
