@@ -1,0 +1,547 @@
+//! Peer link between two hosts made of network namespaces joined by a veth
+//! pair (real mDNS, real QUIC, real iptables). Each endpoint is a separate
+//! `link_node` process run with `ip netns exec`. Needs root; without it each
+//! test prints a loud SKIP and returns.
+use std::collections::VecDeque;
+use std::io::{BufRead, BufReader, Write};
+use std::path::Path;
+use std::process::{Child, ChildStdin, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant, SystemTime};
+
+use telextiles_certs::{Identity, PeerRecord, TrustStore};
+use telextiles_tests::netns::{available_or_skip, Netns, TwoHosts};
+
+const NODE: &str = env!("CARGO_BIN_EXE_link_node");
+
+struct Node {
+    name: String,
+    child: Child,
+    stdin: ChildStdin,
+    rx: mpsc::Receiver<String>,
+    log: VecDeque<String>,
+}
+
+impl Node {
+    fn spawn(ns: &Netns, name: &str, args: &[String]) -> Node {
+        let mut cmd = ns.command(NODE);
+        cmd.arg("node").args(args);
+        Node::spawn_cmd(cmd, name)
+    }
+
+    fn spawn_cmd(mut cmd: std::process::Command, name: &str) -> Node {
+        let mut child = cmd
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn link_node");
+        let stdout = child.stdout.take().unwrap();
+        let stdin = child.stdin.take().unwrap();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Node {
+            name: name.into(),
+            child,
+            stdin,
+            rx,
+            log: VecDeque::new(),
+        }
+    }
+
+    /// Next line starting with `prefix` (other lines are kept in the log).
+    fn expect(&mut self, prefix: &str, timeout: Duration) -> String {
+        self.try_expect(prefix, timeout).unwrap_or_else(|| {
+            panic!(
+                "{}: no `{prefix}` line within {timeout:?}; last lines:\n{}",
+                self.name,
+                self.log.iter().cloned().collect::<Vec<_>>().join("\n")
+            )
+        })
+    }
+
+    fn try_expect(&mut self, prefix: &str, timeout: Duration) -> Option<String> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.checked_duration_since(Instant::now())?;
+            let line = self.rx.recv_timeout(left).ok()?;
+            if line.starts_with("fatal") {
+                panic!("{}: {line}", self.name);
+            }
+            let hit = line.starts_with(prefix);
+            if !line.starts_with("latent") {
+                self.log.push_back(line.clone());
+                if self.log.len() > 60 {
+                    self.log.pop_front();
+                }
+            }
+            if hit {
+                return Some(line);
+            }
+        }
+    }
+
+    /// Every line that arrives within `d`.
+    fn drain(&mut self, d: Duration) -> Vec<String> {
+        let deadline = Instant::now() + d;
+        let mut v = Vec::new();
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match self.rx.recv_timeout(left) {
+                Ok(l) => v.push(l),
+                Err(_) => break,
+            }
+        }
+        v
+    }
+
+    fn send(&mut self, line: &str) {
+        writeln!(self.stdin, "{line}").expect("write to node");
+        self.stdin.flush().unwrap();
+    }
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn s(v: &[&str]) -> Vec<String> {
+    v.iter().map(|x| x.to_string()).collect()
+}
+
+/// Two data dirs with identities that already trust each other.
+fn paired_dirs() -> (tempfile::TempDir, tempfile::TempDir) {
+    let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    ia.save(da.path()).unwrap();
+    ib.save(db.path()).unwrap();
+    trust(da.path(), &ib, "bob");
+    trust(db.path(), &ia, "alice");
+    (da, db)
+}
+
+fn trust(dir: &Path, peer: &Identity, name: &str) {
+    let mut st = TrustStore::load(dir).unwrap();
+    st.insert(PeerRecord::new(peer.cert_der().clone(), name, SystemTime::now()).unwrap());
+    st.save().unwrap();
+}
+
+fn dir_arg(d: &tempfile::TempDir) -> String {
+    d.path().display().to_string()
+}
+
+/// Streams `presses` presses of known classes from `from` to `to`; every
+/// final decision must name the pressed class. Returns (decisions right,
+/// latents received, one-way latencies in µs).
+fn presses(from: &mut Node, to: &mut Node, presses: u32, frames: u32) -> (u32, u64, Vec<i64>) {
+    let mut right = 0;
+    let mut latents = 0u64;
+    let mut lat = Vec::new();
+    for p in 1..=presses {
+        let class = (p * 7) % 16;
+        from.send(&format!("press {p} {class} {frames}"));
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let decision = loop {
+            let left = deadline
+                .checked_duration_since(Instant::now())
+                .unwrap_or_else(|| panic!("{}: no decision for press {p}", to.name));
+            let line = to.rx.recv_timeout(left).unwrap_or_else(|_| {
+                panic!("{}: no decision for press {p}; log {:?}", to.name, to.log)
+            });
+            let f: Vec<&str> = line.split_whitespace().collect();
+            match f.as_slice() {
+                ["latent", _, _, l] => {
+                    latents += 1;
+                    if let Ok(v) = l.parse() {
+                        lat.push(v);
+                    }
+                }
+                ["decision", id, c, _] if *id == p.to_string() => break c.to_string(),
+                _ => {}
+            }
+        };
+        assert_eq!(
+            decision,
+            class.to_string(),
+            "press {p}: wrong final decision"
+        );
+        right += 1;
+        from.expect(&format!("sent {p}"), Duration::from_secs(5));
+    }
+    (right, latents, lat)
+}
+
+fn median(v: &mut [i64]) -> i64 {
+    v.sort();
+    v.get(v.len() / 2).copied().unwrap_or(-1)
+}
+
+#[test]
+fn link_discovery_pairing_streaming() {
+    if !available_or_skip("link_discovery_pairing_streaming") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &[
+            s(&[
+                "--dir",
+                &dir_arg(&da),
+                "--name",
+                "alice",
+                "--listen",
+                "0.0.0.0:7000",
+            ]),
+            s(&["--mdns", &h.a_if, "--show-code"]),
+        ]
+        .concat(),
+    );
+    let code = a.expect("code ", Duration::from_secs(5))[5..].to_string();
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &[
+            s(&[
+                "--dir",
+                &dir_arg(&db),
+                "--name",
+                "bob",
+                "--listen",
+                "0.0.0.0:7000",
+            ]),
+            s(&["--mdns", &h.b_if, "--code", &code]),
+        ]
+        .concat(),
+    );
+    // B finds A by mDNS (A advertises pair=1), pairs, goes live.
+    b.expect("discovered", Duration::from_secs(10));
+    let pa = a.expect("paired ", Duration::from_secs(10));
+    let pb = b.expect("paired ", Duration::from_secs(10));
+    let va = pa.split_whitespace().nth(2).unwrap().to_string();
+    let vb = pb.split_whitespace().nth(2).unwrap().to_string();
+    assert_eq!(va, vb, "both users see the same verification code");
+    let up_a = a.expect("up ", Duration::from_secs(10));
+    b.expect("up ", Duration::from_secs(10));
+    assert!(up_a.contains(" bob "), "{up_a}");
+    // Streaming both ways.
+    let (right, got, _) = presses(&mut b, &mut a, 3, 20);
+    assert_eq!(right, 3);
+    assert!(
+        got >= 30,
+        "only {got} of 60 latents arrived on a clean link"
+    );
+    let (right, _, mut lat) = presses(&mut a, &mut b, 2, 20);
+    assert_eq!(right, 2);
+    println!("netns one-way latency median {} us", median(&mut lat));
+    // The pairing is stored: both trust stores name the other.
+    assert_eq!(TrustStore::load(da.path()).unwrap().len(), 1);
+    assert_eq!(TrustStore::load(db.path()).unwrap().len(), 1);
+}
+
+#[test]
+fn link_wrong_code_fails_on_both_sides() {
+    if !available_or_skip("link_wrong_code_fails_on_both_sides") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &s(&[
+            "--dir",
+            &dir_arg(&da),
+            "--listen",
+            "0.0.0.0:7000",
+            "--mdns",
+            &h.a_if,
+            "--show-code",
+        ]),
+    );
+    let code = a.expect("code ", Duration::from_secs(5))[5..].to_string();
+    // A valid code (check digit right) that is not the shown one.
+    let wrong = (0..)
+        .map(|i: u32| {
+            let offer = telextiles_certs::CodeOffer::new(
+                &mut rand::rngs::OsRng,
+                Instant::now(),
+                Duration::from_secs(60 + i as u64),
+            );
+            offer.display()
+        })
+        .find(|c| *c != code)
+        .unwrap();
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &s(&[
+            "--dir",
+            &dir_arg(&db),
+            "--listen",
+            "0.0.0.0:7000",
+            "--mdns",
+            &h.b_if,
+            "--code",
+            &wrong,
+        ]),
+    );
+    let ea = a.expect("error Pairing", Duration::from_secs(10));
+    let eb = b.expect("error Pairing", Duration::from_secs(10));
+    println!("a: {ea}\nb: {eb}");
+    assert!(ea.contains("did not match") && eb.contains("did not match"));
+    assert!(TrustStore::load(da.path()).unwrap().is_empty());
+    assert!(TrustStore::load(db.path()).unwrap().is_empty());
+    // The code is burnt: nobody pairs later either.
+    assert!(a.try_expect("paired", Duration::from_millis(500)).is_none());
+}
+
+#[test]
+fn link_third_identity_refused() {
+    if !available_or_skip("link_third_identity_refused") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    let (da, db) = paired_dirs();
+    // C trusts A (so it dials A), but A never paired with C.
+    let dc = tempfile::tempdir().unwrap();
+    let ia = Identity::load(da.path()).unwrap();
+    Identity::generate().unwrap().save(dc.path()).unwrap();
+    trust(dc.path(), &ia, "alice");
+    let a_addr = format!("{}:7000", h.a_ip);
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &s(&["--dir", &dir_arg(&da), "--listen", "0.0.0.0:7000"]),
+    );
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &s(&[
+            "--dir",
+            &dir_arg(&db),
+            "--name",
+            "bob",
+            "--listen",
+            "0.0.0.0:7000",
+            "--connect",
+            &a_addr,
+        ]),
+    );
+    a.expect("up ", Duration::from_secs(10));
+    b.expect("up ", Duration::from_secs(10));
+    let mut c = Node::spawn(
+        &h.b,
+        "mallory",
+        &s(&[
+            "--dir",
+            &dir_arg(&dc),
+            "--name",
+            "mallory",
+            "--listen",
+            "0.0.0.0:7001",
+            "--connect",
+            &a_addr,
+        ]),
+    );
+    let ec = c.expect("error RefusedByPeer", Duration::from_secs(10));
+    println!("c: {ec}");
+    assert!(ec.contains("not paired"), "{ec}");
+    let ea = a.expect("error RefusedPeer", Duration::from_secs(10));
+    println!("a: {ea}");
+    assert!(c.try_expect("up ", Duration::from_millis(300)).is_none());
+    // A still streams with B.
+    let (right, _, _) = presses(&mut b, &mut a, 1, 10);
+    assert_eq!(right, 1);
+}
+
+#[test]
+fn link_mdns_blocked_manual_address_works() {
+    if !available_or_skip("link_mdns_blocked_manual_address_works") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    h.a.block_mdns().unwrap();
+    h.b.block_mdns().unwrap();
+    let (da, db) = paired_dirs();
+    let b_addr = format!("{}:7000", h.b_ip);
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &s(&[
+            "--dir",
+            &dir_arg(&db),
+            "--name",
+            "bob",
+            "--listen",
+            "0.0.0.0:7000",
+            "--mdns",
+            &h.b_if,
+        ]),
+    );
+    b.expect("listening", Duration::from_secs(5));
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &s(&[
+            "--dir",
+            &dir_arg(&da),
+            "--listen",
+            "0.0.0.0:7000",
+            "--mdns",
+            &h.a_if,
+            "--connect",
+            &b_addr,
+        ]),
+    );
+    a.expect("up ", Duration::from_secs(10));
+    b.expect("up ", Duration::from_secs(10));
+    let (right, _, _) = presses(&mut a, &mut b, 1, 10);
+    assert_eq!(right, 1);
+    // mDNS really was blocked: neither side discovered the other.
+    let mut all: Vec<String> = a.drain(Duration::from_millis(300));
+    all.extend(b.drain(Duration::from_millis(10)));
+    all.extend(a.log.iter().chain(b.log.iter()).cloned());
+    assert!(
+        !all.iter().any(|l| l.starts_with("discovered")),
+        "mDNS got through despite the DROP rules"
+    );
+    let counters = h.a.iptables_counters();
+    println!("{counters}");
+}
+
+#[test]
+fn link_loss_delay_reorder_decisions_stay_right() {
+    if !available_or_skip("link_loss_delay_reorder_decisions_stay_right") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    let (da, db) = paired_dirs();
+    // 10% random loss on every UDP packet entering either host.
+    h.a.random_loss(0.1).unwrap();
+    h.b.random_loss(0.1).unwrap();
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &s(&[
+            "--dir",
+            &dir_arg(&db),
+            "--name",
+            "bob",
+            "--listen",
+            &format!("{}:7000", h.b_ip),
+        ]),
+    );
+    b.expect("listening", Duration::from_secs(5));
+    // 50 ms ± 20 ms each way, in B's namespace in front of B.
+    let mut relay_cmd = h.b.command(NODE);
+    relay_cmd.args([
+        "relay",
+        &format!("{}:7100", h.b_ip),
+        &format!("{}:7000", h.b_ip),
+        "50",
+        "20",
+    ]);
+    let mut relay = Node::spawn_cmd(relay_cmd, "relay");
+    relay.expect("relay ", Duration::from_secs(5));
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &s(&[
+            "--dir",
+            &dir_arg(&da),
+            "--listen",
+            "0.0.0.0:7000",
+            "--connect",
+            &format!("{}:7100", h.b_ip),
+        ]),
+    );
+    a.expect("up ", Duration::from_secs(15));
+    b.expect("up ", Duration::from_secs(15));
+    std::thread::sleep(Duration::from_secs(1)); // clock estimate settles
+    let (right, got, mut lat) = presses(&mut a, &mut b, 8, 30);
+    assert_eq!(right, 8);
+    let stats = relay
+        .drain(Duration::from_millis(1100))
+        .into_iter()
+        .rfind(|l| l.starts_with("relaystats"))
+        .expect("relay reports its counters every second");
+    let f: Vec<u64> = stats
+        .split_whitespace()
+        .skip(1)
+        .map(|x| x.parse().unwrap())
+        .collect();
+    println!(
+        "impaired link: 8/8 final decisions right; {got}/240 latents delivered (stale dropped); one-way latency median {} us; relay received/forwarded/dropped/reordered {:?}",
+        median(&mut lat),
+        f
+    );
+    assert!(f[3] > 0, "the relay reordered nothing: {stats}");
+    assert!(got < 240, "10% loss dropped no latent?");
+    let m = median(&mut lat);
+    assert!(
+        (30_000..90_000).contains(&m),
+        "one-way latency {m} us should be about 50 ms"
+    );
+}
+
+#[test]
+fn link_down_up_reconnects_within_3s() {
+    if !available_or_skip("link_down_up_reconnects_within_3s") {
+        return;
+    }
+    let h = TwoHosts::new().unwrap();
+    let (da, db) = paired_dirs();
+    let b_addr = format!("{}:7000", h.b_ip);
+    let mut b = Node::spawn(
+        &h.b,
+        "bob",
+        &s(&[
+            "--dir",
+            &dir_arg(&db),
+            "--listen",
+            "0.0.0.0:7000",
+            "--idle-ms",
+            "1500",
+        ]),
+    );
+    b.expect("listening", Duration::from_secs(5));
+    let mut a = Node::spawn(
+        &h.a,
+        "alice",
+        &s(&[
+            "--dir",
+            &dir_arg(&da),
+            "--listen",
+            "0.0.0.0:7000",
+            "--connect",
+            &b_addr,
+            "--idle-ms",
+            "1500",
+        ]),
+    );
+    a.expect("up ", Duration::from_secs(10));
+    b.expect("up ", Duration::from_secs(10));
+    h.set_link(false).unwrap();
+    a.expect("down ", Duration::from_secs(10));
+    std::thread::sleep(Duration::from_secs(1));
+    let t0 = Instant::now();
+    h.set_link(true).unwrap();
+    a.expect("up ", Duration::from_secs(10));
+    let took = t0.elapsed();
+    println!("reconnected {took:?} after the link came back up");
+    assert!(took < Duration::from_secs(3), "reconnect took {took:?}");
+    let (right, _, _) = presses(&mut a, &mut b, 1, 10);
+    assert_eq!(right, 1);
+}
