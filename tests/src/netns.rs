@@ -130,6 +130,25 @@ impl Drop for Netns {
     }
 }
 
+/// Waits until `dev` in `ns` is up with a carrier (at most 5 s).
+fn wait_for_carrier(ns: &Netns, dev: &str) -> Result<(), String> {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        let out = run(&["ip", "-n", &ns.name, "-o", "link", "show", "dev", dev])?;
+        let text = String::from_utf8_lossy(&out.stdout);
+        if text.contains("state UP") && !text.contains("NO-CARRIER") {
+            return Ok(());
+        }
+        if std::time::Instant::now() > deadline {
+            return Err(format!(
+                "{dev} in {} has no carrier after 5 s: {text}",
+                ns.name
+            ));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
 /// Two namespaces `a` and `b` joined by a veth pair: `a_if` (a_ip/24) in
 /// `a`, `b_if` (b_ip/24) in `b`.
 #[derive(Debug)]
@@ -167,6 +186,11 @@ impl TwoHosts {
         b.ip(&["addr", "add", &format!("{b_ip}/24"), "dev", &b_if])?;
         a.ip(&["link", "set", &a_if, "up"])?;
         b.ip(&["link", "set", &b_if, "up"])?;
+        // The veth carrier comes up asynchronously: a node started before
+        // it is up loses its first mDNS announcements and queries, and
+        // discovery then waits for mdns-sd's next retry (seconds).
+        wait_for_carrier(&a, &a_if)?;
+        wait_for_carrier(&b, &b_if)?;
         Ok(TwoHosts {
             a_if,
             b_if,
