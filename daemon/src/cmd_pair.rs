@@ -41,6 +41,15 @@ pub struct Args {
     /// Speed factor of the simulated roller (1 = a real roller's timing)
     #[arg(long, hide = true, env = "TELEXTILESD_SIM_ROLLER_SPEED")]
     pub sim_roller_speed: Option<f64>,
+    /// Write a per-frame latency trace to this file (diagnostic; see
+    /// daemon/src/trace.rs and docs/benchmarks.md)
+    #[arg(
+        long,
+        hide = true,
+        value_name = "FILE",
+        env = "TELEXTILESD_LATENCY_TRACE"
+    )]
+    pub latency_trace: Option<std::path::PathBuf>,
 }
 
 fn say(line: &str) {
@@ -129,6 +138,15 @@ pub struct RunArgs {
     /// Speed factor of the simulated roller (1 = a real roller's timing)
     #[arg(long, hide = true, env = "TELEXTILESD_SIM_ROLLER_SPEED")]
     pub sim_roller_speed: Option<f64>,
+    /// Write a per-frame latency trace to this file (diagnostic; see
+    /// daemon/src/trace.rs and docs/benchmarks.md)
+    #[arg(
+        long,
+        hide = true,
+        value_name = "FILE",
+        env = "TELEXTILESD_LATENCY_TRACE"
+    )]
+    pub latency_trace: Option<std::path::PathBuf>,
 }
 
 /// The live session with already-paired peers, no pairing (systemd's entry).
@@ -146,6 +164,7 @@ pub fn run_session(args: RunArgs) -> anyhow::Result<()> {
                 cfg,
                 crate::session::SessionOptions {
                     sim_roller_speed: args.sim_roller_speed,
+                    latency_trace: args.latency_trace.clone(),
                     ..Default::default()
                 },
             )
@@ -214,6 +233,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
                 pairing_deadline: show_deadline,
                 sim_roller_speed: args.sim_roller_speed,
                 sim_gap_frames: None,
+                latency_trace: args.latency_trace.clone(),
             },
         )
         .await;

@@ -12,6 +12,7 @@ mod cmd_roller;
 mod cmd_sim;
 mod config;
 mod session;
+mod trace;
 
 #[derive(Parser)]
 #[command(

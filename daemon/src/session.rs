@@ -55,6 +55,8 @@ pub struct SessionOptions {
     pub sim_roller_speed: Option<f64>,
     /// No-contact frames between simulated presses.
     pub sim_gap_frames: Option<usize>,
+    /// Write a per-frame latency trace here (`crate::trace`).
+    pub latency_trace: Option<PathBuf>,
 }
 
 /// Commands for the sensing thread.
@@ -112,6 +114,7 @@ struct State {
     fatal: Mutex<Option<String>>,
     shutdown: watch::Sender<bool>,
     started: Instant,
+    trace: Option<crate::trace::Trace>,
 }
 
 fn say(line: &str) {
@@ -177,6 +180,10 @@ pub fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index)> {
 
 /// Run a session until shutdown (control `shutdown`, SIGINT or SIGTERM).
 pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
+    let trace = match &opts.latency_trace {
+        Some(p) => Some(crate::trace::Trace::create(p)?),
+        None => None,
+    };
     let (encoder, index) = load_model(&cfg, 1)?;
     let index = Arc::new(index);
     let model = encoder.info().clone();
@@ -258,6 +265,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         map_tx: map_tx.clone(),
         shutdown,
         started: Instant::now(),
+        trace,
     });
     let sensing = {
         let state = state.clone();
@@ -577,6 +585,7 @@ fn sensing_thread(
         let capture_us = now_us();
         lock(&state.counters).frames += 1;
         let up = contact.update(&frame.image, frame.timestamp_us);
+        let contact_us = now_us();
         match up.event {
             Some(ContactEvent::PressStart { .. }) => {
                 press_id = press_id.wrapping_add(1);
@@ -607,6 +616,7 @@ fn sensing_thread(
         if up.in_contact {
             match encoder.encode(&frame.image) {
                 Ok(emb) => {
+                    let encoded_us = now_us();
                     let n = emb.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
                     for (s, v) in sum.iter_mut().zip(emb) {
                         *s += v / n;
@@ -616,12 +626,19 @@ fn sensing_thread(
                     normalise(&mut mean);
                     let mut v = emb.to_vec();
                     normalise(&mut v);
-                    if state
+                    if let Ok(sent) = state
                         .link
-                        .send_latent(press_id, &v, capture_us, false)
-                        .is_ok()
+                        .send_latent_timed(press_id, &v, capture_us, false)
                     {
+                        let sent_us = now_us();
                         lock(&state.counters).latents_sent += 1;
+                        if let Some(t) = &state.trace {
+                            t.tx(
+                                sent.seq,
+                                press_id,
+                                [capture_us, contact_us, encoded_us, sent.encoded_us, sent_us],
+                            );
+                        }
                     }
                 }
                 Err(e) => {
@@ -739,6 +756,7 @@ fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
             _ => {}
         },
         LinkEvent::Latent(l) => {
+            let handled_us = now_us();
             let peer = l.peer.to_string();
             lock(&state.counters).latents_received += 1;
             if rx
@@ -759,6 +777,20 @@ fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
                 }
             }
             let step = p.decider.on_embedding(&*state.index, l.capture_us, &v);
+            let decided_us = now_us();
+            let changed = match (step.changed, step.decision) {
+                (true, Some(d)) if p.decided != Some(d.entry) => Some(d),
+                _ => None,
+            };
+            if let Some(t) = &state.trace {
+                t.rx(
+                    l.seq,
+                    l.press_id,
+                    [l.received_us, handled_us, decided_us],
+                    changed.is_some(),
+                    changed.map(|d| state.index.slot_of_entry(d.entry)),
+                );
+            }
             if let (true, Some(d)) = (step.changed, step.decision) {
                 let latency = l.one_way_latency_us.unwrap_or(0).max(0) as u64;
                 decide(state, p, d.entry, d.distance, latency, l.capture_us, false);
@@ -885,6 +917,15 @@ fn on_roller_event(state: &Arc<State>, ev: RollerEvent, last_pos: &mut Instant) 
             });
         }
         RollerEvent::Connected { .. } => {}
+        RollerEvent::TargetWritten { target, at } => {
+            if let Some(t) = &state.trace {
+                let slot = match target {
+                    Target::Slot(s) => Some(s),
+                    _ => None,
+                };
+                t.serial(slot, at);
+            }
+        }
     }
 }
 

@@ -182,6 +182,18 @@ pub struct Latent {
     /// Capture on the peer → receipt here, from the clock-offset estimate;
     /// `None` until the first pong.
     pub one_way_latency_us: Option<i64>,
+    /// When the datagram was read here ([`now_us`] of this process).
+    pub received_us: u64,
+}
+
+/// What [`LinkHandle::send_latent_timed`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SentLatent {
+    /// Sequence number of the frame.
+    pub seq: u64,
+    /// When the vector was quantised and encoded ([`now_us`]), before the
+    /// datagrams were queued.
+    pub encoded_us: u64,
 }
 
 /// Why a peer connection ended or could not start.
@@ -519,6 +531,19 @@ impl LinkHandle {
         capture_us: u64,
         final_frame: bool,
     ) -> Result<u64, LinkError> {
+        self.send_latent_timed(press_id, vector, capture_us, final_frame)
+            .map(|s| s.seq)
+    }
+
+    /// [`LinkHandle::send_latent`], also saying when the frame was
+    /// quantised and encoded (for per-stage latency measurements).
+    pub fn send_latent_timed(
+        &self,
+        press_id: u32,
+        vector: &[f32],
+        capture_us: u64,
+        final_frame: bool,
+    ) -> Result<SentLatent, LinkError> {
         let peers: Vec<quinn::Connection> = lock(&self.shared.peers)
             .values()
             .map(|p| p.conn.clone())
@@ -527,6 +552,7 @@ impl LinkHandle {
             return Err(LinkError::NoPeer);
         }
         let seq = self.seq.fetch_add(1, Ordering::Relaxed);
+        let mut encoded_us = now_us();
         let mut sent = 0;
         let mut last_err = None;
         for conn in peers {
@@ -551,13 +577,14 @@ impl LinkHandle {
                 vector: quant,
             };
             let bytes = frame.encode()?;
+            encoded_us = now_us();
             if conn.send_datagram(bytes::Bytes::from(bytes)).is_ok() {
                 sent += 1;
             }
         }
         match (sent, last_err) {
             (0, Some(e)) => Err(e),
-            _ => Ok(seq),
+            _ => Ok(SentLatent { seq, encoded_us }),
         }
     }
 

@@ -1028,6 +1028,7 @@ async fn stream(
                 vector: frame.vector.dequantize(),
                 wire_bytes: bytes.len(),
                 one_way_latency_us: one_way,
+                received_us: recv_us,
             }));
         }
     });

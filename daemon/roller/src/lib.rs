@@ -156,6 +156,12 @@ pub enum RollerEvent {
         slot: Option<u16>,
         moving: bool,
     },
+    /// A new target's command was written to the serial port (first try;
+    /// `at` is when the write completed). For latency measurements.
+    TargetWritten {
+        target: Target,
+        at: std::time::Instant,
+    },
     /// The wheel reached the latest target.
     Arrived { target: Target, status: Status },
     /// Something failed (a port that cannot be opened, a refused command,
@@ -635,6 +641,12 @@ impl Session<'_> {
                     let seq = self.next_seq();
                     if let Err(e) = self.write(seq, &cmd).await {
                         return SessionEnd::Lost(e);
+                    }
+                    if let Some(target) = target {
+                        let _ = self.events.send(RollerEvent::TargetWritten {
+                            target,
+                            at: std::time::Instant::now(),
+                        });
                     }
                     next_keepalive = Instant::now() + self.cfg.keepalive;
                     outstanding = Some(Outstanding {

@@ -106,6 +106,25 @@ async fn shortest_path_both_ways_and_across_zero() {
         .filter(|e| matches!(e, RollerEvent::Arrived { .. }))
         .count();
     assert_eq!(arrived, 6);
+    // Each new target's command was reported written once, before its arrival.
+    let written: Vec<Target> = ev
+        .iter()
+        .filter_map(|e| match e {
+            RollerEvent::TargetWritten { target, .. } => Some(*target),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        written,
+        [
+            Target::Slot(15),
+            Target::Slot(2),
+            Target::Slot(9),
+            Target::Slot(1),
+            Target::AngleMdeg(350_000),
+            Target::Steps(100)
+        ]
+    );
     assert!(ev.iter().any(|e| matches!(
         e,
         RollerEvent::Position {

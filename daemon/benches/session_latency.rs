@@ -1,0 +1,234 @@
+//! Latency benchmark of the live session: two `telextilesd run` daemons on
+//! this machine, both pressing simulated textiles at 60 fps (latents flow
+//! both ways at once), over loopback and through the userspace delay relay
+//! (this kernel has no netem). Per-frame stage times come from the daemons'
+//! latency traces on the shared CLOCK_MONOTONIC, joined on sequence numbers.
+//!
+//! ```sh
+//! cargo bench -p telextilesd --bench session_latency -- \
+//!     [--seconds 30] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg]
+//! ```
+//! Prints the markdown of docs/benchmarks.md's "Live session" section.
+#[path = "../tests/harness/mod.rs"]
+mod harness;
+
+use harness::*;
+use plotters::prelude::*;
+use std::time::Duration;
+
+struct Scenario {
+    name: String,
+    relay: Option<(u64, u64)>,
+}
+
+struct Result1 {
+    name: String,
+    ab: Stages,
+    ba: Stages,
+    cpu: [(f64, u64); 2],
+    finals_lost: usize,
+}
+
+fn parse_scenarios(s: &str) -> Vec<Scenario> {
+    s.split(',')
+        .map(|x| {
+            if x == "loopback" {
+                Scenario {
+                    name: "loopback".into(),
+                    relay: None,
+                }
+            } else {
+                let (d, j) = x.split_once(':').unwrap_or((x, "0"));
+                let (d, j): (u64, u64) =
+                    (d.parse().expect("delay ms"), j.parse().expect("jitter ms"));
+                Scenario {
+                    name: format!("relay {d} ± {j} ms"),
+                    relay: Some((d, j)),
+                }
+            }
+        })
+        .collect()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let opt = |k: &str| {
+        args.iter()
+            .position(|a| a == k)
+            .and_then(|i| args.get(i + 1).cloned())
+    };
+    let seconds: u64 = opt("--seconds").map_or(30, |s| s.parse().expect("--seconds"));
+    let scenarios =
+        parse_scenarios(&opt("--scenarios").unwrap_or("loopback,5:1,20:5,50:20".into()));
+    let svg = opt("--svg");
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let mut results = Vec::new();
+    for sc in &scenarios {
+        eprintln!("{}: {seconds} s measured after 5 s warm-up", sc.name);
+        let (pair, t0, t1) = rt.block_on(async {
+            let pair = Pair::start(&Setup {
+                relay: sc.relay,
+                ..Default::default()
+            })
+            .await;
+            tokio::time::sleep(Duration::from_secs(5)).await;
+            let t0 = mono_us();
+            tokio::time::sleep(Duration::from_secs(seconds)).await;
+            (pair, t0, mono_us())
+        });
+        let (ta, tb, a, b) = pair.stop();
+        let ab = stages(&ta, &tb, t0, t1);
+        let ba = stages(&tb, &ta, t0, t1);
+        let mut lost = 0;
+        for (from_tr, to) in [(&ta, &b), (&tb, &a)] {
+            let mut last = std::collections::BTreeMap::new();
+            for (p, t) in from_tr.tx.values() {
+                last.insert(*p, t[0]);
+            }
+            let f = finals(to);
+            lost += last
+                .iter()
+                .filter(|(p, &t)| t >= t0 && t + 3_000_000 < t1 && !f.contains(p))
+                .count();
+        }
+        results.push(Result1 {
+            name: sc.name.clone(),
+            ab,
+            ba,
+            cpu: [usage(&a, t0, t1), usage(&b, t0, t1)],
+            finals_lost: lost,
+        });
+    }
+    let ms = |v: f64| format!("{:.3}", v / 1000.0);
+    for r in &results {
+        println!("\n#### {}\n", r.name);
+        println!("| stage (both directions) | frames | p50 ms | p95 ms | p99 ms |\n|---|---:|---:|---:|---:|");
+        for (i, name) in STAGES.iter().enumerate() {
+            let v: Vec<f64> = r.ab.values[i]
+                .iter()
+                .chain(&r.ba.values[i])
+                .copied()
+                .collect();
+            println!(
+                "| {name} | {} | {} | {} | {} |",
+                v.len(),
+                ms(pct(&v, 50.0)),
+                ms(pct(&v, 95.0)),
+                ms(pct(&v, 99.0))
+            );
+        }
+        let rows: [(&str, Vec<f64>); 4] = [
+            (
+                "**capture on one side → decision on the other**",
+                cat(&r.ab.total_decided, &r.ba.total_decided),
+            ),
+            (
+                "**software-added (all but the wire stage)**",
+                cat(&r.ab.software, &r.ba.software),
+            ),
+            (
+                "capture → roller command written (decision changes)",
+                cat(&r.ab.total_serial, &r.ba.total_serial),
+            ),
+            (
+                "contact → first roller command of a press",
+                cat(&r.ab.contact_to_roller, &r.ba.contact_to_roller),
+            ),
+        ];
+        for (name, v) in rows {
+            println!(
+                "| {name} | {} | {} | {} | {} |",
+                v.len(),
+                ms(pct(&v, 50.0)),
+                ms(pct(&v, 95.0)),
+                ms(pct(&v, 99.0))
+            );
+        }
+        println!(
+            "\nLatents: A→B {} of {} received, B→A {} of {}; presses without a final decision: {}.",
+            r.ab.received, r.ab.sent, r.ba.received, r.ba.sent, r.finals_lost
+        );
+        println!(
+            "Daemon A: {:.1} % of one core, peak RSS {:.1} MB; daemon B: {:.1} % of one core, peak RSS {:.1} MB.",
+            100.0 * r.cpu[0].0,
+            r.cpu[0].1 as f64 / 1e6,
+            100.0 * r.cpu[1].0,
+            r.cpu[1].1 as f64 / 1e6
+        );
+    }
+    if let Some(path) = svg {
+        histogram(&results, &path).expect("write the SVG");
+        eprintln!("wrote {path}");
+    }
+}
+
+fn cat(a: &[f64], b: &[f64]) -> Vec<f64> {
+    a.iter().chain(b).copied().collect()
+}
+
+/// Frequency polygons of capture → decision latency per scenario, log-x.
+fn histogram(results: &[Result1], path: &str) -> Result<(), Box<dyn std::error::Error>> {
+    let root = SVGBackend::new(path, (900, 480)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (lo, hi) = (0.1f64, 200.0f64);
+    let bins = 60;
+    let edge = |i: usize| lo * (hi / lo).powf(i as f64 / bins as f64);
+    let series: Vec<(String, Vec<(f64, f64)>)> = results
+        .iter()
+        .map(|r| {
+            let v = cat(&r.ab.total_decided, &r.ba.total_decided);
+            let mut c = vec![0usize; bins];
+            for x in &v {
+                let ms = x / 1000.0;
+                if ms >= lo && ms < hi {
+                    let i = ((ms / lo).ln() / (hi / lo).ln() * bins as f64) as usize;
+                    c[i.min(bins - 1)] += 1;
+                }
+            }
+            let n = v.len().max(1) as f64;
+            let pts = (0..bins)
+                .map(|i| ((edge(i) * edge(i + 1)).sqrt(), 100.0 * c[i] as f64 / n))
+                .collect();
+            (r.name.clone(), pts)
+        })
+        .collect();
+    let ymax = series
+        .iter()
+        .flat_map(|s| s.1.iter().map(|p| p.1))
+        .fold(1.0, f64::max)
+        * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Capture on one daemon -> decision on the other (60 fps, both directions at once)",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d((lo..hi).log_scale(), 0.0..ymax)?;
+    chart
+        .configure_mesh()
+        .x_desc("latency, ms (log scale)")
+        .y_desc("% of frames per bin")
+        .draw()?;
+    for (i, (name, pts)) in series.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), color.stroke_width(2)))?
+            .label(name.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    Ok(())
+}

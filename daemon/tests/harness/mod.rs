@@ -1,0 +1,483 @@
+//! Two live `telextilesd run` daemons on this machine, paired beforehand,
+//! both pressing simulated textiles at 60 fps (so latents flow both ways),
+//! optionally through the userspace delay/jitter relay, with per-frame
+//! latency traces (`--latency-trace`), process samples (CPU, RSS) and their
+//! control-socket events. Shared by the latency benchmark
+//! (`benches/session_latency.rs`) and the soak test (`tests/soak.rs`).
+//!
+//! Loopback only (127.0.0.1, mDNS off): nothing leaves the machine.
+#![allow(dead_code)]
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use telextiles_certs::{Identity, PeerRecord, TrustStore};
+use telextiles_control::client::{Client, EventLine};
+use telextiles_control::{Command as Ctl, ContactPhase, Event, SubscribeArgs};
+use telextiles_tests::relay::{Impairment, Relay};
+
+pub const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
+
+/// CLOCK_MONOTONIC in µs (the clock of the daemons' traces).
+pub fn mono_us() -> u64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    t.tv_sec as u64 * 1_000_000 + t.tv_nsec as u64 / 1000
+}
+
+/// One side.
+pub struct Side {
+    pub name: &'static str,
+    pub child: Child,
+    pub dir: PathBuf,
+    pub socket: PathBuf,
+    pub trace: PathBuf,
+    pub log: PathBuf,
+    /// (time µs, CPU seconds so far, RSS bytes).
+    pub samples: Arc<Mutex<Vec<(u64, f64, u64)>>>,
+    /// Control-socket events with their arrival time (mono µs).
+    pub events: Arc<Mutex<Vec<(u64, Event)>>>,
+}
+
+impl Drop for Side {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+    }
+}
+
+/// How to run the pair.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// Relay delay and jitter in ms between B (client) and A (server).
+    pub relay: Option<(u64, u64)>,
+    /// Textiles pressed repeatedly by A and by B.
+    pub textiles: (String, String),
+}
+
+impl Default for Setup {
+    fn default() -> Self {
+        Setup {
+            relay: None,
+            textiles: ("T012".into(), "T047".into()),
+        }
+    }
+}
+
+pub struct Pair {
+    pub a: Side,
+    pub b: Side,
+    pub relay: Option<Relay>,
+    pub work: tempfile::TempDir,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+}
+
+fn free_udp_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn spawn(
+    name: &'static str,
+    work: &Path,
+    listen: SocketAddr,
+    connect: Option<SocketAddr>,
+    textile: &str,
+) -> Side {
+    let dir = work.join(name);
+    let socket = dir.join("control.sock");
+    let trace = dir.join("trace.txt");
+    let log = dir.join("daemon.log");
+    std::fs::write(dir.join("none.toml"), "").unwrap();
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run")
+        .args(["--name", &format!("bench-{name}")])
+        .arg("--state-dir")
+        .arg(dir.join("state"))
+        .arg("--data-dir")
+        .arg(dir.join("data"))
+        .arg("--runtime-dir")
+        .arg(&dir)
+        .arg("--socket")
+        .arg(&socket)
+        .args(["--sensor", &format!("sim:{textile}")])
+        .args(["--roller", "sim", "--map=false", "--mdns=false"])
+        .args(["--listen", &listen.to_string()])
+        .arg("--config")
+        .arg(dir.join("none.toml"))
+        .arg("--latency-trace")
+        .arg(&trace)
+        .env("TELEXTILESD_SIM_ROLLER_SPEED", "4")
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap());
+    if let Some(c) = connect {
+        cmd.args(["--connect", &c.to_string()]);
+    }
+    let child = cmd.spawn().expect("start telextilesd");
+    Side {
+        name,
+        child,
+        dir,
+        socket,
+        trace,
+        log,
+        samples: Arc::default(),
+        events: Arc::default(),
+    }
+}
+
+fn proc_sample(pid: u32) -> Option<(f64, u64)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces) in parentheses.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split(' ').collect();
+    let tick = 100.0; // USER_HZ
+    let cpu = (f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / tick;
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let rss_kb: u64 = status
+        .lines()
+        .find(|l| l.starts_with("VmRSS:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()?;
+    Some((cpu, rss_kb * 1024))
+}
+
+async fn connect(side: &Side) -> Client {
+    let t0 = Instant::now();
+    loop {
+        match Client::connect(&side.socket).await {
+            Ok(c) => return c,
+            Err(e) if t0.elapsed() > Duration::from_secs(60) => panic!(
+                "daemon {}: control socket did not come up: {e}; log:\n{}",
+                side.name,
+                std::fs::read_to_string(&side.log).unwrap_or_default()
+            ),
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+}
+
+impl Pair {
+    /// Starts both daemons (already paired), waits until they are connected.
+    pub async fn start(setup: &Setup) -> Pair {
+        let work = tempfile::tempdir().unwrap();
+        let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+        for (name, me, peer, peer_name) in [("a", &ia, &ib, "bench-b"), ("b", &ib, &ia, "bench-a")]
+        {
+            let state = work.path().join(name).join("state");
+            std::fs::create_dir_all(&state).unwrap();
+            me.save(&state).unwrap();
+            let mut st = TrustStore::load(&state).unwrap();
+            st.insert(
+                PeerRecord::new(peer.cert_der().clone(), peer_name, SystemTime::now()).unwrap(),
+            );
+            st.save().unwrap();
+        }
+        let a_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
+        let b_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
+        let relay = match setup.relay {
+            Some((d, j)) => Some(
+                Relay::start(
+                    "127.0.0.1:0".parse().unwrap(),
+                    a_addr,
+                    Impairment::delay(d, j),
+                )
+                .await
+                .expect("start the relay"),
+            ),
+            None => None,
+        };
+        let target = relay.as_ref().map_or(a_addr, |r| r.local_addr());
+        let a = spawn("a", work.path(), a_addr, None, &setup.textiles.0);
+        let b = spawn("b", work.path(), b_addr, Some(target), &setup.textiles.1);
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let pair = Pair {
+            a,
+            b,
+            relay,
+            work,
+            stop,
+        };
+        // Up: A sees B as a connected peer.
+        let mut ctl = connect(&pair.a).await;
+        let t0 = Instant::now();
+        loop {
+            let st = ctl.call(&Ctl::Status).await.unwrap().unwrap();
+            if st["peers"].as_array().is_some_and(|p| !p.is_empty()) {
+                break;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "the daemons did not connect; logs:\n{}\n{}",
+                std::fs::read_to_string(&pair.a.log).unwrap_or_default(),
+                std::fs::read_to_string(&pair.b.log).unwrap_or_default()
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        for side in [&pair.a, &pair.b] {
+            // Events.
+            let mut c = connect(side).await;
+            c.subscribe(SubscribeArgs::default())
+                .await
+                .unwrap()
+                .unwrap();
+            let events = side.events.clone();
+            tokio::spawn(async move {
+                while let Ok(Some(e)) = c.next_event().await {
+                    if let EventLine::Known(e) = e {
+                        events.lock().unwrap().push((mono_us(), e));
+                    }
+                }
+            });
+            // Process samples every 500 ms.
+            let pid = side.child.id();
+            let samples = side.samples.clone();
+            let stop = pair.stop.clone();
+            std::thread::spawn(move || {
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    match proc_sample(pid) {
+                        Some((cpu, rss)) => samples.lock().unwrap().push((mono_us(), cpu, rss)),
+                        None => break,
+                    }
+                    std::thread::sleep(Duration::from_millis(500));
+                }
+            });
+        }
+        pair
+    }
+
+    /// Stops both daemons (SIGTERM, then kill) and returns their traces.
+    pub fn stop(mut self) -> (Traces, Traces, Side, Side) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for side in [&mut self.a, &mut self.b] {
+            let _ = Command::new("kill")
+                .args(["-TERM", &side.child.id().to_string()])
+                .status();
+        }
+        for side in [&mut self.a, &mut self.b] {
+            let t0 = Instant::now();
+            while matches!(side.child.try_wait(), Ok(None))
+                && t0.elapsed() < Duration::from_secs(10)
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+        // The trace writers flush whenever idle; give them a moment.
+        std::thread::sleep(Duration::from_millis(200));
+        let ta = Traces::read(&self.a.trace);
+        let tb = Traces::read(&self.b.trace);
+        let Pair { a, b, work, .. } = self;
+        std::mem::forget(work.keep());
+        (ta, tb, a, b)
+    }
+}
+
+/// One daemon's trace (`daemon/src/trace.rs`).
+#[derive(Default, Debug)]
+pub struct Traces {
+    /// seq -> (press, [capture, contact, encoded, quantised, sent]).
+    pub tx: BTreeMap<u64, (u32, [u64; 5])>,
+    /// seq -> (press, [received, handled, decided], changed slot).
+    pub rx: BTreeMap<u64, (u32, [u64; 3], Option<u32>)>,
+    /// (slot, written).
+    pub serial: Vec<(Option<u32>, u64)>,
+}
+
+impl Traces {
+    pub fn read(path: &Path) -> Traces {
+        let text = std::fs::read_to_string(path)
+            .unwrap_or_else(|e| panic!("cannot read the trace {}: {e}", path.display()));
+        let mut t = Traces::default();
+        for line in text.lines().filter(|l| !l.starts_with('#')) {
+            let f: Vec<&str> = line.split(' ').collect();
+            let n = |i: usize| f.get(i).and_then(|x| x.parse::<u64>().ok());
+            match f[0] {
+                "tx" if f.len() == 8 => {
+                    let v: Option<Vec<u64>> = (1..8).map(n).collect();
+                    if let Some(v) = v {
+                        t.tx.insert(v[0], (v[1] as u32, [v[2], v[3], v[4], v[5], v[6]]));
+                    }
+                }
+                "rx" if f.len() == 8 => {
+                    let v: Option<Vec<u64>> = (1..7).map(n).collect();
+                    if let Some(v) = v {
+                        let slot = (v[5] == 1).then(|| n(7).map(|s| s as u32)).flatten();
+                        t.rx.insert(v[0], (v[1] as u32, [v[2], v[3], v[4]], slot));
+                    }
+                }
+                "serial" if f.len() == 3 => {
+                    if let Some(w) = n(2) {
+                        t.serial.push((n(1).map(|s| s as u32), w));
+                    }
+                }
+                _ => {} // a line cut short by the kill
+            }
+        }
+        t
+    }
+}
+
+/// Per-frame stage times (µs) of one direction, joined on the sender's seq.
+#[derive(Default, Debug)]
+pub struct Stages {
+    pub names: Vec<&'static str>,
+    /// One vector per stage.
+    pub values: Vec<Vec<f64>>,
+    /// Capture on the sender -> decision on the receiver.
+    pub total_decided: Vec<f64>,
+    /// The same minus the wire stage (software-added).
+    pub software: Vec<f64>,
+    /// Capture -> roller command written, for frames that changed the decision.
+    pub total_serial: Vec<f64>,
+    /// Contact (first encoded frame of a press) -> first roller command of it.
+    pub contact_to_roller: Vec<f64>,
+    /// Frames sent / received in the window.
+    pub sent: usize,
+    pub received: usize,
+}
+
+pub const STAGES: [&str; 8] = [
+    "contact detection",
+    "preprocess + encode",
+    "quantise + frame",
+    "send (QUIC)",
+    "wire (QUIC + relay)",
+    "receive (to session)",
+    "decide",
+    "serial write",
+];
+
+/// Joins `from.tx` with `to.rx` and `to.serial` for frames captured in `[t0, t1)`.
+pub fn stages(from: &Traces, to: &Traces, t0: u64, t1: u64) -> Stages {
+    let mut s = Stages {
+        names: STAGES.to_vec(),
+        values: vec![Vec::new(); STAGES.len()],
+        ..Default::default()
+    };
+    let us = |a: u64, b: u64| b.saturating_sub(a) as f64;
+    let mut first_of_press: BTreeMap<u32, u64> = BTreeMap::new();
+    let mut roller_of_press: BTreeSet<u32> = BTreeSet::new();
+    for (seq, (press, t)) in &from.tx {
+        first_of_press.entry(*press).or_insert(t[0]);
+        if t[0] < t0 || t[0] >= t1 {
+            continue;
+        }
+        s.sent += 1;
+        let Some((_, r, changed)) = to.rx.get(seq) else {
+            continue;
+        };
+        s.received += 1;
+        let row = [
+            us(t[0], t[1]),
+            us(t[1], t[2]),
+            us(t[2], t[3]),
+            us(t[3], t[4]),
+            us(t[4], r[0]),
+            us(r[0], r[1]),
+            us(r[1], r[2]),
+        ];
+        for (i, v) in row.iter().enumerate() {
+            s.values[i].push(*v);
+        }
+        s.total_decided.push(us(t[0], r[2]));
+        s.software.push(us(t[0], r[2]) - row[4]);
+        if let Some(slot) = changed {
+            // The command for this decision: the first write of its slot after it.
+            if let Some(&(_, w)) = to
+                .serial
+                .iter()
+                .find(|(sl, w)| *sl == Some(*slot) && *w >= r[2])
+            {
+                s.values[7].push(us(r[2], w));
+                s.total_serial.push(us(t[0], w));
+                if roller_of_press.insert(*press) {
+                    if let Some(&c) = first_of_press.get(press) {
+                        s.contact_to_roller.push(us(c, w));
+                    }
+                }
+            }
+        }
+    }
+    s
+}
+
+/// Percentile (nearest rank) of unsorted values.
+pub fn pct(v: &[f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = v.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let i = ((p / 100.0) * (v.len() as f64 - 1.0)).round() as usize;
+    v[i.min(v.len() - 1)]
+}
+
+/// CPU share of one core and peak RSS of a side within `[t0, t1]`.
+pub fn usage(side: &Side, t0: u64, t1: u64) -> (f64, u64) {
+    let s = side.samples.lock().unwrap();
+    let w: Vec<&(u64, f64, u64)> = s.iter().filter(|x| x.0 >= t0 && x.0 <= t1).collect();
+    let cpu = match (w.first(), w.last()) {
+        (Some(a), Some(b)) if b.0 > a.0 => (b.1 - a.1) / ((b.0 - a.0) as f64 / 1e6),
+        _ => f64::NAN,
+    };
+    (cpu, w.iter().map(|x| x.2).max().unwrap_or(0))
+}
+
+/// Presses the sender finished (contact end) in `[t0, t1)` and the final
+/// decisions the receiver made, by press number.
+pub fn finals(to: &Side) -> BTreeSet<u32> {
+    to.events
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::Decision {
+                final_decision: true,
+                press: Some(p),
+                ..
+            } => Some(*p),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Error events of a side with their times.
+pub fn errors(side: &Side) -> Vec<(u64, String)> {
+    side.events
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(t, e)| match e {
+            Event::Error { source, message } => Some((*t, format!("{source}: {message}"))),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Contact-end times of a side.
+pub fn contact_ends(side: &Side) -> Vec<u64> {
+    side.events
+        .lock()
+        .unwrap()
+        .iter()
+        .filter_map(|(t, e)| match e {
+            Event::Contact {
+                phase: ContactPhase::End,
+                ..
+            } => Some(*t),
+            _ => None,
+        })
+        .collect()
+}
