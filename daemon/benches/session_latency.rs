@@ -26,6 +26,8 @@ struct Result1 {
     ab: Stages,
     ba: Stages,
     cpu: [(f64, u64); 2],
+    /// Sensor frames per second processed by A and B.
+    fps: [f64; 2],
     finals_lost: usize,
 }
 
@@ -60,7 +62,10 @@ fn main() {
     let seconds: u64 = opt("--seconds").map_or(30, |s| s.parse().expect("--seconds"));
     let scenarios =
         parse_scenarios(&opt("--scenarios").unwrap_or("loopback,5:1,20:5,50:20".into()));
-    let svg = opt("--svg");
+    // Relative paths are taken from the workspace root (cargo runs benches
+    // in the package directory).
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let svg = opt("--svg").map(|p| root.join(p).display().to_string());
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -69,6 +74,7 @@ fn main() {
     let mut results = Vec::new();
     for sc in &scenarios {
         eprintln!("{}: {seconds} s measured after 5 s warm-up", sc.name);
+        let mut fps = [0.0; 2];
         let (pair, t0, t1) = rt.block_on(async {
             let pair = Pair::start(&Setup {
                 relay: sc.relay,
@@ -76,9 +82,20 @@ fn main() {
             })
             .await;
             tokio::time::sleep(Duration::from_secs(5)).await;
+            let f0 = [
+                counter(&pair.a, "frames").await,
+                counter(&pair.b, "frames").await,
+            ];
             let t0 = mono_us();
             tokio::time::sleep(Duration::from_secs(seconds)).await;
-            (pair, t0, mono_us())
+            let t1 = mono_us();
+            let f1 = [
+                counter(&pair.a, "frames").await,
+                counter(&pair.b, "frames").await,
+            ];
+            let secs = (t1 - t0) as f64 / 1e6;
+            fps = [(f1[0] - f0[0]) as f64 / secs, (f1[1] - f0[1]) as f64 / secs];
+            (pair, t0, t1)
         });
         let (ta, tb, a, b) = pair.stop();
         let ab = stages(&ta, &tb, t0, t1);
@@ -100,6 +117,7 @@ fn main() {
             ab,
             ba,
             cpu: [usage(&a, t0, t1), usage(&b, t0, t1)],
+            fps,
             finals_lost: lost,
         });
     }
@@ -135,8 +153,8 @@ fn main() {
                 cat(&r.ab.total_serial, &r.ba.total_serial),
             ),
             (
-                "contact → first roller command of a press",
-                cat(&r.ab.contact_to_roller, &r.ba.contact_to_roller),
+                "contact → first stable decision of a press",
+                cat(&r.ab.contact_to_decision, &r.ba.contact_to_decision),
             ),
         ];
         for (name, v) in rows {
@@ -149,13 +167,16 @@ fn main() {
             );
         }
         println!(
-            "\nLatents: A→B {} of {} received, B→A {} of {}; presses without a final decision: {}.",
-            r.ab.received, r.ab.sent, r.ba.received, r.ba.sent, r.finals_lost
+            "\nLatents accepted (latest wins: a datagram overtaken by a newer one is dropped): A→B {} of {}, B→A {} of {}; \
+             decision changes that needed no roller command (wheel already there): {}; presses without a final decision: {}.",
+            r.ab.received, r.ab.sent, r.ba.received, r.ba.sent, r.ab.no_command + r.ba.no_command, r.finals_lost
         );
         println!(
-            "Daemon A: {:.1} % of one core, peak RSS {:.1} MB; daemon B: {:.1} % of one core, peak RSS {:.1} MB.",
+            "Daemon A: {:.1} sensor frames/s, {:.1} % of one core, peak RSS {:.1} MB; daemon B: {:.1} frames/s, {:.1} % of one core, peak RSS {:.1} MB.",
+            r.fps[0],
             100.0 * r.cpu[0].0,
             r.cpu[0].1 as f64 / 1e6,
+            r.fps[1],
             100.0 * r.cpu[1].0,
             r.cpu[1].1 as f64 / 1e6
         );

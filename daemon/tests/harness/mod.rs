@@ -279,9 +279,18 @@ impl Pair {
         let ta = Traces::read(&self.a.trace);
         let tb = Traces::read(&self.b.trace);
         let Pair { a, b, work, .. } = self;
-        std::mem::forget(work.keep());
+        if std::env::var_os("TELEXTILES_KEEP").is_some() {
+            eprintln!("keeping {}", work.keep().display());
+        }
         (ta, tb, a, b)
     }
+}
+
+/// A counter of a side's `status` (e.g. `frames`).
+pub async fn counter(side: &Side, key: &str) -> u64 {
+    let mut c = connect(side).await;
+    let st = c.call(&Ctl::Status).await.unwrap().unwrap();
+    st["counters"][key].as_u64().unwrap_or(0)
 }
 
 /// One daemon's trace (`daemon/src/trace.rs`).
@@ -341,8 +350,11 @@ pub struct Stages {
     pub software: Vec<f64>,
     /// Capture -> roller command written, for frames that changed the decision.
     pub total_serial: Vec<f64>,
-    /// Contact (first encoded frame of a press) -> first roller command of it.
-    pub contact_to_roller: Vec<f64>,
+    /// Contact (first encoded frame of a press) -> its first stable decision
+    /// (the roller command is issued then, if the wheel is not there yet).
+    pub contact_to_decision: Vec<f64>,
+    /// Decision changes that needed no serial command (wheel already there).
+    pub no_command: usize,
     /// Frames sent / received in the window.
     pub sent: usize,
     pub received: usize,
@@ -368,9 +380,20 @@ pub fn stages(from: &Traces, to: &Traces, t0: u64, t1: u64) -> Stages {
     };
     let us = |a: u64, b: u64| b.saturating_sub(a) as f64;
     let mut first_of_press: BTreeMap<u32, u64> = BTreeMap::new();
-    let mut roller_of_press: BTreeSet<u32> = BTreeSet::new();
-    for (seq, (press, t)) in &from.tx {
+    for (press, t) in from.tx.values() {
         first_of_press.entry(*press).or_insert(t[0]);
+    }
+    // Decision changes on the receiver, in time order: a roller command
+    // for one is looked for only until the next (latest target wins).
+    let mut changes: Vec<u64> = to
+        .rx
+        .values()
+        .filter(|r| r.2.is_some())
+        .map(|r| r.1[2])
+        .collect();
+    changes.sort_unstable();
+    let mut first_decision: BTreeSet<u32> = BTreeSet::new();
+    for (seq, (press, t)) in &from.tx {
         if t[0] < t0 || t[0] >= t1 {
             continue;
         }
@@ -393,21 +416,30 @@ pub fn stages(from: &Traces, to: &Traces, t0: u64, t1: u64) -> Stages {
         }
         s.total_decided.push(us(t[0], r[2]));
         s.software.push(us(t[0], r[2]) - row[4]);
-        if let Some(slot) = changed {
-            // The command for this decision: the first write of its slot after it.
-            if let Some(&(_, w)) = to
-                .serial
-                .iter()
-                .find(|(sl, w)| *sl == Some(*slot) && *w >= r[2])
-            {
+        let Some(slot) = changed else { continue };
+        if first_decision.insert(*press) {
+            // Only presses that began inside the window (their first
+            // decision is then inside it too).
+            if let Some(&c) = first_of_press.get(press).filter(|&&c| c >= t0) {
+                s.contact_to_decision.push(us(c, r[2]));
+            }
+        }
+        let next = changes
+            .iter()
+            .find(|&&c| c > r[2])
+            .copied()
+            .unwrap_or(u64::MAX);
+        // No write when the wheel is already at (or already told) that slot.
+        match to
+            .serial
+            .iter()
+            .find(|(sl, w)| *sl == Some(*slot) && *w >= r[2] && *w < next)
+        {
+            Some(&(_, w)) => {
                 s.values[7].push(us(r[2], w));
                 s.total_serial.push(us(t[0], w));
-                if roller_of_press.insert(*press) {
-                    if let Some(&c) = first_of_press.get(press) {
-                        s.contact_to_roller.push(us(c, w));
-                    }
-                }
             }
+            None => s.no_command += 1,
         }
     }
     s
