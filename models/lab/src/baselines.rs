@@ -5,7 +5,8 @@
 //!
 //! Every descriptor looks at the centre `CROP` x `CROP` square of the image
 //! it is given (a 240x320 DIGIT frame or the 240x240 centre canvas: the same
-//! pixels) and returns an L2-normalised vector, so the same cosine kNN as for
+//! pixels; a smaller image, such as a 64x64 network-input cache, is used
+//! whole, cut to a power of two) and returns an L2-normalised vector, so the same cosine kNN as for
 //! the encoders applies.
 
 use std::f32::consts::PI;
@@ -63,30 +64,38 @@ impl Baseline {
     /// `bg` is the no-contact reference of the same size (used when `bgsub`).
     pub fn features(&self, img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
         let bg = if self.bgsub { bg } else { None };
-        let rgb = centre_crop_f32(img, w, h, bg);
+        let n = crop_side(w, h);
+        let rgb = centre_crop_f32(img, w, h, n, bg);
         let mut f = match self.kind {
-            BaselineKind::Pixels => pixels(&rgb),
-            BaselineKind::Lbp => lbp(&grey(&rgb)),
-            BaselineKind::Fft => fft_radial(&grey(&rgb)),
+            BaselineKind::Pixels => pixels(&rgb, n),
+            BaselineKind::Lbp => lbp(&grey(&rgb), n),
+            BaselineKind::Fft => fft_radial(&grey(&rgb), n),
         };
         l2(&mut f);
         f
     }
 }
 
-/// The centre `CROP`x`CROP` square as f32 RGB (HWC), minus `bg` if given.
-fn centre_crop_f32(img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
-    assert!(w >= CROP && h >= CROP, "image smaller than the crop");
+/// Side of the square the descriptors use: `CROP`, or the largest power
+/// of two that fits a smaller image (a network-input-sized frame cache).
+pub fn crop_side(w: usize, h: usize) -> usize {
+    let s = CROP.min(w).min(h);
+    assert!(s >= 16, "image smaller than 16 px");
+    1 << (usize::BITS - 1 - s.leading_zeros())
+}
+
+/// The centre `n`x`n` square as f32 RGB (HWC), minus `bg` if given.
+fn centre_crop_f32(img: &[u8], w: usize, h: usize, n: usize, bg: Option<&[u8]>) -> Vec<f32> {
     assert_eq!(img.len(), w * h * 3, "image size");
-    let (x0, y0) = ((w - CROP) / 2, (h - CROP) / 2);
-    let mut out = Vec::with_capacity(CROP * CROP * 3);
-    for y in 0..CROP {
+    let (x0, y0) = ((w - n) / 2, (h - n) / 2);
+    let mut out = Vec::with_capacity(n * n * 3);
+    for y in 0..n {
         let row = ((y0 + y) * w + x0) * 3;
-        let src = &img[row..row + CROP * 3];
+        let src = &img[row..row + n * 3];
         match bg {
             Some(b) => out.extend(
                 src.iter()
-                    .zip(&b[row..row + CROP * 3])
+                    .zip(&b[row..row + n * 3])
                     .map(|(&a, &r)| a as f32 - r as f32),
             ),
             None => out.extend(src.iter().map(|&a| a as f32)),
@@ -109,15 +118,15 @@ pub fn l2(v: &mut [f32]) {
     }
 }
 
-fn pixels(rgb: &[f32]) -> Vec<f32> {
+fn pixels(rgb: &[f32], n: usize) -> Vec<f32> {
     const G: usize = 16;
-    let b = CROP / G;
+    let b = n / G;
     let mut f = vec![0f32; G * G * 3];
-    for y in 0..CROP {
-        for x in 0..CROP {
+    for y in 0..n {
+        for x in 0..n {
             let cell = (y / b) * G + x / b;
             for c in 0..3 {
-                f[c * G * G + cell] += rgb[(y * CROP + x) * 3 + c];
+                f[c * G * G + cell] += rgb[(y * n + x) * 3 + c];
             }
         }
     }
@@ -139,8 +148,7 @@ fn riu2(bits: u8) -> usize {
     }
 }
 
-fn lbp(g: &[f32]) -> Vec<f32> {
-    let n = CROP;
+fn lbp(g: &[f32], n: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(30);
     for r in 1..=3usize {
         // Bilinear taps of the 8 circular neighbours at radius r.
@@ -216,8 +224,7 @@ pub fn fft(re: &mut [f32], im: &mut [f32]) {
     }
 }
 
-fn fft_radial(g: &[f32]) -> Vec<f32> {
-    let n = CROP;
+fn fft_radial(g: &[f32], n: usize) -> Vec<f32> {
     let mean = g.iter().sum::<f32>() / g.len() as f32;
     let hann: Vec<f32> = (0..n)
         .map(|i| 0.5 - 0.5 * (2.0 * PI * i as f32 / n as f32).cos())
@@ -319,11 +326,14 @@ mod tests {
     #[test]
     fn descriptors_tell_periods_apart_and_lbp_fft_ignore_rotation() {
         let cos = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
-        for kind in [BaselineKind::Lbp, BaselineKind::Fft] {
+        // The power spectrum is radially averaged: any angle. LBP (P = 8)
+        // is invariant to rotations that map its neighbour ring onto itself
+        // on the pixel grid: quarter turns.
+        for (kind, angle) in [(BaselineKind::Lbp, 90.0), (BaselineKind::Fft, 60.0)] {
             let b = Baseline { kind, bgsub: false };
             let f = |p, a, ph| b.features(&stripes(p, a, ph), 240, 240, None);
             let a0 = f(6.0, 0.0, 0.0);
-            let a_rot = f(6.0, 60.0, 1.0);
+            let a_rot = f(6.0, angle, 1.0);
             let other = f(17.0, 0.0, 0.0);
             assert!((a0.iter().map(|v| v * v).sum::<f32>() - 1.0).abs() < 1e-4);
             assert!(

@@ -5,9 +5,11 @@
 //! daemon never links it.
 
 pub mod augment;
+pub mod baselines;
 pub mod bench;
 pub mod data;
 pub mod knn;
+pub mod methods;
 pub mod model;
 pub mod onnx;
 pub mod preprocess;

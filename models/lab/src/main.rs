@@ -37,6 +37,27 @@ enum Cmd {
     BenchLatency(LatencyArgs),
     /// Time MoCo training steps of candidate architectures on this machine.
     BenchTrain(BenchTrainArgs),
+    /// Speed against accuracy of classical descriptors and ONNX encoders on
+    /// the same held-out presses: table, JSON and two SVG charts.
+    Methods(MethodsArgs),
+}
+
+#[derive(Args)]
+struct MethodsArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// ONNX encoders (input size = --input).
+    #[arg(long, default_value = "models/encoder.onnx")]
+    model: Vec<PathBuf>,
+    /// ONNX Runtime thread counts to time the encoders with.
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    time_threads: Vec<usize>,
+    /// Timed frames per method and thread count.
+    #[arg(long, default_value_t = 300)]
+    runs: usize,
+    /// Where the charts and JSON go.
+    #[arg(long, default_value = "docs")]
+    out: PathBuf,
 }
 
 #[derive(Args, Clone)]
@@ -183,6 +204,7 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::Train(a) => train(a),
+        Cmd::Methods(a) => methods(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
         Cmd::BenchLatency(a) => {
@@ -439,4 +461,60 @@ fn eval(a: EvalArgs) -> Result<()> {
     }
     let _ = embed_set;
     Ok(())
+}
+
+fn methods(a: MethodsArgs) -> Result<()> {
+    use telextiles_lab::baselines::{Baseline, BaselineKind};
+    use telextiles_lab::methods::{self, Method};
+    let p = a.data.protocol();
+    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+    let mut list: Vec<Method> = [BaselineKind::Pixels, BaselineKind::Lbp, BaselineKind::Fft]
+        .into_iter()
+        .map(|kind| Method::Baseline(Baseline { kind, bgsub: false }))
+        .collect();
+    for m in &a.model {
+        let bytes = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
+        let name = m
+            .file_stem()
+            .map_or("encoder".into(), |s| s.to_string_lossy().into_owned());
+        list.push(Method::Onnx(name, bytes));
+    }
+    let mut results = Vec::new();
+    for m in &list {
+        let t0 = Instant::now();
+        let r = methods::evaluate(m, &sets.train_index, &sets.heldout, &a.time_threads, a.runs)?;
+        eprintln!(
+            "{}: top-1 per frame {:.2}%, per press {:.2}% ({:.0} s)",
+            r.name,
+            100.0 * r.frame_top1,
+            100.0 * r.press_top1,
+            t0.elapsed().as_secs_f64()
+        );
+        results.push(r);
+    }
+    println!("{}", methods::markdown(&results));
+    std::fs::create_dir_all(&a.out)?;
+    write_atomic(
+        &a.out.join("methods.json"),
+        serde_json::to_string_pretty(&results)?.as_bytes(),
+    )?;
+    methods::charts(
+        &results,
+        &a.out.join("speed-accuracy.svg"),
+        &a.out.join("accuracy-frames.svg"),
+    )?;
+    eprintln!(
+        "wrote methods.json, speed-accuracy.svg and accuracy-frames.svg in {}",
+        a.out.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_command_line_is_well_formed() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
 }
