@@ -72,6 +72,25 @@ fn ip(args: &[&str]) -> Result<()> {
     Ok(())
 }
 
+/// Waits (at most 5 s) until `dev` in namespace `ns` is up with a carrier.
+fn wait_for_carrier(ns: &str, dev: &str) -> Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let out = Proc::new("ip")
+            .args(["-n", ns, "-o", "link", "show", "dev", dev])
+            .output()
+            .with_context(|| "cannot run `ip` (iproute2)")?;
+        let text = String::from_utf8_lossy(&out.stdout);
+        if text.contains("state UP") && !text.contains("NO-CARRIER") {
+            return Ok(());
+        }
+        if Instant::now() > deadline {
+            bail!("{dev} in {ns} has no carrier after 5 s: {}", text.trim());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 impl Netns {
     /// Two namespaces joined by a veth pair: 10.213.0.1 (A) and 10.213.0.2 (B).
     fn create() -> Result<Netns> {
@@ -91,6 +110,12 @@ impl Netns {
                 ip(&["-n", n, "addr", "add", addr, "dev", v])?;
                 ip(&["-n", n, "link", "set", v, "up"])?;
                 ip(&["-n", n, "link", "set", "lo", "up"])?;
+            }
+            // The veth carrier comes up asynchronously; a daemon started
+            // before it loses its first mDNS packets and discovery then
+            // waits for the next retry.
+            for (n, v) in [(&ns.a, &va), (&ns.b, &vb)] {
+                wait_for_carrier(n, v)?;
             }
             Ok(())
         };
