@@ -100,18 +100,7 @@ fn main() {
         let (ta, tb, a, b) = pair.stop();
         let ab = stages(&ta, &tb, t0, t1);
         let ba = stages(&tb, &ta, t0, t1);
-        let mut lost = 0;
-        for (from_tr, to) in [(&ta, &b), (&tb, &a)] {
-            let mut last = std::collections::BTreeMap::new();
-            for (p, t) in from_tr.tx.values() {
-                last.insert(*p, t[0]);
-            }
-            let f = finals(to);
-            lost += last
-                .iter()
-                .filter(|(p, &t)| t >= t0 && t + 3_000_000 < t1 && !f.contains(p))
-                .count();
-        }
+        let lost = lost_finals(&ta, &b, t0, t1).0.len() + lost_finals(&tb, &a, t0, t1).0.len();
         results.push(Result1 {
             name: sc.name.clone(),
             ab,

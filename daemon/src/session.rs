@@ -777,23 +777,20 @@ fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
                 }
             }
             let step = p.decider.on_embedding(&*state.index, l.capture_us, &v);
-            let decided_us = now_us();
-            let changed = match (step.changed, step.decision) {
-                (true, Some(d)) if p.decided != Some(d.entry) => Some(d),
+            let commanded = match (step.changed, step.decision) {
+                (true, Some(d)) => {
+                    let latency = l.one_way_latency_us.unwrap_or(0).max(0) as u64;
+                    decide(state, p, d.entry, d.distance, latency, l.capture_us, false)
+                }
                 _ => None,
             };
             if let Some(t) = &state.trace {
                 t.rx(
                     l.seq,
                     l.press_id,
-                    [l.received_us, handled_us, decided_us],
-                    changed.is_some(),
-                    changed.map(|d| state.index.slot_of_entry(d.entry)),
+                    [l.received_us, handled_us, now_us()],
+                    commanded,
                 );
-            }
-            if let (true, Some(d)) = (step.changed, step.decision) {
-                let latency = l.one_way_latency_us.unwrap_or(0).max(0) as u64;
-                decide(state, p, d.entry, d.distance, latency, l.capture_us, false);
             }
         }
     }
@@ -841,10 +838,10 @@ fn decide(
     latency_us: u64,
     capture_us: u64,
     final_decision: bool,
-) {
+) -> Option<usize> {
     let changed = p.decided != Some(entry);
     if !changed && !final_decision {
-        return;
+        return None;
     }
     p.decided = Some(entry);
     let slot = state.index.slot_of_entry(entry);
@@ -869,6 +866,7 @@ fn decide(
                 + latency_us as f64 / 1000.0,
         ),
     });
+    changed.then_some(slot)
 }
 
 fn on_roller_event(state: &Arc<State>, ev: RollerEvent, last_pos: &mut Instant) {

@@ -17,8 +17,8 @@
 //! `tx`: a frame of this device's sensor: read from the source (CAPTURE),
 //! contact detection done, encoder done, quantised and framed, handed to
 //! QUIC. `rx`: a latent from the peer: datagram read, taken by the
-//! receiver task, decision made; CHANGED is 1 when the decided textile
-//! changed (a roller command follows), SLOT its slot (or -). `serial`: a
+//! receiver task, decision made and acted on; CHANGED is 1 when the decided
+//! textile changed (the roller was given SLOT; else SLOT is -). `serial`: a
 //! roller target command written to the serial port.
 use std::io::Write;
 use std::path::Path;
@@ -83,14 +83,14 @@ impl Trace {
             .send(format!("tx {seq} {press} {a} {b} {c} {d} {e}\n"));
     }
 
-    /// A latent from the peer (times from `now_us`).
-    pub fn rx(&self, seq: u64, press: u32, t: [u64; 3], changed: bool, slot: Option<usize>) {
+    /// A latent from the peer (times from `now_us`); `commanded` is the
+    /// roller slot when the decision changed.
+    pub fn rx(&self, seq: u64, press: u32, t: [u64; 3], commanded: Option<usize>) {
         let [a, b, c] = t.map(|x| self.at(x));
-        let slot = slot.map_or("-".to_string(), |s| s.to_string());
-        let _ = self.tx.send(format!(
-            "rx {seq} {press} {a} {b} {c} {} {slot}\n",
-            changed as u8
-        ));
+        let (changed, slot) = commanded.map_or((0, "-".to_string()), |s| (1, s.to_string()));
+        let _ = self
+            .tx
+            .send(format!("rx {seq} {press} {a} {b} {c} {changed} {slot}\n"));
     }
 
     /// A roller target written to the serial port at `at`.
@@ -114,7 +114,7 @@ mod tests {
         let t = Trace::create(&path).unwrap();
         let now = telextiles_link::now_us();
         t.tx(7, 2, [now, now + 1, now + 2, now + 3, now + 4]);
-        t.rx(9, 3, [now, now + 10, now + 20], true, Some(5));
+        t.rx(9, 3, [now, now + 10, now + 20], Some(5));
         t.serial(Some(5), std::time::Instant::now());
         drop(t);
         let after = mono_us();

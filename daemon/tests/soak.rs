@@ -44,21 +44,7 @@ fn soak_both_directions() {
         let growth = rss_max / rss_ref - 1.0;
         // Presses of `side` that ended well before the end must each have a
         // final decision on the other side.
-        let mut last_frame = std::collections::BTreeMap::new();
-        for (press, t) in from_tr.tx.values() {
-            last_frame.insert(*press, t[0]);
-        }
-        let done: Vec<u32> = last_frame
-            .iter()
-            .filter(|(_, &t)| t >= t_start && t + 3_000_000 < t_end)
-            .map(|(p, _)| *p)
-            .collect();
-        let finals = finals(to);
-        let lost: Vec<u32> = done
-            .iter()
-            .filter(|p| !finals.contains(p))
-            .copied()
-            .collect();
+        let (lost, done) = lost_finals(from_tr, to, t_start, t_end);
         let st = stages(from_tr, to_tr, t_start, t_end);
         let errs: Vec<(u64, String)> = errors(side)
             .into_iter()
@@ -75,7 +61,7 @@ fn soak_both_directions() {
              errors after warm-up {first} + {second}",
             side.name,
             to.name,
-            done.len(),
+            done,
             lost.len(),
             st.received,
             st.sent,
@@ -86,7 +72,7 @@ fn soak_both_directions() {
             100.0 * growth
         );
         println!("{line}");
-        report.push((line, done.len(), lost, growth, first, second, errs, st));
+        report.push((line, done, lost, growth, first, second, errs, st));
     }
     for (line, done, lost, growth, first, second, errs, st) in report {
         assert!(

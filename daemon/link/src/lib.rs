@@ -552,7 +552,7 @@ impl LinkHandle {
             return Err(LinkError::NoPeer);
         }
         let seq = self.seq.fetch_add(1, Ordering::Relaxed);
-        let mut encoded_us = now_us();
+        let mut encoded_us = 0;
         let mut sent = 0;
         let mut last_err = None;
         for conn in peers {

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use telextiles_certs::{Identity, PeerRecord, TrustStore};
 use telextiles_control::client::{Client, EventLine};
-use telextiles_control::{Command as Ctl, ContactPhase, Event, SubscribeArgs};
+use telextiles_control::{Command as Ctl, Event, SubscribeArgs};
 use telextiles_tests::relay::{Impairment, Relay};
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
@@ -32,7 +32,6 @@ pub fn mono_us() -> u64 {
 pub struct Side {
     pub name: &'static str,
     pub child: Child,
-    pub dir: PathBuf,
     pub socket: PathBuf,
     pub trace: PathBuf,
     pub log: PathBuf,
@@ -127,7 +126,6 @@ fn spawn(
     Side {
         name,
         child,
-        dir,
         socket,
         trace,
         log,
@@ -341,8 +339,7 @@ impl Traces {
 /// Per-frame stage times (µs) of one direction, joined on the sender's seq.
 #[derive(Default, Debug)]
 pub struct Stages {
-    pub names: Vec<&'static str>,
-    /// One vector per stage.
+    /// One vector per stage of [`STAGES`].
     pub values: Vec<Vec<f64>>,
     /// Capture on the sender -> decision on the receiver.
     pub total_decided: Vec<f64>,
@@ -374,7 +371,6 @@ pub const STAGES: [&str; 8] = [
 /// Joins `from.tx` with `to.rx` and `to.serial` for frames captured in `[t0, t1)`.
 pub fn stages(from: &Traces, to: &Traces, t0: u64, t1: u64) -> Stages {
     let mut s = Stages {
-        names: STAGES.to_vec(),
         values: vec![Vec::new(); STAGES.len()],
         ..Default::default()
     };
@@ -467,10 +463,16 @@ pub fn usage(side: &Side, t0: u64, t1: u64) -> (f64, u64) {
     (cpu, w.iter().map(|x| x.2).max().unwrap_or(0))
 }
 
-/// Presses the sender finished (contact end) in `[t0, t1)` and the final
-/// decisions the receiver made, by press number.
-pub fn finals(to: &Side) -> BTreeSet<u32> {
-    to.events
+/// Presses of the sender whose last frame was captured in `[t0, t1 - 3 s)`
+/// (well before the end) and that have no final decision on the receiver.
+/// Returns (such presses, presses finished).
+pub fn lost_finals(from: &Traces, to: &Side, t0: u64, t1: u64) -> (Vec<u32>, usize) {
+    let mut last_frame: BTreeMap<u32, u64> = BTreeMap::new();
+    for (press, t) in from.tx.values() {
+        last_frame.insert(*press, t[0]);
+    }
+    let finals: BTreeSet<u32> = to
+        .events
         .lock()
         .unwrap()
         .iter()
@@ -482,7 +484,17 @@ pub fn finals(to: &Side) -> BTreeSet<u32> {
             } => Some(*p),
             _ => None,
         })
-        .collect()
+        .collect();
+    let done: Vec<u32> = last_frame
+        .iter()
+        .filter(|(_, &t)| t >= t0 && t + 3_000_000 < t1)
+        .map(|(p, _)| *p)
+        .collect();
+    let n = done.len();
+    (
+        done.into_iter().filter(|p| !finals.contains(p)).collect(),
+        n,
+    )
 }
 
 /// Error events of a side with their times.
@@ -493,22 +505,6 @@ pub fn errors(side: &Side) -> Vec<(u64, String)> {
         .iter()
         .filter_map(|(t, e)| match e {
             Event::Error { source, message } => Some((*t, format!("{source}: {message}"))),
-            _ => None,
-        })
-        .collect()
-}
-
-/// Contact-end times of a side.
-pub fn contact_ends(side: &Side) -> Vec<u64> {
-    side.events
-        .lock()
-        .unwrap()
-        .iter()
-        .filter_map(|(t, e)| match e {
-            Event::Contact {
-                phase: ContactPhase::End,
-                ..
-            } => Some(*t),
             _ => None,
         })
         .collect()
