@@ -48,6 +48,10 @@ struct PressArgs {
     /// Force in newtons (default: jig spring or the person's habit).
     #[arg(long)]
     force: Option<f32>,
+    /// Tilt about the sensor's x and y axes in degrees, e.g. `--tilt 1.5,-0.5`
+    /// (default: drawn from the jig's or the person's steadiness).
+    #[arg(long, value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    tilt: Option<Vec<f32>>,
     /// Number of frames.
     #[arg(long, default_value_t = telextiles_sim::PRESS_FRAMES)]
     frames: usize,
@@ -130,6 +134,7 @@ fn press(a: PressArgs) -> Result<()> {
         jig: !a.no_jig,
         rotation_deg: a.rotation,
         force: a.force,
+        tilt_deg: a.tilt.map(|t| [t[0], t[1]]),
         frames: a.frames,
         noise: !a.no_noise,
         ..PressSpec::new(textile, a.seed)
@@ -268,6 +273,8 @@ mod tests {
             "-30",
             "--force",
             "5.5",
+            "--tilt",
+            "1.5,-0.5",
             "--frames",
             "4",
             "--out",
@@ -282,6 +289,7 @@ mod tests {
         );
         let params = p.meta.params.unwrap();
         assert_eq!((params.rotation_deg, params.force_n), (-30.0, 5.5));
+        assert_eq!(params.tilt_deg, [1.5, -0.5]);
         // same seed, same frames; refuses to overwrite
         let again = tmp.path().join("again");
         run(parse(&[
@@ -296,6 +304,8 @@ mod tests {
             "-30",
             "--force",
             "5.5",
+            "--tilt",
+            "1.5,-0.5",
             "--frames",
             "4",
             "--out",

@@ -67,6 +67,10 @@ pub struct PressSpec {
     pub force: Option<f32>,
     /// Lateral offset of the window on the fabric, mm.
     pub offset_mm: Option<[f32; 2]>,
+    /// Tilt of the sensor about its x and y axes, degrees (default: drawn
+    /// from the jig's or the person's steadiness). May be left out of JSON.
+    #[serde(default)]
+    pub tilt_deg: Option<[f32; 2]>,
     /// Whether the press releases before the end (default: person's habit).
     pub release: Option<bool>,
     /// Number of frames (default 150).
@@ -87,6 +91,7 @@ impl PressSpec {
             rotation_deg: None,
             force: None,
             offset_mm: None,
+            tilt_deg: None,
             release: None,
             frames: PRESS_FRAMES,
             noise: true,

@@ -344,6 +344,13 @@ impl Simulator {
                 return Err(SimError::InvalidSpec("rotation is not finite".into()));
             }
         }
+        if let Some(t) = spec.tilt_deg {
+            if !t.iter().all(|v| v.is_finite() && v.abs() <= 20.0) {
+                return Err(SimError::InvalidSpec(format!(
+                    "tilt {t:?} degrees (each within -20..=20)"
+                )));
+            }
+        }
         let person = person_style(spec.person);
         let sensor = sensor_model(spec.sensor);
         let mut rng = ChaCha8Rng::seed_from_u64(mix64(
@@ -396,7 +403,8 @@ impl Simulator {
             offset_mm[1].clamp(-max_off, max_off),
         ];
         let tilt_sd = if spec.jig { 0.12 } else { person.tilt_sd_deg };
-        let tilt_deg = [tilt_sd * gauss(&mut rng), tilt_sd * gauss(&mut rng)];
+        let drawn_tilt = [tilt_sd * gauss(&mut rng), tilt_sd * gauss(&mut rng)];
+        let tilt_deg = spec.tilt_deg.unwrap_or(drawn_tilt);
         let (wobble, slip_mm) = if spec.jig {
             (0.01, [0.0, 0.0])
         } else {
