@@ -49,7 +49,7 @@ impl Baseline {
     /// Short name used in tables and charts.
     pub fn name(&self) -> String {
         let k = match self.kind {
-            BaselineKind::Pixels => "pixels-16x16",
+            BaselineKind::Pixels => "pixels16",
             BaselineKind::Lbp => "lbp-riu2",
             BaselineKind::Fft => "fft-radial",
         };
@@ -189,8 +189,10 @@ fn lbp(g: &[f32], n: usize) -> Vec<f32> {
     out
 }
 
-/// In-place iterative radix-2 complex FFT of length `re.len()` (a power of two).
-pub fn fft(re: &mut [f32], im: &mut [f32]) {
+/// In-place iterative radix-2 complex FFT of length `re.len()` (a power of
+/// two), in f64: the power spectrum of a textured crop spans many decades,
+/// and f32 butterflies lose the weak bins (0.7 % error on a log bin).
+pub fn fft(re: &mut [f64], im: &mut [f64]) {
     let n = re.len();
     assert!(n.is_power_of_two() && im.len() == n);
     let mut j = 0;
@@ -208,10 +210,10 @@ pub fn fft(re: &mut [f32], im: &mut [f32]) {
     }
     let mut len = 2;
     while len <= n {
-        let ang = -2.0 * PI / len as f32;
+        let ang = -2.0 * std::f64::consts::PI / len as f64;
         for start in (0..n).step_by(len) {
             for k in 0..len / 2 {
-                let (s, c) = (ang * k as f32).sin_cos();
+                let (s, c) = (ang * k as f64).sin_cos();
                 let (a, b) = (start + k, start + k + len / 2);
                 let (tr, ti) = (re[b] * c - im[b] * s, re[b] * s + im[b] * c);
                 re[b] = re[a] - tr;
@@ -224,22 +226,49 @@ pub fn fft(re: &mut [f32], im: &mut [f32]) {
     }
 }
 
+/// The DFT cells of an `n` x `n` spectrum (row-major index) that fall in
+/// radius bins 1..n/2 (radius = rounded distance from DC, frequencies
+/// wrapped to -n/2..n/2), with each bin's cell count (index = radius).
+pub fn radial_bins(n: usize) -> (Vec<(usize, usize)>, Vec<u32>) {
+    let bins = n / 2;
+    let wrap = |k: usize| {
+        if k < n / 2 {
+            k as f32
+        } else {
+            k as f32 - n as f32
+        }
+    };
+    let mut cells = Vec::new();
+    let mut cnt = vec![0u32; bins];
+    for ky in 0..n {
+        for kx in 0..n {
+            let (fx, fy) = (wrap(kx), wrap(ky));
+            let r = (fx * fx + fy * fy).sqrt().round() as usize;
+            if (1..bins).contains(&r) {
+                cells.push((ky * n + kx, r));
+                cnt[r] += 1;
+            }
+        }
+    }
+    (cells, cnt)
+}
+
 fn fft_radial(g: &[f32], n: usize) -> Vec<f32> {
-    let mean = g.iter().sum::<f32>() / g.len() as f32;
-    let hann: Vec<f32> = (0..n)
-        .map(|i| 0.5 - 0.5 * (2.0 * PI * i as f32 / n as f32).cos())
+    let mean = g.iter().map(|&v| v as f64).sum::<f64>() / g.len() as f64;
+    let hann: Vec<f64> = (0..n)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / n as f64).cos())
         .collect();
-    let mut re: Vec<f32> = (0..n * n)
-        .map(|i| (g[i] - mean) * hann[i / n] * hann[i % n])
+    let mut re: Vec<f64> = (0..n * n)
+        .map(|i| (g[i] as f64 - mean) * hann[i / n] * hann[i % n])
         .collect();
-    let mut im = vec![0f32; n * n];
+    let mut im = vec![0f64; n * n];
     for row in 0..n {
         fft(
             &mut re[row * n..(row + 1) * n],
             &mut im[row * n..(row + 1) * n],
         );
     }
-    let (mut cr, mut ci) = (vec![0f32; n], vec![0f32; n]);
+    let (mut cr, mut ci) = (vec![0f64; n], vec![0f64; n]);
     for col in 0..n {
         for r in 0..n {
             cr[r] = re[r * n + col];
@@ -252,26 +281,10 @@ fn fft_radial(g: &[f32], n: usize) -> Vec<f32> {
         }
     }
     let bins = n / 2;
-    let (mut sum, mut cnt) = (vec![0f64; bins], vec![0u32; bins]);
-    for ky in 0..n {
-        let fy = if ky < n / 2 {
-            ky as f32
-        } else {
-            ky as f32 - n as f32
-        };
-        for kx in 0..n {
-            let fx = if kx < n / 2 {
-                kx as f32
-            } else {
-                kx as f32 - n as f32
-            };
-            let r = (fx * fx + fy * fy).sqrt().round() as usize;
-            if (1..bins).contains(&r) {
-                let i = ky * n + kx;
-                sum[r] += (re[i] * re[i] + im[i] * im[i]) as f64;
-                cnt[r] += 1;
-            }
-        }
+    let mut sum = vec![0f64; bins];
+    let (cells, cnt) = radial_bins(n);
+    for &(i, r) in &cells {
+        sum[r] += re[i] * re[i] + im[i] * im[i];
     }
     let mut f: Vec<f32> = (1..bins)
         .map(|r| ((sum[r] / cnt[r].max(1) as f64) + 1e-3).ln() as f32)
@@ -300,17 +313,17 @@ mod tests {
 
     #[test]
     fn fft_matches_a_direct_dft() {
-        let x: Vec<f32> = (0..8).map(|i| ((i * 7) % 5) as f32 - 1.5).collect();
+        let x: Vec<f64> = (0..8).map(|i| ((i * 7) % 5) as f64 - 1.5).collect();
         let (mut re, mut im) = (x.clone(), vec![0.0; 8]);
         fft(&mut re, &mut im);
         for k in 0..8 {
-            let (mut dr, mut di) = (0.0f32, 0.0f32);
+            let (mut dr, mut di) = (0.0f64, 0.0f64);
             for (n, &v) in x.iter().enumerate() {
-                let a = -2.0 * PI * (k * n) as f32 / 8.0;
+                let a = -2.0 * std::f64::consts::PI * (k * n) as f64 / 8.0;
                 dr += v * a.cos();
                 di += v * a.sin();
             }
-            assert!((re[k] - dr).abs() < 1e-4 && (im[k] - di).abs() < 1e-4);
+            assert!((re[k] - dr).abs() < 1e-12 && (im[k] - di).abs() < 1e-12);
         }
     }
 

@@ -48,6 +48,11 @@ pub trait FrameSource: Sync {
     fn attributes(&self, _textile: &str) -> Option<Vec<f32>> {
         None
     }
+    /// The no-contact reference frame of a sensor (what background
+    /// subtraction subtracts), if the source has one.
+    fn background(&self, _sensor: u32) -> Result<Option<RgbImage>> {
+        Ok(None)
+    }
 }
 
 /// What an [`ImageSet`] holds.

@@ -37,26 +37,82 @@ enum Cmd {
     BenchLatency(LatencyArgs),
     /// Time MoCo training steps of candidate architectures on this machine.
     BenchTrain(BenchTrainArgs),
-    /// Speed against accuracy of classical descriptors and ONNX encoders on
-    /// the same held-out presses: table, JSON and two SVG charts.
-    Methods(MethodsArgs),
+    /// The speed-vs-accuracy study in one run: classical descriptors and
+    /// ONNX models on the same held-out presses (table, Pareto frontier and
+    /// knee), time to decision, the stability suite and the user test;
+    /// JSON, markdown and SVG charts in --out.
+    Bench(BenchArgs),
+    /// Write a classical descriptor as an ONNX model with the encoder
+    /// contract (the daemon runs it like a trained encoder).
+    ExportDescriptor(ExportDescriptorArgs),
+    /// int8 version of an ONNX model: ONNX Runtime static quantisation
+    /// calibrated on the training people's DIGIT frames.
+    Quantize(QuantizeArgs),
 }
 
 #[derive(Args)]
-struct MethodsArgs {
+struct QuantizeArgs {
+    /// Float ONNX model.
+    #[arg(long)]
+    model: PathBuf,
+    /// Output int8 model.
+    #[arg(long)]
+    out: PathBuf,
+    /// Calibration frames (spread over the training people's frames).
+    #[arg(long, default_value_t = 256)]
+    calibration_frames: usize,
     #[command(flatten)]
     data: DataArgs,
-    /// ONNX encoders (input size = --input).
-    #[arg(long, default_value = "models/encoder.onnx")]
-    model: Vec<PathBuf>,
-    /// ONNX Runtime thread counts to time the encoders with.
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// ONNX models to measure beside the classical descriptors, as
+    /// `NAME=PATH` or `PATH` (named after the file).
+    #[arg(long)]
+    model: Vec<String>,
+    /// Leave the classical descriptors out.
+    #[arg(long)]
+    no_descriptors: bool,
+    /// ONNX Runtime thread counts to time the models with.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     time_threads: Vec<usize>,
     /// Timed frames per method and thread count.
     #[arg(long, default_value_t = 300)]
     runs: usize,
-    /// Where the charts and JSON go.
-    #[arg(long, default_value = "docs")]
+    /// Two levels per stability factor (a smoke test of the harness).
+    #[arg(long)]
+    quick: bool,
+    /// Skip the stability suite.
+    #[arg(long)]
+    no_stability: bool,
+    /// Consecutive hold frames per stability query press.
+    #[arg(long, default_value_t = 8)]
+    stability_frames: usize,
+    /// Frames from first contact for the time-to-decision curve (0: skip).
+    #[arg(long, default_value_t = 30)]
+    decision_frames: usize,
+    /// Roller textiles for the user test: comma-separated ids, or an index
+    /// file whose roller layout to use.
+    #[arg(long, default_value = "models/index.tlxi")]
+    roller: String,
+    /// Where the results go.
+    #[arg(long, default_value = "docs/bench")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct ExportDescriptorArgs {
+    /// `fft` (radially averaged log power spectrum) or `pixels`.
+    #[arg(long, default_value = "fft")]
+    kind: String,
+    /// Centre crop of the frame in px (= input size, a power of two).
+    #[arg(long, default_value_t = 64)]
+    crop: u32,
+    /// Output ONNX file.
+    #[arg(long)]
     out: PathBuf,
 }
 
@@ -204,7 +260,9 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::Train(a) => train(a),
-        Cmd::Methods(a) => methods(a),
+        Cmd::Bench(a) => bench_cmd(a),
+        Cmd::ExportDescriptor(a) => export_descriptor(a),
+        Cmd::Quantize(a) => quantize_cmd(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
         Cmd::BenchLatency(a) => {
@@ -463,49 +521,129 @@ fn eval(a: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-fn methods(a: MethodsArgs) -> Result<()> {
-    use telextiles_lab::baselines::{Baseline, BaselineKind};
-    use telextiles_lab::methods::{self, Method};
-    let p = a.data.protocol();
-    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
-    let mut list: Vec<Method> = [BaselineKind::Pixels, BaselineKind::Lbp, BaselineKind::Fft]
-        .into_iter()
-        .map(|kind| Method::Baseline(Baseline { kind, bgsub: false }))
-        .collect();
+fn bench_cmd(a: BenchArgs) -> Result<()> {
+    use telextiles_lab::methods::Method;
+    use telextiles_lab::report::{self, BenchConfig};
+    use telextiles_lab::stability::SuiteConfig;
+    let mut list = if a.no_descriptors {
+        Vec::new()
+    } else {
+        report::descriptor_methods()?
+    };
+    let mut models = Vec::new();
     for m in &a.model {
-        let bytes = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
-        let name = m
-            .file_stem()
-            .map_or("encoder".into(), |s| s.to_string_lossy().into_owned());
-        list.push(Method::Onnx(name, bytes));
+        let (name, path) = match m.split_once('=') {
+            Some((n, p)) => (n.to_string(), PathBuf::from(p)),
+            None => {
+                let p = PathBuf::from(m);
+                let n = p
+                    .file_stem()
+                    .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+                (n, p)
+            }
+        };
+        let bytes =
+            std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        list.push(Method::onnx(name.clone(), bytes)?);
+        models.push((name, path));
     }
-    let mut results = Vec::new();
-    for m in &list {
-        let t0 = Instant::now();
-        let r = methods::evaluate(m, &sets.train_index, &sets.heldout, &a.time_threads, a.runs)?;
-        eprintln!(
-            "{}: top-1 per frame {:.2}%, per press {:.2}% ({:.0} s)",
-            r.name,
-            100.0 * r.frame_top1,
-            100.0 * r.press_top1,
-            t0.elapsed().as_secs_f64()
-        );
-        results.push(r);
-    }
-    println!("{}", methods::markdown(&results));
-    std::fs::create_dir_all(&a.out)?;
-    write_atomic(
-        &a.out.join("methods.json"),
-        serde_json::to_string_pretty(&results)?.as_bytes(),
-    )?;
-    methods::charts(
-        &results,
-        &a.out.join("speed-accuracy.svg"),
-        &a.out.join("accuracy-frames.svg"),
-    )?;
+    let roller: Vec<String> = if a.roller.is_empty() {
+        Vec::new()
+    } else if a.roller.ends_with(".tlxi") || Path::new(&a.roller).exists() {
+        let index = telextiles_index::Index::read(Path::new(&a.roller))
+            .with_context(|| format!("--roller {}", a.roller))?;
+        index
+            .roller
+            .slots
+            .iter()
+            .map(|&e| index.entries[e].id.clone())
+            .collect()
+    } else {
+        a.roller.split(',').map(|s| s.trim().to_string()).collect()
+    };
+    let cfg = BenchConfig {
+        source: a.data.source,
+        protocol: a.data.protocol(),
+        cache_dir: a.data.cache_dir.clone(),
+        threads: a.data.threads,
+        models,
+        time_threads: a.time_threads.clone(),
+        runs: a.runs,
+        stability: (!a.no_stability).then(|| SuiteConfig {
+            textiles: a.data.textiles,
+            frames: a.stability_frames,
+            threads: a.data.threads,
+            quick: a.quick,
+            ..SuiteConfig::default()
+        }),
+        decision_frames: a.decision_frames,
+        roller,
+        out: a.out.clone(),
+    };
+    let r = report::run(&cfg, &list)?;
+    println!("{}", report::markdown(&r));
     eprintln!(
-        "wrote methods.json, speed-accuracy.svg and accuracy-frames.svg in {}",
+        "wrote bench.json, report.md and the charts in {}",
         a.out.display()
+    );
+    Ok(())
+}
+
+fn quantize_cmd(a: QuantizeArgs) -> Result<()> {
+    let bytes =
+        std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
+    let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes.clone())?;
+    let (crop, input) = m.view();
+    let sets = protocol::load_base(
+        &a.data.protocol(),
+        a.data.source,
+        &a.data.cache_dir,
+        a.data.threads,
+    )?;
+    let calib = protocol::view_set(&sets.train_index, crop, input)?;
+    let compare = protocol::view_set(&sets.heldout, crop, input)?;
+    let (q, report) =
+        telextiles_lab::quantize::quantize(&bytes, &calib, a.calibration_frames, &compare)?;
+    write_atomic(&a.out, &q)?;
+    println!(
+        "wrote {} ({} bytes; float {} bytes): calibrated on {} frames; cosine to the float model on {} held-out frames: mean {:.4}, min {:.4}",
+        a.out.display(),
+        q.len(),
+        bytes.len(),
+        report.calibration_frames,
+        report.compared_frames,
+        report.cosine_mean,
+        report.cosine_min
+    );
+    Ok(())
+}
+
+fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
+    use telextiles_lab::baselines::BaselineKind;
+    use telextiles_lab::graph::{descriptor_model, DescriptorSpec};
+    let kind = match a.kind.as_str() {
+        "fft" => BaselineKind::Fft,
+        "pixels" => BaselineKind::Pixels,
+        k => bail!("--kind {k:?}: expected fft or pixels"),
+    };
+    let spec = DescriptorSpec {
+        kind,
+        crop: a.crop,
+        input: a.crop,
+    };
+    let bytes = descriptor_model(&spec)?;
+    // Load it back through ONNX Runtime (the contract checks) before writing.
+    let enc = OrtEncoder::from_bytes(&bytes, 1)?;
+    ensure!(enc.dim == spec.dim(), "descriptor dimension mismatch");
+    write_atomic(&a.out, &bytes)?;
+    use sha2::Digest;
+    println!(
+        "wrote {} ({}, {} bytes, sha256 {}, {}-d)",
+        a.out.display(),
+        spec.arch(),
+        bytes.len(),
+        telextiles_lab::data::hex(&sha2::Sha256::digest(&bytes)),
+        spec.dim()
     );
     Ok(())
 }

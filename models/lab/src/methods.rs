@@ -1,40 +1,177 @@
 //! Speed against accuracy, measured in one run on the same held-out presses
-//! (issue "Speed vs accuracy chart"): classical descriptors
-//! ([`crate::baselines`]) and ONNX encoders, each timed per frame and scored
-//! by kNN top-1 per frame, per press (the mean of a press's frame
-//! embeddings) and against the number of frames aggregated (time to a
-//! decision at 60 fps).
+//! (issue "Speed vs accuracy chart"): classical descriptors and ONNX models
+//! (trained encoders, descriptor graphs, their int8 versions), each timed
+//! per frame and scored by kNN top-1 per frame, per press (the mean of a
+//! press's frame embeddings) and against the number of frames aggregated
+//! (time to a decision at 60 fps).
 //!
 //! Protocol: the across-people case of `docs/evaluation.md`: the index holds
 //! the training people's index frames, the queries are every frame of the
 //! held-out people's presses (their index and query frames; none of it was
-//! seen in training).
+//! seen in training). Every method gets its own view (centre crop, input
+//! size) of the same cached frames ([`crate::protocol::view_set`]).
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use serde::Serialize;
+use std::collections::HashMap;
 use std::time::Instant;
 
 use crate::baselines::Baseline;
 use crate::bench::{median, quantile};
 use crate::data::ImageSet;
-use crate::knn::{normalize_rows, top_k};
+use crate::knn::{knn_score, normalize_rows};
 use crate::onnx::OrtEncoder;
 use crate::preprocess::normalize_into;
+use crate::protocol::{view_set, Sets};
+
+/// The frame budget of a 60 fps DIGIT, ms.
+pub const FRAME_BUDGET_MS: f64 = 1000.0 / 60.0;
 
 /// A method on the chart.
 pub enum Method {
-    /// A classical descriptor.
-    Baseline(Baseline),
-    /// An ONNX encoder (name, file bytes).
-    Onnx(String, Vec<u8>),
+    /// A classical descriptor computed in Rust on the `crop` x `crop`
+    /// centre square at native resolution (LBP has no ONNX graph; the
+    /// background-subtracted variants need the sensor's reference, which the
+    /// encoder contract does not carry).
+    Rust {
+        /// The descriptor.
+        base: Baseline,
+        /// Centre crop (px).
+        crop: u32,
+    },
+    /// An ONNX model run through ONNX Runtime as the daemon runs it: a
+    /// trained encoder, a descriptor graph ([`crate::graph`]), or an int8
+    /// version of either.
+    Onnx {
+        /// Name in tables and charts.
+        name: String,
+        /// The model file.
+        bytes: Vec<u8>,
+        /// `telextiles.crop`.
+        crop: u32,
+        /// `telextiles.input_size`.
+        input: u32,
+        /// `telextiles.arch`.
+        arch: String,
+    },
 }
 
 impl Method {
+    /// An ONNX model; crop and input size come from its metadata.
+    pub fn onnx(name: impl Into<String>, bytes: Vec<u8>) -> Result<Method> {
+        let name = name.into();
+        let enc = OrtEncoder::from_bytes(&bytes, 1).with_context(|| format!("model {name}"))?;
+        let crop: u32 = enc
+            .meta
+            .get("telextiles.crop")
+            .context("model metadata lacks telextiles.crop")?
+            .parse()
+            .context("telextiles.crop is not a number")?;
+        let arch = enc.meta.get("telextiles.arch").cloned().unwrap_or_default();
+        Ok(Method::Onnx {
+            name,
+            bytes,
+            crop,
+            input: enc.input_size as u32,
+            arch,
+        })
+    }
+
     /// Name in tables and charts.
     pub fn name(&self) -> String {
         match self {
-            Method::Baseline(b) => b.name(),
-            Method::Onnx(n, _) => n.clone(),
+            Method::Rust { base, crop } => {
+                let kind = Baseline {
+                    bgsub: false,
+                    ..*base
+                }
+                .name();
+                format!("{kind}-c{crop}{}", if base.bgsub { " -bg" } else { "" })
+            }
+            Method::Onnx { name, .. } => name.clone(),
+        }
+    }
+
+    /// (crop, input size) of the method's view of a frame.
+    pub fn view(&self) -> (u32, u32) {
+        match self {
+            Method::Rust { crop, .. } => (*crop, *crop),
+            Method::Onnx { crop, input, .. } => (*crop, *input),
+        }
+    }
+
+    /// Where it runs: "ort" or "rust".
+    pub fn runtime(&self) -> &'static str {
+        match self {
+            Method::Rust { .. } => "rust",
+            Method::Onnx { .. } => "ort",
+        }
+    }
+
+    /// Whether it needs the sensor's no-contact reference.
+    pub fn needs_background(&self) -> bool {
+        matches!(self, Method::Rust { base, .. } if base.bgsub)
+    }
+}
+
+/// A method ready to embed frames (an ONNX Runtime session where needed).
+pub struct Embedder<'a> {
+    method: &'a Method,
+    enc: Option<OrtEncoder>,
+}
+
+impl<'a> Embedder<'a> {
+    /// Open `m` with `threads` intra-op threads.
+    pub fn new(m: &'a Method, threads: usize) -> Result<Self> {
+        let enc = match m {
+            Method::Onnx { bytes, name, .. } => Some(
+                OrtEncoder::from_bytes(bytes, threads).with_context(|| format!("model {name}"))?,
+            ),
+            Method::Rust { .. } => None,
+        };
+        Ok(Embedder { method: m, enc })
+    }
+
+    /// Embeds every image of `set` (already in the method's view);
+    /// `background(sensor)` gives the reference in the same view. Returns
+    /// L2-normalised rows and their length.
+    pub fn embed<'b>(
+        &mut self,
+        set: &ImageSet,
+        background: impl Fn(u32) -> Option<&'b [u8]>,
+    ) -> Result<(Vec<f32>, usize)> {
+        let (crop, input) = self.method.view();
+        anyhow::ensure!(
+            set.side == input as usize && set.crop == crop,
+            "{}: frames are a {}-px view of a {}-px crop, the method needs {input} of {crop}",
+            self.method.name(),
+            set.side,
+            set.crop
+        );
+        match (&mut self.enc, self.method) {
+            (Some(enc), _) => {
+                let emb = crate::protocol::embed_ort(enc, set)?;
+                Ok((emb, enc.dim))
+            }
+            (None, Method::Rust { base, .. }) => {
+                let mut out = Vec::new();
+                let mut dim = 0;
+                for i in 0..set.len() {
+                    let bg = if base.bgsub {
+                        let s = set.items[i].sensor;
+                        Some(background(s).with_context(|| {
+                            format!("{}: no reference frame of sensor {s}", self.method.name())
+                        })?)
+                    } else {
+                        None
+                    };
+                    let f = base.features(set.image(i), set.side, set.side, bg);
+                    dim = f.len();
+                    out.extend(f);
+                }
+                Ok((out, dim))
+            }
+            (None, Method::Onnx { .. }) => unreachable!("ONNX methods have a session"),
         }
     }
 }
@@ -43,121 +180,163 @@ impl Method {
 #[derive(Clone, Debug, Serialize)]
 pub struct MethodResult {
     pub name: String,
+    /// "ort" or "rust".
+    pub runtime: String,
+    /// Centre crop and input size.
+    pub crop: u32,
+    pub input: u32,
     /// Descriptor or embedding length.
     pub dim: usize,
-    /// Per-frame time, batch 1: (threads, p50 ms, p95 ms). Classical
+    /// Model file size (ONNX methods).
+    pub model_bytes: Option<usize>,
+    /// Per-frame time, batch 1: (threads, p50 ms, p95 ms). Rust
     /// descriptors are single-threaded and timed once.
     pub latency: Vec<(usize, f64, f64)>,
     /// kNN top-1 (k = 1) per frame.
     pub frame_top1: f64,
     /// kNN top-1 of the mean embedding of each press's frames.
     pub press_top1: f64,
-    /// (frames aggregated, top-1): the mean of a press's first n frames.
+    /// (frames aggregated, top-1): the mean of a press's first n cached
+    /// frames in capture order (9 frames spread over the press; the
+    /// time-to-decision curve from consecutive frames is
+    /// [`crate::stability::decision_curve`]).
     pub by_frames: Vec<(usize, f64)>,
     pub queries: usize,
     pub presses: usize,
 }
 
-/// Embeds every image of `set` with `m` (L2-normalised rows); returns
-/// (rows, dim).
-pub fn embed(m: &Method, set: &ImageSet, threads: usize) -> Result<(Vec<f32>, usize)> {
-    match m {
-        Method::Baseline(b) => {
-            let mut out = Vec::new();
-            let mut dim = 0;
-            for i in 0..set.len() {
-                let f = b.features(set.image(i), set.side, set.side, None);
-                dim = f.len();
-                out.extend(f);
-            }
-            Ok((out, dim))
-        }
-        Method::Onnx(_, bytes) => {
-            let mut enc = OrtEncoder::from_bytes(bytes, threads)?;
-            anyhow::ensure!(
-                enc.input_size == set.side,
-                "encoder input {} differs from the frame cache's {}",
-                enc.input_size,
-                set.side
-            );
-            let emb = crate::protocol::embed_ort(&mut enc, set)?;
-            Ok((emb, enc.dim))
-        }
+impl MethodResult {
+    /// Median ms per frame on one thread.
+    pub fn ms(&self) -> f64 {
+        self.latency.first().map_or(f64::NAN, |l| l.1)
     }
 }
 
-/// Per-frame time of `m` on one image of `set`, batch 1.
+/// Median and p95 milliseconds of `f` over `runs` calls, after `runs / 10`
+/// warm-up calls.
+fn time_runs(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<(f64, f64)> {
+    let mut t = Vec::with_capacity(runs);
+    for i in 0..runs + runs / 10 {
+        let t0 = Instant::now();
+        f()?;
+        if i >= runs / 10 {
+            t.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    Ok((median(&t), quantile(&t, 0.95)))
+}
+
+/// Per-frame time of `m` on one image of `set` (in its view), batch 1:
+/// (threads, p50 ms, p95 ms). ONNX models are timed with their
+/// preprocessing (normalisation), Rust descriptors from the u8 crop.
 pub fn time_method(
     m: &Method,
     set: &ImageSet,
+    bg: Option<&[u8]>,
     threads: &[usize],
     runs: usize,
 ) -> Result<Vec<(usize, f64, f64)>> {
     let img = set.image(0);
-    let mut out = Vec::new();
     match m {
-        Method::Baseline(b) => {
-            let mut t = Vec::with_capacity(runs);
-            for i in 0..runs + runs / 10 {
-                let t0 = Instant::now();
-                std::hint::black_box(b.features(img, set.side, set.side, None));
-                if i >= runs / 10 {
-                    t.push(t0.elapsed().as_secs_f64() * 1e3);
-                }
-            }
-            out.push((1, median(&t), quantile(&t, 0.95)));
+        Method::Rust { base, .. } => {
+            let (p50, p95) = time_runs(runs, || {
+                std::hint::black_box(base.features(img, set.side, set.side, bg));
+                Ok(())
+            })?;
+            Ok(vec![(1, p50, p95)])
         }
-        Method::Onnx(_, bytes) => {
-            for &th in threads {
+        Method::Onnx { bytes, .. } => threads
+            .iter()
+            .map(|&th| {
                 let mut enc = OrtEncoder::from_bytes(bytes, th)?;
                 let mut x = Vec::new();
-                let mut t = Vec::with_capacity(runs);
-                for i in 0..runs + runs / 10 {
-                    let t0 = Instant::now();
-                    // Preprocessing (normalisation) is part of the frame's cost.
+                let (p50, p95) = time_runs(runs, || {
                     x.clear();
                     normalize_into(img, set.side, &mut x);
                     std::hint::black_box(enc.embed(&x)?);
-                    if i >= runs / 10 {
-                        t.push(t0.elapsed().as_secs_f64() * 1e3);
-                    }
-                }
-                out.push((th, median(&t), quantile(&t, 0.95)));
-            }
-        }
+                    Ok(())
+                })?;
+                Ok((th, p50, p95))
+            })
+            .collect(),
     }
-    Ok(out)
 }
 
-fn top1(index: &[f32], labels: &[u32], q: &[f32], qlabels: &[u32], dim: usize) -> f64 {
+/// kNN top-1 with k = 1 ([`knn_score`]).
+pub fn top1(index: &[f32], labels: &[u32], q: &[f32], qlabels: &[u32], dim: usize) -> f64 {
     if qlabels.is_empty() {
         return f64::NAN;
     }
-    let nn = top_k(index, q, dim, 1);
-    let right = nn
-        .iter()
-        .zip(qlabels)
-        .filter(|(r, &l)| labels[r[0].1] == l)
-        .count();
-    right as f64 / qlabels.len() as f64
+    knn_score(index, labels, q, qlabels, dim, 1, 0.07).top1_k1
 }
 
-/// Scores `m`: the index from `train_index` (frames before 120), queries
-/// from `heldout`.
+/// The evaluation frames as one method sees them.
+pub struct View {
+    /// The training people's index frames.
+    pub train_index: ImageSet,
+    /// The held-out people's frames (training textiles).
+    pub heldout: ImageSet,
+    /// The held-out people's presses of the unseen textiles.
+    pub unseen: ImageSet,
+    /// The sensors' no-contact references.
+    pub backgrounds: ImageSet,
+}
+
+/// The evaluation frames in every view a method asks for, made once.
+pub struct Views<'a> {
+    sets: &'a Sets,
+    cache: HashMap<(u32, u32), View>,
+}
+
+impl<'a> Views<'a> {
+    /// Views of `sets` (at [`crate::protocol::BASE_SIDE`]).
+    pub fn new(sets: &'a Sets) -> Self {
+        Views {
+            sets,
+            cache: HashMap::new(),
+        }
+    }
+
+    /// The frames in the given view.
+    pub fn get(&mut self, crop: u32, input: u32) -> Result<&View> {
+        if !self.cache.contains_key(&(crop, input)) {
+            let v = View {
+                train_index: view_set(&self.sets.train_index, crop, input)?,
+                heldout: view_set(&self.sets.heldout, crop, input)?,
+                unseen: view_set(&self.sets.unseen, crop, input)?,
+                backgrounds: view_set(&self.sets.backgrounds, crop, input)?,
+            };
+            self.cache.insert((crop, input), v);
+        }
+        Ok(&self.cache[&(crop, input)])
+    }
+}
+
+/// The reference frame of `sensor` in a set of references.
+pub fn background_of(bgs: &ImageSet, sensor: u32) -> Option<&[u8]> {
+    let i = bgs.items.iter().position(|m| m.sensor == sensor)?;
+    Some(bgs.image(i))
+}
+
+/// Scores `m` on the across-people protocol: index from the training
+/// people's frames (before 120), queries from the held-out people.
 pub fn evaluate(
     m: &Method,
-    train_index: &ImageSet,
-    heldout: &ImageSet,
+    views: &mut Views,
     threads: &[usize],
     runs: usize,
 ) -> Result<MethodResult> {
-    let (ie, dim) = embed(m, train_index, threads.iter().copied().max().unwrap_or(1))?;
+    let (crop, input) = m.view();
+    let v = views.get(crop, input)?;
+    let (train_index, heldout, bgs) = (&v.train_index, &v.heldout, &v.backgrounds);
+    let mut emb = Embedder::new(m, threads.iter().copied().max().unwrap_or(1))?;
+    let (ie, dim) = emb.embed(train_index, |s| background_of(bgs, s))?;
     let idx: Vec<usize> = (0..train_index.len())
         .filter(|&i| train_index.items[i].frame < crate::train::INDEX_FRAMES)
         .collect();
     let index = crate::train::rows(&ie, dim, &idx);
     let labels: Vec<u32> = idx.iter().map(|&i| train_index.items[i].class).collect();
-    let (qe, _) = embed(m, heldout, threads.iter().copied().max().unwrap_or(1))?;
+    let (qe, _) = emb.embed(heldout, |s| background_of(bgs, s))?;
     let qlabels: Vec<u32> = heldout.items.iter().map(|x| x.class).collect();
     let frame_top1 = top1(&index, &labels, &qe, &qlabels, dim);
     // Presses: frames in capture order.
@@ -172,31 +351,33 @@ pub fn evaluate(
         v.sort_by_key(|&i| heldout.items[i].frame);
     }
     let longest = presses.values().map(Vec::len).max().unwrap_or(0);
-    let mean_of = |frames: &[usize]| -> Vec<f32> {
-        let mut m = vec![0f32; dim];
-        for &i in frames {
-            for (s, v) in m.iter_mut().zip(&qe[i * dim..(i + 1) * dim]) {
-                *s += v;
-            }
-        }
-        m
-    };
     let mut by_frames = Vec::new();
     for n in 1..=longest {
         let mut q = Vec::new();
         let mut ql = Vec::new();
         for (&(_, _, class), frames) in &presses {
-            q.extend(mean_of(&frames[..n.min(frames.len())]));
+            q.extend(mean_rows(&qe, dim, &frames[..n.min(frames.len())]));
             ql.push(class);
         }
         normalize_rows(&mut q, dim);
         by_frames.push((n, top1(&index, &labels, &q, &ql, dim)));
     }
     let press_top1 = by_frames.last().map_or(f64::NAN, |x| x.1);
+    let bg0 = heldout
+        .items
+        .first()
+        .and_then(|it| background_of(bgs, it.sensor));
     Ok(MethodResult {
         name: m.name(),
+        runtime: m.runtime().into(),
+        crop,
+        input,
         dim,
-        latency: time_method(m, heldout, threads, runs)?,
+        model_bytes: match m {
+            Method::Onnx { bytes, .. } => Some(bytes.len()),
+            Method::Rust { .. } => None,
+        },
+        latency: time_method(m, heldout, bg0, threads, runs)?,
         frame_top1,
         press_top1,
         by_frames,
@@ -205,27 +386,63 @@ pub fn evaluate(
     })
 }
 
+/// Sum of the given rows (normalise afterwards for a mean direction).
+pub fn mean_rows(e: &[f32], dim: usize, rows: &[usize]) -> Vec<f32> {
+    let mut m = vec![0f32; dim];
+    for &i in rows {
+        for (s, v) in m.iter_mut().zip(&e[i * dim..(i + 1) * dim]) {
+            *s += v;
+        }
+    }
+    m
+}
+
 /// Indices of the Pareto-optimal results (no other is both faster, by the
 /// one-thread median, and at least as accurate per press).
 pub fn pareto(results: &[MethodResult]) -> Vec<usize> {
-    let lat = |r: &MethodResult| r.latency.first().map_or(f64::INFINITY, |l| l.1);
     (0..results.len())
         .filter(|&i| {
+            let (li, ai) = (results[i].ms(), results[i].press_top1);
             !results.iter().enumerate().any(|(j, o)| {
-                j != i
-                    && lat(o) <= lat(&results[i])
-                    && o.press_top1 >= results[i].press_top1
-                    && (lat(o) < lat(&results[i]) || o.press_top1 > results[i].press_top1)
+                j != i && o.ms() <= li && o.press_top1 >= ai && (o.ms() < li || o.press_top1 > ai)
             })
         })
         .collect()
 }
 
+/// The knee of the Pareto frontier among the methods that fit the 60 fps
+/// frame budget on one thread: with the frontier's latency (log scale) and
+/// accuracy each scaled to 0..1, the point farthest above the line from
+/// the fastest to the most accurate frontier point (Kneedle). Beyond it,
+/// each step up in accuracy costs more time than the steps before it; when
+/// no frontier point lies above that line the most accurate one is taken.
+pub fn knee(results: &[MethodResult]) -> Option<usize> {
+    let mut front: Vec<usize> = pareto(results)
+        .into_iter()
+        .filter(|&i| results[i].ms() <= FRAME_BUDGET_MS && results[i].press_top1.is_finite())
+        .collect();
+    front.sort_by(|&a, &b| results[a].ms().total_cmp(&results[b].ms()));
+    let (first, last) = (*front.first()?, *front.last()?);
+    let x = |i: usize| results[i].ms().max(1e-6).log10();
+    let y = |i: usize| results[i].press_top1;
+    let (x0, x1, y0, y1) = (x(first), x(last), y(first), y(last));
+    if front.len() < 3 || x1 <= x0 || y1 <= y0 {
+        return Some(last);
+    }
+    let score = |i: usize| (y(i) - y0) / (y1 - y0) - (x(i) - x0) / (x1 - x0);
+    let best = front
+        .iter()
+        .copied()
+        .max_by(|&a, &b| score(a).total_cmp(&score(b)))?;
+    Some(if score(best) > 1e-9 { best } else { last })
+}
+
 /// The markdown table.
 pub fn markdown(results: &[MethodResult]) -> String {
     let front = pareto(results);
+    let k = knee(results);
     let mut s = String::from(
-        "| method | dim | ms/frame p50 (1 thread) | p95 | ms p50 (2 threads) | top-1 per frame | top-1 per press | Pareto |\n|---|---:|---:|---:|---:|---:|---:|---|\n",
+        "| method | runtime | crop → input | dim | ms/frame p50 (1 thread) | p95 | ms p50 (2 threads) | p95 | top-1 per frame | top-1 per press | Pareto |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
     for (i, r) in results.iter().enumerate() {
         let l1 = r
@@ -233,42 +450,53 @@ pub fn markdown(results: &[MethodResult]) -> String {
             .first()
             .copied()
             .unwrap_or((1, f64::NAN, f64::NAN));
-        let l2 = r
+        let (l2, l2p) = r
             .latency
             .iter()
             .find(|l| l.0 == 2)
-            .map_or("-".to_string(), |l| format!("{:.3}", l.1));
+            .map_or(("-".to_string(), "-".to_string()), |l| {
+                (format!("{:.3}", l.1), format!("{:.3}", l.2))
+            });
+        let mark = if k == Some(i) {
+            "**knee**"
+        } else if front.contains(&i) {
+            "yes"
+        } else {
+            ""
+        };
         s.push_str(&format!(
-            "| {} | {} | {:.3} | {:.3} | {} | {:.2}% | {:.2}% | {} |\n",
+            "| {} | {} | {} → {} | {} | {:.3} | {:.3} | {} | {} | {:.2}% | {:.2}% | {} |\n",
             r.name,
+            r.runtime,
+            r.crop,
+            r.input,
             r.dim,
             l1.1,
             l1.2,
             l2,
+            l2p,
             100.0 * r.frame_top1,
             100.0 * r.press_top1,
-            if front.contains(&i) { "yes" } else { "" }
+            mark
         ));
     }
     s
 }
 
+fn chart_err<E: std::fmt::Display>(x: E) -> anyhow::Error {
+    anyhow::anyhow!("chart: {x}")
+}
+
 /// Accuracy (per press) against per-frame latency, log-x, the Pareto
-/// frontier joined, the 60 fps budget marked; and accuracy against frames
-/// aggregated. Two SVG files.
-pub fn charts(
-    results: &[MethodResult],
-    speed_svg: &std::path::Path,
-    frames_svg: &std::path::Path,
-) -> Result<()> {
+/// frontier joined, the knee ringed, the 60 fps budget marked (SVG).
+pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()> {
     use plotters::prelude::*;
-    let e = |x: Box<dyn std::error::Error + '_>| anyhow::anyhow!("chart: {x}");
-    let lat = |r: &MethodResult| r.latency.first().map_or(f64::NAN, |l| l.1);
+    let e = chart_err;
     {
-        let root = SVGBackend::new(speed_svg, (900, 560)).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
-        let xmax = results.iter().map(lat).fold(20.0, f64::max) * 2.0;
-        let xmin = results.iter().map(lat).fold(1.0, f64::min).max(1e-4) / 2.0;
+        let root = SVGBackend::new(speed_svg, (1000, 620)).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        let xmax = results.iter().map(|r| r.ms()).fold(20.0, f64::max) * 2.0;
+        let xmin = results.iter().map(|r| r.ms()).fold(1.0, f64::min).max(1e-4) / 2.0;
         let mut c = ChartBuilder::on(&root)
             .caption(
                 "Accuracy against speed (held-out people, kNN top-1 per press)",
@@ -278,89 +506,60 @@ pub fn charts(
             .x_label_area_size(40)
             .y_label_area_size(55)
             .build_cartesian_2d((xmin..xmax).log_scale(), 0.0..100.0)
-            .map_err(|x| e(Box::new(x)))?;
+            .map_err(e)?;
         c.configure_mesh()
             .x_desc("ms per frame, one thread, batch 1 (log scale)")
             .y_desc("top-1 per press, %")
             .draw()
-            .map_err(|x| e(Box::new(x)))?;
+            .map_err(e)?;
         c.draw_series(LineSeries::new(
-            [(16.7, 0.0), (16.7, 100.0)],
+            [(FRAME_BUDGET_MS, 0.0), (FRAME_BUDGET_MS, 100.0)],
             RED.mix(0.6).stroke_width(2),
         ))
-        .map_err(|x| e(Box::new(x)))?
+        .map_err(e)?
         .label("16.7 ms: one frame at 60 fps")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.mix(0.6).stroke_width(2)));
         let mut front: Vec<(f64, f64)> = pareto(results)
             .into_iter()
-            .map(|i| (lat(&results[i]), 100.0 * results[i].press_top1))
+            .map(|i| (results[i].ms(), 100.0 * results[i].press_top1))
             .collect();
         front.sort_by(|a, b| a.0.total_cmp(&b.0));
         c.draw_series(LineSeries::new(front, BLUE.stroke_width(2)))
-            .map_err(|x| e(Box::new(x)))?
+            .map_err(e)?
             .label("Pareto frontier")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
-        for r in results {
-            let p = (lat(r), 100.0 * r.press_top1);
-            c.draw_series(std::iter::once(Circle::new(p, 5, BLACK.filled())))
-                .map_err(|x| e(Box::new(x)))?;
+        if let Some(k) = knee(results) {
+            let p = (results[k].ms(), 100.0 * results[k].press_top1);
+            c.draw_series(std::iter::once(Circle::new(p, 11, GREEN.stroke_width(3))))
+                .map_err(e)?
+                .label("knee of the frontier (shipped default)")
+                .legend(|(x, y)| Circle::new((x + 10, y), 5, GREEN.stroke_width(3)));
+        }
+        for (i, r) in results.iter().enumerate() {
+            let p = (r.ms(), 100.0 * r.press_top1);
+            let color = if r.runtime == "rust" {
+                BLACK.mix(0.5)
+            } else {
+                BLACK.mix(1.0)
+            };
+            c.draw_series(std::iter::once(Circle::new(p, 5, color.filled())))
+                .map_err(e)?;
+            // Alternate label offsets so that neighbours do not overprint.
+            let dy = if i % 2 == 0 { 2.0 } else { -4.0 };
             c.draw_series(std::iter::once(Text::new(
                 r.name.clone(),
-                (p.0 * 1.08, p.1 + 1.5),
-                ("sans-serif", 13),
+                (p.0 * 1.08, p.1 + dy),
+                ("sans-serif", 12),
             )))
-            .map_err(|x| e(Box::new(x)))?;
+            .map_err(e)?;
         }
         c.configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .position(SeriesLabelPosition::UpperRight)
             .draw()
-            .map_err(|x| e(Box::new(x)))?;
-        root.present().map_err(|x| e(Box::new(x)))?;
-    }
-    {
-        let root = SVGBackend::new(frames_svg, (900, 520)).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
-        let n = results
-            .iter()
-            .map(|r| r.by_frames.len())
-            .max()
-            .unwrap_or(1)
-            .max(2);
-        let mut c = ChartBuilder::on(&root)
-            .caption(
-                "Accuracy against frames aggregated (time to decision)",
-                ("sans-serif", 18),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(55)
-            .build_cartesian_2d(1usize..n, 0.0..100.0)
-            .map_err(|x| e(Box::new(x)))?;
-        c.configure_mesh()
-            .x_desc("frames of the press averaged (one frame = 16.7 ms at 60 fps)")
-            .y_desc("top-1 per press, %")
-            .draw()
-            .map_err(|x| e(Box::new(x)))?;
-        for (i, r) in results.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
-            c.draw_series(LineSeries::new(
-                r.by_frames.iter().map(|&(k, a)| (k, 100.0 * a)),
-                color.stroke_width(2),
-            ))
-            .map_err(|x| e(Box::new(x)))?
-            .label(r.name.clone())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-            });
-        }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|x| e(Box::new(x)))?;
-        root.present().map_err(|x| e(Box::new(x)))?;
+            .map_err(e)?;
+        root.present().map_err(e)?;
     }
     Ok(())
 }

@@ -33,25 +33,40 @@ pub struct EncoderMeta {
 impl EncoderMeta {
     /// All `telextiles.*` key/value pairs of the contract.
     pub fn props(&self) -> Vec<(String, String)> {
-        let f3 = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
-        vec![
-            ("telextiles.format".into(), "1".into()),
-            ("telextiles.input_size".into(), self.arch.input.to_string()),
-            ("telextiles.crop".into(), self.crop.to_string()),
-            ("telextiles.mean".into(), f3(DIGIT_MEAN)),
-            ("telextiles.std".into(), f3(DIGIT_STD)),
-            (
-                "telextiles.embedding_dim".into(),
-                self.arch.embedding_dim().to_string(),
-            ),
-            ("telextiles.arch".into(), self.arch.name()),
-            (
-                "telextiles.train_data_hash".into(),
-                self.train_data_hash.clone(),
-            ),
-            ("telextiles.background".into(), "none".into()),
-        ]
+        contract_props(
+            self.arch.input as u32,
+            self.crop,
+            self.arch.embedding_dim(),
+            &self.arch.name(),
+            &self.train_data_hash,
+        )
     }
+}
+
+/// The contract's `telextiles.*` metadata of a model with this input size,
+/// crop, embedding length, architecture name and training-data hash.
+pub fn contract_props(
+    input: u32,
+    crop: u32,
+    dim: usize,
+    arch: &str,
+    train_data_hash: &str,
+) -> Vec<(String, String)> {
+    let f3 = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+    vec![
+        ("telextiles.format".into(), "1".into()),
+        ("telextiles.input_size".into(), input.to_string()),
+        ("telextiles.crop".into(), crop.to_string()),
+        ("telextiles.mean".into(), f3(DIGIT_MEAN)),
+        ("telextiles.std".into(), f3(DIGIT_STD)),
+        ("telextiles.embedding_dim".into(), dim.to_string()),
+        ("telextiles.arch".into(), arch.to_string()),
+        (
+            "telextiles.train_data_hash".into(),
+            train_data_hash.to_string(),
+        ),
+        ("telextiles.background".into(), "none".into()),
+    ]
 }
 
 /// Export the encoder (inference mode) to ONNX bytes with named input/output,

@@ -79,6 +79,9 @@ pub struct Sets {
     pub unseen: ImageSet,
     /// Ground-truth attributes per class (if the source knows them).
     pub attributes: Vec<Option<Vec<f32>>>,
+    /// The no-contact reference frame of each sensor (`FrameMeta::sensor`),
+    /// where the source has one.
+    pub backgrounds: ImageSet,
 }
 
 /// `n` frames spread evenly over `[lo, hi)`.
@@ -100,24 +103,111 @@ fn make_source(kind: SourceKind) -> Result<Box<dyn FrameSource>> {
     })
 }
 
-/// Load the protocol's caches from `cache_dir`, rendering them first if needed.
+/// Side of the cached frames: the centre 240x240 square of the 240x320
+/// frame at native resolution. Every set is rendered once at this side and
+/// each model's (crop, input size) view is cut from it ([`view_set`]), which
+/// gives the same bytes as cropping and resizing the full frame directly.
+pub const BASE_SIDE: u32 = crate::augment::CANVAS_SIDE;
+
+/// One `crop` x `crop` centre crop of every image of a [`BASE_SIDE`] set,
+/// resized to `input` x `input` as the deployment preprocessing does.
+pub fn view_set(set: &ImageSet, crop: u32, input: u32) -> Result<ImageSet> {
+    anyhow::ensure!(
+        crop as usize <= set.side && crop > 0 && input > 0,
+        "cannot cut a {crop}-px crop from {}-px cached frames",
+        set.side
+    );
+    let mut out = ImageSet {
+        kind: crate::data::ImageKind::Input,
+        side: input as usize,
+        crop,
+        classes: set.classes.clone(),
+        items: set.items.clone(),
+        pixels: Vec::with_capacity(set.len() * (input * input * 3) as usize),
+        source: set.source.clone(),
+    };
+    if crop as usize == set.side && input as usize == set.side {
+        out.pixels.extend_from_slice(&set.pixels);
+        return Ok(out);
+    }
+    let side = set.side as u32;
+    for i in 0..set.len() {
+        let img = image::RgbImage::from_raw(side, side, set.image(i).to_vec())
+            .context("cached image has the wrong size")?;
+        out.pixels
+            .extend_from_slice(crate::preprocess::centre_crop_resize(&img, crop, input)?.as_raw());
+    }
+    Ok(out)
+}
+
+impl Sets {
+    /// The sets as a model with this crop and input size sees them
+    /// (consumes the [`BASE_SIDE`] sets; the training canvases stay canvases
+    /// and only record the crop).
+    pub fn into_view(self, crop: u32, input: u32) -> Result<Sets> {
+        let mut train = self.train;
+        train.crop = crop;
+        Ok(Sets {
+            train,
+            train_index: view_set(&self.train_index, crop, input)?,
+            heldout: view_set(&self.heldout, crop, input)?,
+            handheld: view_set(&self.handheld, crop, input)?,
+            unseen: view_set(&self.unseen, crop, input)?,
+            backgrounds: view_set(&self.backgrounds, crop, input)?,
+            attributes: self.attributes,
+        })
+    }
+
+    /// The no-contact reference of `sensor` in the sets' view, if the
+    /// source has one.
+    pub fn background(&self, sensor: u32) -> Option<&[u8]> {
+        let i = self
+            .backgrounds
+            .items
+            .iter()
+            .position(|m| m.sensor == sensor)?;
+        Some(self.backgrounds.image(i))
+    }
+}
+
+/// Load the protocol's caches from `cache_dir`, rendering them first if
+/// needed, as a model with the protocol's crop and input size sees them.
 pub fn load_or_build(
     p: &Protocol,
     kind: SourceKind,
     cache_dir: &Path,
     threads: usize,
 ) -> Result<Sets> {
+    load_base(p, kind, cache_dir, threads)?.into_view(p.crop, p.input)
+}
+
+/// Load the protocol's caches at [`BASE_SIDE`] (whatever `p.input` and
+/// `p.crop` say), rendering them first if needed.
+pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usize) -> Result<Sets> {
     let source = make_source(kind)?;
+    // One cache serves every crop and input size.
+    let p = &Protocol {
+        input: BASE_SIDE,
+        crop: BASE_SIDE,
+        ..p.clone()
+    };
     let key = {
         use sha2::Digest;
         let mut h = sha2::Sha256::new();
         h.update(serde_json::to_vec(p)?);
         h.update(source.describe());
-        h.update(b"cache-format-2");
+        h.update(b"cache-format-3");
         hex(&h.finalize())[..16].to_string()
     };
-    let dir = cache_dir.join(format!("{kind:?}-s{}-c{}-{key}", p.input, p.crop).to_lowercase());
-    let names = ["train", "train_index", "heldout", "handheld", "unseen"];
+    let dir = cache_dir.join(format!("{kind:?}-base-{key}").to_lowercase());
+    let names = [
+        "train",
+        "train_index",
+        "heldout",
+        "handheld",
+        "unseen",
+        "backgrounds",
+    ];
     let mut training = source.training_textiles();
     if let Some(m) = p.max_textiles {
         training.truncate(m);
@@ -134,6 +224,7 @@ pub fn load_or_build(
             heldout: r("heldout")?,
             handheld: r("handheld")?,
             unseen: r("unseen")?,
+            backgrounds: r("backgrounds")?,
             attributes,
         });
     }
@@ -185,7 +276,6 @@ pub fn load_or_build(
         .collect();
     let t0 = std::time::Instant::now();
     let build = |name: &str, plan: Vec<PressPlan>| -> Result<(ImageSet, ImageSet)> {
-        let total = plan.len();
         let label = name.to_string();
         let progress = move |d: usize, n: usize| {
             if d.is_multiple_of(10) || d == n {
@@ -205,7 +295,6 @@ pub fn load_or_build(
             &progress,
         );
         eprintln!();
-        let _ = total;
         r
     };
     let (train, train_index) = build(
@@ -224,10 +313,46 @@ pub fn load_or_build(
         "unseen",
         plan_for(&unseen, training.len(), &p.heldout, true, 4000, false, true)?,
     )?;
-    for (n, s) in names
-        .iter()
-        .zip([&train, &train_index, &heldout, &handheld, &unseen_set])
-    {
+    // The no-contact reference of every sensor in the protocol.
+    let mut sensors: Vec<u32> = train_people.iter().chain(&p.heldout).map(|x| x.1).collect();
+    sensors.sort_unstable();
+    sensors.dedup();
+    let mut backgrounds = ImageSet {
+        kind: crate::data::ImageKind::Input,
+        side: BASE_SIDE as usize,
+        crop: BASE_SIDE,
+        classes: classes.clone(),
+        items: Vec::new(),
+        pixels: Vec::new(),
+        source: source.describe(),
+    };
+    for s in sensors {
+        if let Some(bg) = source.background(s)? {
+            let img = crate::data::frame_to_image(
+                &bg,
+                crate::data::ImageKind::Input,
+                BASE_SIDE,
+                BASE_SIDE,
+            )?;
+            backgrounds.items.push(crate::data::FrameMeta {
+                class: 0,
+                press: 0,
+                person: 0,
+                sensor: s,
+                jig: true,
+                frame: 0,
+            });
+            backgrounds.pixels.extend_from_slice(img.as_raw());
+        }
+    }
+    for (n, s) in names.iter().zip([
+        &train,
+        &train_index,
+        &heldout,
+        &handheld,
+        &unseen_set,
+        &backgrounds,
+    ]) {
         s.write(&dir.join(format!("{n}.bin")))?;
     }
     eprintln!(
@@ -241,6 +366,7 @@ pub fn load_or_build(
         heldout,
         handheld,
         unseen: unseen_set,
+        backgrounds,
         attributes,
     })
 }

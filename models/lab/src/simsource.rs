@@ -81,6 +81,10 @@ impl FrameSource for SimSource {
             .collect()
     }
 
+    fn background(&self, sensor: u32) -> Result<Option<RgbImage>> {
+        Ok(Some(self.sim.background(sensor)))
+    }
+
     fn attributes(&self, textile: &str) -> Option<Vec<f32>> {
         self.sim
             .catalogue()

@@ -39,6 +39,15 @@ impl FrameSource for SynthSource {
         (1..=4).map(|i| format!("U{i:02}")).collect()
     }
 
+    /// The frame with no grating: the flat grey the gratings sit on.
+    fn background(&self, _sensor: u32) -> Result<Option<RgbImage>> {
+        Ok(Some(RgbImage::from_pixel(
+            240,
+            320,
+            image::Rgb([110, 125, 115]),
+        )))
+    }
+
     fn frames(&self, press: &PressKey, indices: &[usize]) -> Result<Vec<RgbImage>> {
         let mut trng = ChaCha8Rng::seed_from_u64(seed_of(&[press.textile.as_bytes()]));
         let gratings: Vec<(f32, f32, f32, [f32; 3])> = (0..3)

@@ -3,7 +3,12 @@
 //! ground-truth tactile-attribute distance, then compare the two rankings
 //! (Top-K agreement, Spearman's rho per trial, one-sample t-test of rho = 0).
 
+use anyhow::{ensure, Result};
 use serde::Serialize;
+
+use crate::data::ImageSet;
+use crate::knn::normalize_rows;
+use crate::methods::mean_rows;
 
 /// Ranks (0 = best) of `scores` sorted ascending (smaller = closer).
 pub fn ranks_ascending(scores: &[f64]) -> Vec<usize> {
@@ -207,6 +212,84 @@ pub fn evaluate(trials: &[Trial]) -> UserTestResult {
     }
 }
 
+/// One method's user test: seen textiles (the training book, roller
+/// textiles themselves left out) and unseen ones.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodUserTest {
+    pub name: String,
+    pub seen: UserTestResult,
+    pub unseen: UserTestResult,
+}
+
+/// Ground-truth attribute distance between two classes.
+pub fn attr_distance(attrs: &[Option<Vec<f32>>], a: u32, b: u32) -> Option<f64> {
+    let (x, y) = (
+        attrs.get(a as usize)?.as_ref()?,
+        attrs.get(b as usize)?.as_ref()?,
+    );
+    Some(
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| ((p - q) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt(),
+    )
+}
+
+/// The trials of one method: every query press (mean of its frames'
+/// embeddings) against the roller textiles' centroids (mean of the
+/// training people's index embeddings), latent distance `1 - cos`;
+/// ground truth: attribute distance. `index`/`ie` are the training people's
+/// frames and embeddings, `queries`/`qe` the presses to test.
+#[allow(clippy::too_many_arguments)]
+pub fn trials(
+    index: &ImageSet,
+    ie: &[f32],
+    queries: &ImageSet,
+    qe: &[f32],
+    dim: usize,
+    roller: &[u32],
+    attrs: &[Option<Vec<f32>>],
+) -> Result<Vec<Trial>> {
+    let mut centroids = Vec::new();
+    for &r in roller {
+        let rows: Vec<usize> = (0..index.len())
+            .filter(|&i| index.items[i].class == r)
+            .collect();
+        ensure!(
+            !rows.is_empty(),
+            "roller textile {} has no index frames",
+            index.classes.get(r as usize).map_or("?", |s| s.as_str())
+        );
+        centroids.extend(mean_rows(ie, dim, &rows));
+    }
+    normalize_rows(&mut centroids, dim);
+    let mut presses: std::collections::BTreeMap<(u32, u32), Vec<usize>> = Default::default();
+    for (i, m) in queries.items.iter().enumerate() {
+        if !roller.contains(&m.class) {
+            presses.entry((m.press, m.class)).or_default().push(i);
+        }
+    }
+    let mut out = Vec::new();
+    for (&(_, class), rows) in &presses {
+        let mut q = mean_rows(qe, dim, rows);
+        normalize_rows(&mut q, dim);
+        let latent: Vec<f64> = centroids
+            .chunks_exact(dim)
+            .map(|c| 1.0 - c.iter().zip(&q).map(|(a, b)| (a * b) as f64).sum::<f64>())
+            .collect();
+        let truth: Option<Vec<f64>> = roller
+            .iter()
+            .map(|&r| attr_distance(attrs, class, r))
+            .collect();
+        let Some(truth) = truth else {
+            anyhow::bail!("the frame source has no ground-truth attributes");
+        };
+        out.push(Trial { latent, truth });
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -231,9 +314,10 @@ mod tests {
             latent: vec![0.1, 0.5, 0.3, 0.9],
             truth: vec![1.0, 5.0, 3.0, 9.0],
         };
+        // Latent order exactly reversed against the truth.
         let rev = Trial {
             latent: vec![0.9, 0.1, 0.5, 0.3],
-            truth: vec![1.0, 9.0, 5.0, 3.0],
+            truth: vec![1.0, 9.0, 3.0, 5.0],
         };
         let r = evaluate(&[same, rev]);
         assert_eq!(r.trials, 2);

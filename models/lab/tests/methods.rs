@@ -1,21 +1,25 @@
-//! The speed/accuracy harness end to end on procedural frames (seconds):
-//! the paper protocol's caches, three classical descriptors and an ONNX
-//! encoder through ONNX Runtime on the same held-out presses, the table, the
-//! Pareto frontier and both SVG charts. The figures themselves come from
-//! `telextiles-lab methods` on simulated presses (docs/benchmarks.md).
+//! The speed/accuracy harness on procedural frames (seconds): the protocol's
+//! base caches cut into each method's view, the classical descriptors (ONNX
+//! graphs and Rust) and an encoder through ONNX Runtime on the same held-out
+//! presses, the table, the Pareto frontier, its knee and the chart. The
+//! figures themselves come from `telextiles-lab bench` on simulated presses
+//! (docs/benchmarks.md); `tests/bench.rs` runs that end to end.
 
-use telextiles_lab::baselines::{Baseline, BaselineKind};
-use telextiles_lab::methods::{self, Method, MethodResult};
+use telextiles_lab::methods::{self, Method, MethodResult, Views};
 use telextiles_lab::model::ArchConfig;
 use telextiles_lab::onnx::{export_encoder, EncoderMeta};
-use telextiles_lab::protocol::{self, Protocol, SourceKind};
+use telextiles_lab::protocol::{self, view_set, Protocol, SourceKind};
+use telextiles_lab::report::descriptor_methods;
 
 #[test]
 fn harness_scores_times_and_charts_every_method() {
     let dir = tempfile::tempdir().unwrap();
     let mut p = Protocol::paper(32, 48);
     p.max_textiles = Some(8);
-    let sets = protocol::load_or_build(&p, SourceKind::Synth, dir.path(), 2).unwrap();
+    let sets = protocol::load_base(&p, SourceKind::Synth, dir.path(), 2).unwrap();
+    assert_eq!(sets.heldout.side, 240);
+    // The synthetic source has a flat reference for every sensor.
+    assert!(sets.background(4).is_some());
     let arch = ArchConfig {
         blocks: [1, 1, 1, 1],
         width: 4,
@@ -32,52 +36,91 @@ fn harness_scores_times_and_charts_every_method() {
         },
     )
     .unwrap();
-    let mut list: Vec<Method> = [BaselineKind::Pixels, BaselineKind::Lbp, BaselineKind::Fft]
-        .into_iter()
-        .map(|kind| Method::Baseline(Baseline { kind, bgsub: false }))
-        .collect();
-    list.push(Method::Onnx("untrained".into(), bytes));
+    let mut list = descriptor_methods().unwrap();
+    list.push(Method::onnx("untrained", bytes).unwrap());
+    assert_eq!(list.last().unwrap().view(), (48, 32));
+    let mut views = Views::new(&sets);
     let results: Vec<MethodResult> = list
         .iter()
-        .map(|m| methods::evaluate(m, &sets.train_index, &sets.heldout, &[1, 2], 20).unwrap())
+        .map(|m| methods::evaluate(m, &mut views, &[1, 2], 20).unwrap())
         .collect();
     let chance = 1.0 / 8.0;
-    for r in &results {
+    for (r, m) in results.iter().zip(&list) {
         assert!((0.0..=1.0).contains(&r.frame_top1), "{r:?}");
         assert_eq!(r.presses, 8 * 3, "{r:?}");
         assert_eq!(r.queries, sets.heldout.len());
         assert_eq!(r.by_frames.last().unwrap().1, r.press_top1);
         assert!(r.latency.iter().all(|l| l.1 > 0.0 && l.2 >= l.1), "{r:?}");
+        // ONNX models are timed with each thread count, Rust descriptors once.
+        assert_eq!(r.latency.len(), if m.runtime() == "ort" { 2 } else { 1 });
+        assert_eq!((r.crop, r.input), m.view());
     }
-    // Encoders are timed with each thread count, descriptors once.
-    assert_eq!(results[3].latency.len(), 2);
-    assert_eq!(results[0].latency.len(), 1);
     // Textiles of the synthetic source differ by their gratings' periods:
     // the power spectrum sees that far above chance.
-    assert!(results[2].press_top1 > 3.0 * chance, "{:?}", results[2]);
+    let fft = results.iter().find(|r| r.name == "fft-radial-c64").unwrap();
+    assert!(fft.press_top1 > 3.0 * chance, "{fft:?}");
     let front = methods::pareto(&results);
     assert!(!front.is_empty());
+    let knee = methods::knee(&results).unwrap();
+    assert!(front.contains(&knee));
     let table = methods::markdown(&results);
     assert_eq!(table.lines().count(), 2 + results.len(), "{table}");
-    let (a, b) = (dir.path().join("a.svg"), dir.path().join("b.svg"));
-    methods::charts(&results, &a, &b).unwrap();
-    for f in [a, b] {
-        let svg = std::fs::read_to_string(&f).unwrap();
-        assert!(
-            svg.starts_with("<svg") && svg.contains("untrained"),
-            "{}",
-            f.display()
-        );
+    assert_eq!(table.matches("**knee**").count(), 1, "{table}");
+    let svg_path = dir.path().join("a.svg");
+    methods::chart(&results, &svg_path).unwrap();
+    let svg = std::fs::read_to_string(&svg_path).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("untrained"));
+    assert!(svg.contains("Pareto frontier") && svg.contains("knee"));
+}
+
+#[test]
+fn views_cut_from_the_base_cache_equal_the_direct_crop() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Protocol::paper(32, 48);
+    p.max_textiles = Some(2);
+    let base = protocol::load_base(&p, SourceKind::Synth, dir.path(), 2).unwrap();
+    // Render the same frames directly at (input 32, crop 48) with the
+    // pre-base-cache path: centre crop of the 240x320 frame, resize.
+    use telextiles_lab::data::FrameSource;
+    let src = telextiles_lab::synth::SynthSource;
+    let view = view_set(&base.heldout, 48, 32).unwrap();
+    for i in [0, 5, view.len() - 1] {
+        let m = &view.items[i];
+        let key = telextiles_lab::data::PressKey {
+            textile: view.classes[m.class as usize].clone(),
+            person: m.person,
+            sensor: m.sensor,
+            jig: m.jig,
+            seed: 2000 + m.person as u64,
+        };
+        // The synthetic source draws per-frame jitter in request order:
+        // ask for the press's cached frames, as the cache did.
+        let rows: Vec<usize> = (0..view.len())
+            .filter(|&j| view.items[j].press == m.press)
+            .collect();
+        let frames: Vec<usize> = rows.iter().map(|&j| view.items[j].frame as usize).collect();
+        let rendered = src.frames(&key, &frames).unwrap();
+        for (&j, frame) in rows.iter().zip(&rendered) {
+            let direct = telextiles_lab::preprocess::centre_crop_resize(frame, 48, 32).unwrap();
+            assert_eq!(view.image(j), direct.as_raw().as_slice(), "image {j}");
+        }
     }
-    assert!(std::fs::read_to_string(dir.path().join("a.svg"))
-        .unwrap()
-        .contains("Pareto frontier"));
+    // The training canvases keep their side and record the crop, so the
+    // training-data hash is what it was before the base cache.
+    let sets = base.into_view(48, 32).unwrap();
+    assert_eq!((sets.train.side, sets.train.crop), (240, 48));
+    assert_eq!(sets.heldout.side, 32);
+    assert!(view_set(&sets.heldout, 64, 32).is_err());
 }
 
 fn result(name: &str, ms: f64, acc: f64) -> MethodResult {
     MethodResult {
         name: name.into(),
+        runtime: "ort".into(),
+        crop: 64,
+        input: 64,
         dim: 1,
+        model_bytes: None,
         latency: vec![(1, ms, ms)],
         frame_top1: acc,
         press_top1: acc,
@@ -97,4 +140,31 @@ fn pareto_keeps_only_methods_nothing_beats() {
         result("tie-slower", 1.5, 0.5),
     ];
     assert_eq!(methods::pareto(&r), vec![0, 1, 3]);
+}
+
+#[test]
+fn the_knee_is_where_accuracy_stops_coming_cheaply() {
+    // A concave frontier: most of the accuracy by 0.1 ms, little after.
+    let r = [
+        result("a", 0.01, 0.10),
+        result("b", 0.1, 0.70),
+        result("c", 1.0, 0.75),
+        result("d", 10.0, 0.78),
+    ];
+    assert_eq!(methods::knee(&r), Some(1));
+    // Over the 16.7 ms budget does not count, however accurate.
+    let r2 = [
+        result("a", 0.01, 0.10),
+        result("b", 0.1, 0.70),
+        result("huge", 40.0, 0.99),
+    ];
+    assert_eq!(methods::knee(&r2), Some(1));
+    // A convex frontier (accuracy only comes late): the most accurate.
+    let r3 = [
+        result("a", 0.01, 0.10),
+        result("b", 0.1, 0.12),
+        result("c", 1.0, 0.90),
+    ];
+    assert_eq!(methods::knee(&r3), Some(2));
+    assert_eq!(methods::knee(&[]), None);
 }

@@ -1,0 +1,396 @@
+//! Fixed (untrained) descriptors written as ONNX graphs that follow the
+//! Telextiles encoder contract, so that the daemon can run a classical
+//! descriptor exactly as it runs a trained encoder: input `frames` f32
+//! `[N, 3, S, S]` (DIGIT-normalised, as the daemon's preprocessing writes
+//! it), output `embedding` f32 `[N, D]`, `telextiles.*` metadata.
+//!
+//! * `fft-radial`: the radially averaged log power spectrum of the
+//!   Hann-windowed grey crop ([`crate::baselines`]'s `Fft`). The 2D DFT is
+//!   two pairs of matrix products with fixed cosine and sine matrices
+//!   (`Re = C X C - S X S`, `Im = -(C X S + S X C)`), the radial average one
+//!   more product with a fixed `S*S x (S/2 - 1)` binning matrix.
+//! * `pixels`: 16x16 block means per channel minus the channel mean.
+//!
+//! Each graph reproduces the Rust descriptor of `baselines.rs` on the same
+//! pixels (tested to 1e-3 after L2 normalisation: the graph computes in
+//! f32, the Rust reference in f64). The graph does not
+//! L2-normalise (consumers do; a blank frame gives zeros, not NaN).
+
+use anyhow::{ensure, Context, Result};
+use onnx_ir::{AttributeProto, AttributeType, Message, ModelProto, NodeProto, TensorProto};
+use protobuf::EnumOrUnknown;
+use std::f64::consts::PI;
+
+use crate::baselines::{radial_bins, BaselineKind};
+use crate::onnx::{contract_props, INPUT_NAME, OUTPUT_NAME};
+use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
+
+/// ITU-R BT.601 luma weights (the descriptors' grey).
+pub const GREY: [f32; 3] = [0.299, 0.587, 0.114];
+
+/// ONNX opset the graphs use.
+const OPSET: i64 = 18;
+const FLOAT: i32 = 1;
+const INT64: i32 = 7;
+
+/// A small graph builder: nodes and initialisers with generated names.
+#[derive(Default)]
+struct Builder {
+    nodes: Vec<NodeProto>,
+    inits: Vec<TensorProto>,
+    n: usize,
+}
+
+fn attr_int(name: &str, v: i64) -> AttributeProto {
+    let mut a = AttributeProto::new();
+    a.name = name.into();
+    a.type_ = EnumOrUnknown::new(AttributeType::INT);
+    a.i = v;
+    a
+}
+
+fn attr_ints(name: &str, v: &[i64]) -> AttributeProto {
+    let mut a = AttributeProto::new();
+    a.name = name.into();
+    a.type_ = EnumOrUnknown::new(AttributeType::INTS);
+    a.ints = v.to_vec();
+    a
+}
+
+impl Builder {
+    fn name(&mut self, hint: &str) -> String {
+        self.n += 1;
+        format!("{hint}_{}", self.n)
+    }
+
+    fn f32s(&mut self, hint: &str, dims: &[i64], data: Vec<f32>) -> String {
+        assert_eq!(dims.iter().product::<i64>() as usize, data.len(), "{hint}");
+        let mut t = TensorProto::new();
+        t.name = self.name(hint);
+        t.dims = dims.to_vec();
+        t.data_type = FLOAT;
+        t.raw_data = data
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>()
+            .into();
+        let n = t.name.clone();
+        self.inits.push(t);
+        n
+    }
+
+    fn i64s(&mut self, hint: &str, data: Vec<i64>) -> String {
+        let mut t = TensorProto::new();
+        t.name = self.name(hint);
+        t.dims = vec![data.len() as i64];
+        t.data_type = INT64;
+        t.raw_data = data
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>()
+            .into();
+        let n = t.name.clone();
+        self.inits.push(t);
+        n
+    }
+
+    fn op(&mut self, op: &str, inputs: &[&str], attrs: Vec<AttributeProto>) -> String {
+        let out = self.name(&op.to_lowercase());
+        let mut node = NodeProto::new();
+        node.name = format!("{out}_node");
+        node.op_type = op.into();
+        node.input = inputs.iter().map(|s| s.to_string()).collect();
+        node.output = vec![out.clone()];
+        node.attribute = attrs;
+        self.nodes.push(node);
+        out
+    }
+
+    /// Renames the last node's output to `name`.
+    fn rename_last_output(&mut self, name: &str) {
+        if let Some(n) = self.nodes.last_mut() {
+            n.output[0] = name.into();
+        }
+    }
+
+    fn finish(self, size: usize, dim: usize, props: Vec<(String, String)>) -> Result<Vec<u8>> {
+        let mut model = ModelProto::new();
+        model.ir_version = 8;
+        model.producer_name = "telextiles-lab".into();
+        model.producer_version = env!("CARGO_PKG_VERSION").into();
+        model.opset_import.push(Default::default());
+        model.opset_import[0].version = OPSET;
+        let g = model.graph.mut_or_insert_default();
+        g.name = "telextiles_descriptor".into();
+        g.node = self.nodes;
+        g.initializer = self.inits;
+        let value = |name: &str, dims: &[Option<i64>]| {
+            let mut vi = onnx_ir::ValueInfoProto::new();
+            vi.name = name.into();
+            let tt = vi.type_.mut_or_insert_default().mut_tensor_type();
+            tt.elem_type = FLOAT;
+            let shape = tt.shape.mut_or_insert_default();
+            for d in dims {
+                shape.dim.push(Default::default());
+                let last = shape.dim.last_mut().expect("just pushed");
+                match d {
+                    Some(v) => last.set_dim_value(*v),
+                    None => last.set_dim_param("batch".into()),
+                }
+            }
+            vi
+        };
+        let s = size as i64;
+        g.input
+            .push(value(INPUT_NAME, &[None, Some(3), Some(s), Some(s)]));
+        g.output.push(value(OUTPUT_NAME, &[None, Some(dim as i64)]));
+        for (k, v) in props {
+            model.metadata_props.push(Default::default());
+            let e = model.metadata_props.last_mut().expect("just pushed");
+            e.key = k;
+            e.value = v;
+        }
+        model.write_to_bytes().context("serialising ONNX")
+    }
+}
+
+/// A fixed descriptor as an ONNX model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DescriptorSpec {
+    /// `Fft` or `Pixels` (LBP has no graph).
+    pub kind: BaselineKind,
+    /// Centre crop of the frame (px).
+    pub crop: u32,
+    /// Side S of the input (a power of two; crop == S: no resampling).
+    pub input: u32,
+}
+
+impl DescriptorSpec {
+    /// `fft-radial-c64`, `pixels16-c64`.
+    pub fn arch(&self) -> String {
+        let k = match self.kind {
+            BaselineKind::Fft => "fft-radial",
+            BaselineKind::Pixels => "pixels16",
+            BaselineKind::Lbp => "lbp-riu2",
+        };
+        if self.crop == self.input {
+            format!("{k}-c{}", self.crop)
+        } else {
+            format!("{k}-c{}-s{}", self.crop, self.input)
+        }
+    }
+
+    /// Length of the descriptor.
+    pub fn dim(&self) -> usize {
+        match self.kind {
+            BaselineKind::Fft => self.input as usize / 2 - 1,
+            BaselineKind::Pixels => 16 * 16 * 3,
+            BaselineKind::Lbp => 30,
+        }
+    }
+}
+
+/// The Hann window of length `n` (periodic, as `baselines.rs` uses it).
+pub fn hann(n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f32::consts::PI * i as f32 / n as f32).cos())
+        .collect()
+}
+
+/// Writes `spec` as an ONNX model with the contract's metadata.
+pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
+    let n = spec.input as usize;
+    ensure!(
+        n.is_power_of_two() && (16..=256).contains(&n),
+        "descriptor input size {n} must be a power of two in 16..=256"
+    );
+    ensure!(
+        spec.crop >= spec.input && spec.crop <= 240,
+        "crop {} must be in input size..=240",
+        spec.crop
+    );
+    let mut b = Builder::default();
+    let dim = spec.dim();
+    let ni = n as i64;
+    match spec.kind {
+        BaselineKind::Fft => {
+            // grey = sum_c g_c * 255 * (x_c * std_c + mean_c): a 1x1 convolution.
+            let w: Vec<f32> = (0..3).map(|c| GREY[c] * 255.0 * DIGIT_STD[c]).collect();
+            let bias: f32 = (0..3).map(|c| GREY[c] * 255.0 * DIGIT_MEAN[c]).sum();
+            let w = b.f32s("grey_w", &[1, 3, 1, 1], w);
+            let bias = b.f32s("grey_b", &[1], vec![bias]);
+            let grey = b.op("Conv", &[INPUT_NAME, &w, &bias], vec![]);
+            // Remove the mean, apply the 2D Hann window.
+            let hw = b.i64s("axes_hw", vec![2, 3]);
+            let mean = b.op("ReduceMean", &[&grey, &hw], vec![attr_int("keepdims", 1)]);
+            let centred = b.op("Sub", &[&grey, &mean], vec![]);
+            let h = hann(n);
+            let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
+            let win = b.f32s("hann2d", &[ni, ni], win);
+            let x = b.op("Mul", &[&centred, &win], vec![]);
+            // DFT matrices (symmetric): W = C - iS.
+            let (mut cm, mut sm) = (vec![0f32; n * n], vec![0f32; n * n]);
+            for k in 0..n {
+                for j in 0..n {
+                    let a = 2.0 * PI * ((k * j) % n) as f64 / n as f64;
+                    cm[k * n + j] = a.cos() as f32;
+                    sm[k * n + j] = a.sin() as f32;
+                }
+            }
+            let c = b.f32s("dft_cos", &[ni, ni], cm);
+            let s = b.f32s("dft_sin", &[ni, ni], sm);
+            // Along rows, then along columns.
+            let xc = b.op("MatMul", &[&x, &c], vec![]);
+            let xs = b.op("MatMul", &[&x, &s], vec![]);
+            let cxc = b.op("MatMul", &[&c, &xc], vec![]);
+            let sxs = b.op("MatMul", &[&s, &xs], vec![]);
+            let cxs = b.op("MatMul", &[&c, &xs], vec![]);
+            let sxc = b.op("MatMul", &[&s, &xc], vec![]);
+            let re = b.op("Sub", &[&cxc, &sxs], vec![]);
+            let im = b.op("Add", &[&cxs, &sxc], vec![]);
+            let re2 = b.op("Mul", &[&re, &re], vec![]);
+            let im2 = b.op("Mul", &[&im, &im], vec![]);
+            let power = b.op("Add", &[&re2, &im2], vec![]);
+            let shape = b.i64s("flat_shape", vec![-1, ni * ni]);
+            let flat = b.op("Reshape", &[&power, &shape], vec![]);
+            // Radial mean: bins 1..n/2.
+            let mut bins = vec![0f32; n * n * dim];
+            let (cells, counts) = radial_bins(n);
+            for &(cell, r) in &cells {
+                bins[cell * dim + (r - 1)] = 1.0 / counts[r] as f32;
+            }
+            let bins = b.f32s("radial_bins", &[ni * ni, dim as i64], bins);
+            let radial = b.op("MatMul", &[&flat, &bins], vec![]);
+            let eps = b.f32s("log_eps", &[1], vec![1e-3]);
+            let shifted = b.op("Add", &[&radial, &eps], vec![]);
+            let log = b.op("Log", &[&shifted], vec![]);
+            let ax1 = b.i64s("axes_1", vec![1]);
+            let lmean = b.op("ReduceMean", &[&log, &ax1], vec![attr_int("keepdims", 1)]);
+            b.op("Sub", &[&log, &lmean], vec![]);
+            b.rename_last_output(OUTPUT_NAME);
+        }
+        BaselineKind::Pixels => {
+            ensure!(n.is_multiple_of(16), "pixels needs an input size divisible by 16");
+            // Back to 0..255 per channel (a depthwise 1x1 convolution).
+            let w: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_STD[c]).collect();
+            let bias: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_MEAN[c]).collect();
+            let w = b.f32s("unnorm_w", &[3, 1, 1, 1], w);
+            let bias = b.f32s("unnorm_b", &[3], bias);
+            let rgb = b.op("Conv", &[INPUT_NAME, &w, &bias], vec![attr_int("group", 3)]);
+            let k = (n / 16) as i64;
+            let pooled = b.op(
+                "AveragePool",
+                &[&rgb],
+                vec![
+                    attr_ints("kernel_shape", &[k, k]),
+                    attr_ints("strides", &[k, k]),
+                ],
+            );
+            let hw = b.i64s("axes_hw", vec![2, 3]);
+            let mean = b.op("ReduceMean", &[&pooled, &hw], vec![attr_int("keepdims", 1)]);
+            let centred = b.op("Sub", &[&pooled, &mean], vec![]);
+            let shape = b.i64s("flat_shape", vec![-1, dim as i64]);
+            b.op("Reshape", &[&centred, &shape], vec![]);
+            b.rename_last_output(OUTPUT_NAME);
+        }
+        BaselineKind::Lbp => anyhow::bail!("LBP has no ONNX graph"),
+    }
+    let props = contract_props(
+        spec.input,
+        spec.crop,
+        dim,
+        &spec.arch(),
+        "none (fixed descriptor, not trained)",
+    );
+    b.finish(n, dim, props)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::baselines::Baseline;
+    use crate::onnx::OrtEncoder;
+    use crate::preprocess::normalize_into;
+
+    fn l2(mut v: Vec<f32>) -> Vec<f32> {
+        crate::baselines::l2(&mut v);
+        v
+    }
+
+    /// Pseudo-random textured RGB images of side `n`.
+    fn images(n: usize, count: usize) -> Vec<Vec<u8>> {
+        (0..count)
+            .map(|k| {
+                (0..n * n * 3)
+                    .map(|i| {
+                        let (x, y, c) = ((i / 3) % n, (i / 3) / n, i % 3);
+                        let v = 120.0
+                            + 50.0 * ((x as f32 * (0.3 + 0.1 * k as f32)) + y as f32 * 0.7).sin()
+                            + 20.0 * c as f32
+                            + ((i * 7919 + k * 104_729) % 13) as f32;
+                        v.clamp(0.0, 255.0) as u8
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn graphs_match_the_rust_descriptors_in_onnx_runtime() {
+        for (kind, n) in [
+            (BaselineKind::Fft, 64usize),
+            (BaselineKind::Fft, 32),
+            (BaselineKind::Pixels, 64),
+        ] {
+            let spec = DescriptorSpec {
+                kind,
+                crop: n as u32,
+                input: n as u32,
+            };
+            let bytes = descriptor_model(&spec).unwrap();
+            let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+            assert_eq!(enc.dim, spec.dim());
+            assert_eq!(enc.input_size, n);
+            let imgs = images(n, 3);
+            let mut x = Vec::new();
+            for img in &imgs {
+                normalize_into(img, n, &mut x);
+            }
+            let got = enc.embed(&x).unwrap();
+            let base = Baseline { kind, bgsub: false };
+            for (i, img) in imgs.iter().enumerate() {
+                let want = base.features(img, n, n, None);
+                let g = l2(got[i * spec.dim()..(i + 1) * spec.dim()].to_vec());
+                let diff = g
+                    .iter()
+                    .zip(&want)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0f32, f32::max);
+                // The graph's DFT is f32 matrix products; the Rust reference
+                // is an f64 FFT. A pure grating over faint noise (these
+                // images) spans the most decades: 4e-4 on one log bin.
+                assert!(diff < 1e-3, "{kind:?} n={n} image {i}: max diff {diff}");
+            }
+            // A blank frame gives finite numbers (the daemon's dry run).
+            let blank = vec![0f32; 3 * n * n];
+            assert!(enc.embed(&blank).unwrap().iter().all(|v| v.is_finite()));
+        }
+    }
+
+    #[test]
+    fn bad_specs_are_refused() {
+        let e = descriptor_model(&DescriptorSpec {
+            kind: BaselineKind::Fft,
+            crop: 64,
+            input: 48,
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("power of two"), "{e}");
+        assert!(descriptor_model(&DescriptorSpec {
+            kind: BaselineKind::Lbp,
+            crop: 64,
+            input: 64,
+        })
+        .is_err());
+    }
+}

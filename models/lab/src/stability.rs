@@ -1,0 +1,1100 @@
+//! Where methods fail: accuracy and decision flip-rate of every method as
+//! one condition of the press moves away from the index's, on simulated
+//! presses rendered for the purpose (issue "Speed vs accuracy chart and the
+//! stability suite", part 3); and accuracy against time since first
+//! contact across people (part 1, "accuracy vs frames aggregated").
+//!
+//! **Stability protocol.** The index holds two reference presses of every
+//! training textile by person 0 on sensor 0 with the jig, at 0° and 4 N
+//! (6 frames each, spread over the hold). A query is a fresh press (other
+//! seed, so another window of the cloth) under the same conditions with
+//! one factor changed; `frames` consecutive frames of its hold (60 fps) are
+//! embedded. Per level: top-1 of the press (mean of its frame embeddings),
+//! top-1 per frame, and the flip rate (the share of consecutive frame pairs
+//! whose nearest textile differs: what a decider has to smooth over).
+//!
+//! Factors: in-plane rotation (15° steps over 360°), force, tilt (jig),
+//! hand-held presses (people 0..5, no jig), LED intensity drift (every
+//! channel of the frame scaled: the LEDs light both the gel and the
+//! background), sensor swap (queries on other units, index from sensor 0),
+//! extra camera noise, a stale background (the sensor's no-contact image
+//! shifted since the reference was taken; background-subtracting methods
+//! keep subtracting the old reference) and unseen textiles (scored by the
+//! ground-truth attribute rank of the decided textile).
+
+use anyhow::{anyhow, Context, Result};
+use image::RgbImage;
+use serde::Serialize;
+use telextiles_sim::{PressSpec, Simulator};
+
+use crate::data::{FrameMeta, ImageKind, ImageSet};
+use crate::knn::{normalize_rows, top_k};
+use crate::methods::{background_of, mean_rows, Embedder, Method};
+use crate::preprocess::centre_crop_resize;
+use crate::protocol::{spread, view_set, BASE_SIDE};
+
+/// A condition varied by the suite.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+pub enum Factor {
+    /// In-plane rotation of the fabric, degrees.
+    Rotation,
+    /// Press force, N (the index's presses: 4 N).
+    Force,
+    /// Jig tilt about the sensor's x axis, degrees.
+    Tilt,
+    /// Hand-held presses (no jig); the level is the person.
+    HandHeld,
+    /// LED intensity: every channel of the frame times this gain.
+    LedDrift,
+    /// Sensor unit of the queries (the index is from sensor 0).
+    SensorSwap,
+    /// Extra Gaussian camera noise, DN (standard deviation).
+    Noise,
+    /// Shift of the no-contact background since the reference, px.
+    StaleBackground,
+    /// The 20 unseen textiles (no right answer: attribute rank).
+    Unseen,
+}
+
+impl Factor {
+    /// All factors in table order.
+    pub const ALL: [Factor; 9] = [
+        Factor::Rotation,
+        Factor::Force,
+        Factor::Tilt,
+        Factor::HandHeld,
+        Factor::LedDrift,
+        Factor::SensorSwap,
+        Factor::Noise,
+        Factor::StaleBackground,
+        Factor::Unseen,
+    ];
+
+    /// Axis label.
+    pub fn label(&self) -> &'static str {
+        match self {
+            Factor::Rotation => "in-plane rotation (°)",
+            Factor::Force => "force (N; index at 4 N)",
+            Factor::Tilt => "tilt (°, jig)",
+            Factor::HandHeld => "hand-held, person",
+            Factor::LedDrift => "LED intensity (gain)",
+            Factor::SensorSwap => "query sensor unit (index: 0)",
+            Factor::Noise => "extra camera noise (DN, σ)",
+            Factor::StaleBackground => "background shift since reference (px)",
+            Factor::Unseen => "unseen textiles",
+        }
+    }
+
+    /// The level at which the queries match the index's conditions.
+    pub fn nominal(&self) -> f64 {
+        match self {
+            Factor::Force => 4.0,
+            Factor::LedDrift => 1.0,
+            _ => 0.0,
+        }
+    }
+
+    /// Levels of the full suite, or of the quick one (CI).
+    pub fn levels(&self, quick: bool) -> Vec<f64> {
+        let v: Vec<f64> = match (self, quick) {
+            (Factor::Rotation, false) => (0..24).map(|k| 15.0 * k as f64).collect(),
+            (Factor::Rotation, true) => vec![0.0, 90.0],
+            (Factor::Force, false) => vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0],
+            (Factor::Force, true) => vec![2.0, 4.0],
+            (Factor::Tilt, false) => vec![0.0, 0.5, 1.0, 1.5, 2.0, 3.0],
+            (Factor::Tilt, true) => vec![0.0, 2.0],
+            (Factor::HandHeld, false) => (0..6).map(f64::from).collect(),
+            (Factor::HandHeld, true) => vec![0.0],
+            (Factor::LedDrift, false) => vec![0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4],
+            (Factor::LedDrift, true) => vec![0.7, 1.0],
+            (Factor::SensorSwap, false) => (0..8).map(f64::from).collect(),
+            (Factor::SensorSwap, true) => vec![0.0, 4.0],
+            (Factor::Noise, false) => vec![0.0, 2.0, 4.0, 8.0, 12.0, 16.0, 24.0],
+            (Factor::Noise, true) => vec![0.0, 8.0],
+            (Factor::StaleBackground, false) => vec![0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0],
+            (Factor::StaleBackground, true) => vec![0.0, 4.0],
+            (Factor::Unseen, _) => vec![0.0],
+        };
+        v
+    }
+}
+
+/// Suite settings.
+#[derive(Clone, Debug, Serialize)]
+pub struct SuiteConfig {
+    /// Only the first N training textiles (all 119 by default).
+    pub textiles: Option<usize>,
+    /// Consecutive hold frames per query press.
+    pub frames: usize,
+    /// Render threads.
+    pub threads: usize,
+    /// Two levels per factor (CI).
+    pub quick: bool,
+    /// Factors to run.
+    pub factors: Vec<Factor>,
+}
+
+impl Default for SuiteConfig {
+    fn default() -> Self {
+        SuiteConfig {
+            textiles: None,
+            frames: 8,
+            threads: 2,
+            quick: false,
+            factors: Factor::ALL.to_vec(),
+        }
+    }
+}
+
+/// What is done to a rendered frame before it is embedded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Post {
+    /// Nothing.
+    None,
+    /// Every channel times this gain (LED drift).
+    Gain(f32),
+    /// Extra Gaussian noise of this standard deviation (DN).
+    Noise(f32),
+    /// The background moved by this many px (right and down) since the
+    /// reference was taken.
+    Shift(i32),
+}
+
+/// One press to render: spec, class, which frames, what to do to them.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    pub spec: PressSpec,
+    pub class: u32,
+    /// `Some(n)`: n consecutive frames from hold + 4; `None`: `index_frames`
+    /// spread over the hold.
+    pub consecutive: Option<usize>,
+    /// Consecutive frames from the first contact instead of the hold.
+    pub from_contact: bool,
+    pub post: Post,
+}
+
+fn hash64(parts: &[u64]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for p in parts {
+        for b in p.to_le_bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
+/// A standard normal sample from a hash (Box–Muller on two uniforms).
+fn normal(h: u64) -> f32 {
+    let u1 = ((h >> 11) as f64 + 1.0) / (1u64 << 53) as f64;
+    let h2 = hash64(&[h, 0x9e37]);
+    let u2 = (h2 >> 11) as f64 / (1u64 << 53) as f64;
+    ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
+}
+
+/// Applies `post` to a full 240x320 frame of sensor `sensor`.
+pub fn apply_post(sim: &Simulator, frame: &mut RgbImage, post: Post, sensor: u32, seed: u64) {
+    match post {
+        Post::None => {}
+        Post::Gain(g) => {
+            for v in frame.iter_mut() {
+                *v = (*v as f32 * g).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        Post::Noise(sd) => {
+            for (i, v) in frame.iter_mut().enumerate() {
+                let n = normal(hash64(&[seed, i as u64]));
+                *v = (*v as f32 + sd * n).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        Post::Shift(d) => {
+            let bg = sim.background(sensor);
+            let (w, h) = bg.dimensions();
+            let mut out = frame.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    let sx = (x as i32 - d).clamp(0, w as i32 - 1) as u32;
+                    let sy = (y as i32 - d).clamp(0, h as i32 - 1) as u32;
+                    let (old, new) = (bg.get_pixel(x, y).0, bg.get_pixel(sx, sy).0);
+                    let f = frame.get_pixel(x, y).0;
+                    let mut p = [0u8; 3];
+                    for c in 0..3 {
+                        p[c] = (f[c] as i32 - old[c] as i32 + new[c] as i32).clamp(0, 255) as u8;
+                    }
+                    out.put_pixel(x, y, image::Rgb(p));
+                }
+            }
+            *frame = out;
+        }
+    }
+}
+
+/// Renders the planned presses into a [`BASE_SIDE`] set (frames in capture
+/// order within each press; `FrameMeta::press` numbers the plans).
+pub fn render(
+    sim: &Simulator,
+    classes: &[String],
+    plans: &[Plan],
+    index_frames: usize,
+    threads: usize,
+) -> Result<ImageSet> {
+    let threads = threads.max(1);
+    type Part = Vec<(usize, Vec<FrameMeta>, Vec<u8>)>;
+    let parts: Vec<Result<Part>> = std::thread::scope(|s| {
+        let hs: Vec<_> = (0..threads)
+            .map(|t| {
+                s.spawn(move || -> Result<Part> {
+                    let mut out = Vec::new();
+                    for (pi, p) in plans.iter().enumerate().skip(t).step_by(threads) {
+                        let meta = sim
+                            .press_meta(&p.spec)
+                            .map_err(|e| anyhow!("simulator: {e}"))?;
+                        let params = meta.params.context("simulated press without params")?;
+                        let n = meta.timestamps_us.len();
+                        let end = params.release_frame.map_or(n, |r| r as usize).min(n);
+                        let hold = params.hold_frame as usize;
+                        let frames: Vec<usize> = match (p.consecutive, p.from_contact) {
+                            (Some(k), true) => {
+                                let c = params.contact_frame as usize;
+                                (c..(c + k).min(end)).collect()
+                            }
+                            (Some(k), false) => {
+                                let start = (hold + 4).min(end.saturating_sub(k));
+                                (start..(start + k).min(end)).collect()
+                            }
+                            (None, _) => spread(hold, end, index_frames),
+                        };
+                        let (mut metas, mut px) = (Vec::new(), Vec::new());
+                        for &f in &frames {
+                            let mut img = sim
+                                .render_frame(&p.spec, f)
+                                .map_err(|e| anyhow!("simulator: {e}"))?;
+                            let seed = hash64(&[p.spec.seed, pi as u64, f as u64, p.class as u64]);
+                            apply_post(sim, &mut img, p.post, p.spec.sensor, seed);
+                            px.extend_from_slice(
+                                centre_crop_resize(&img, BASE_SIDE, BASE_SIDE)?.as_raw(),
+                            );
+                            metas.push(FrameMeta {
+                                class: p.class,
+                                press: pi as u32,
+                                person: p.spec.person,
+                                sensor: p.spec.sensor,
+                                jig: p.spec.jig,
+                                frame: f as u32,
+                            });
+                        }
+                        out.push((pi, metas, px));
+                    }
+                    Ok(out)
+                })
+            })
+            .collect();
+        hs.into_iter()
+            .map(|h| h.join().expect("render thread panicked"))
+            .collect()
+    });
+    let mut all = Vec::new();
+    for p in parts {
+        all.extend(p?);
+    }
+    all.sort_by_key(|x| x.0);
+    let mut set = ImageSet {
+        kind: ImageKind::Input,
+        side: BASE_SIDE as usize,
+        crop: BASE_SIDE,
+        classes: classes.to_vec(),
+        items: Vec::new(),
+        pixels: Vec::new(),
+        source: format!("telextiles-sim catalogue v{}", sim.catalogue().version),
+    };
+    for (_, m, p) in all {
+        set.items.extend(m);
+        set.pixels.extend(p);
+    }
+    Ok(set)
+}
+
+/// No-contact references of the given sensors as a [`BASE_SIDE`] set.
+pub fn references(sim: &Simulator, sensors: &[u32]) -> Result<ImageSet> {
+    let mut set = ImageSet {
+        kind: ImageKind::Input,
+        side: BASE_SIDE as usize,
+        crop: BASE_SIDE,
+        classes: vec![],
+        items: vec![],
+        pixels: vec![],
+        source: "references".into(),
+    };
+    for &s in sensors {
+        set.pixels.extend_from_slice(
+            centre_crop_resize(&sim.background(s), BASE_SIDE, BASE_SIDE)?.as_raw(),
+        );
+        set.items.push(FrameMeta {
+            class: 0,
+            press: 0,
+            person: 0,
+            sensor: s,
+            jig: true,
+            frame: 0,
+        });
+    }
+    Ok(set)
+}
+
+/// Scores of one method at one level.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelScore {
+    pub value: f64,
+    /// Top-1 of the mean embedding of each press (unseen: share of presses
+    /// whose decision is among the 10 textiles closest by attributes).
+    pub press_top1: f64,
+    /// Top-1 per frame (unseen: the same share per frame).
+    pub frame_top1: f64,
+    /// Share of consecutive frame pairs whose nearest textile differs.
+    pub flip_rate: f64,
+    /// Unseen only: median attribute rank (1 = the closest known textile) of
+    /// the press decisions.
+    pub attr_rank_median: Option<f64>,
+    pub presses: usize,
+}
+
+/// One method's curve for one factor.
+#[derive(Clone, Debug, Serialize)]
+pub struct FactorCurve {
+    pub factor: Factor,
+    pub levels: Vec<LevelScore>,
+}
+
+/// One method's suite results.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodStability {
+    pub name: String,
+    pub curves: Vec<FactorCurve>,
+}
+
+/// The whole suite.
+#[derive(Clone, Debug, Serialize)]
+pub struct StabilityReport {
+    pub config: SuiteConfig,
+    pub textiles: usize,
+    pub methods: Vec<MethodStability>,
+    /// Seconds spent rendering and embedding.
+    pub render_s: f64,
+    pub embed_s: f64,
+}
+
+fn base_spec(textile: &str, seed: u64) -> PressSpec {
+    PressSpec {
+        rotation_deg: Some(0.0),
+        force: Some(4.0),
+        ..PressSpec::new(textile, seed)
+    }
+}
+
+/// Query plans of one level.
+fn level_plans(
+    factor: Factor,
+    value: f64,
+    textiles: &[String],
+    unseen: &[String],
+    frames: usize,
+) -> Vec<Plan> {
+    let plan = |spec: PressSpec, class: usize, post: Post| Plan {
+        spec,
+        class: class as u32,
+        consecutive: Some(frames),
+        from_contact: false,
+        post,
+    };
+    let seed = 8000;
+    let list: Vec<(usize, &String)> = if factor == Factor::Unseen {
+        unseen
+            .iter()
+            .enumerate()
+            .map(|(i, t)| (textiles.len() + i, t))
+            .collect()
+    } else {
+        textiles.iter().enumerate().collect()
+    };
+    list.into_iter()
+        .map(|(class, t)| {
+            let b = base_spec(t, seed);
+            match factor {
+                Factor::Rotation => plan(
+                    PressSpec {
+                        rotation_deg: Some(value as f32),
+                        ..b
+                    },
+                    class,
+                    Post::None,
+                ),
+                Factor::Force => plan(
+                    PressSpec {
+                        force: Some(value as f32),
+                        ..b
+                    },
+                    class,
+                    Post::None,
+                ),
+                Factor::Tilt => plan(
+                    PressSpec {
+                        tilt_deg: Some([value as f32, 0.0]),
+                        ..b
+                    },
+                    class,
+                    Post::None,
+                ),
+                Factor::HandHeld => plan(
+                    PressSpec {
+                        person: value as u32,
+                        jig: false,
+                        rotation_deg: Some(0.0),
+                        force: None,
+                        release: Some(false),
+                        ..PressSpec::new(t.as_str(), seed)
+                    },
+                    class,
+                    Post::None,
+                ),
+                Factor::SensorSwap => plan(
+                    PressSpec {
+                        sensor: value as u32,
+                        ..b
+                    },
+                    class,
+                    Post::None,
+                ),
+                Factor::LedDrift => plan(b, class, Post::Gain(value as f32)),
+                Factor::Noise => plan(b, class, Post::Noise(value as f32)),
+                Factor::StaleBackground => plan(b, class, Post::Shift(value as i32)),
+                Factor::Unseen => plan(b, class, Post::None),
+            }
+        })
+        .collect()
+}
+
+/// kNN decisions (index row labels) of each row of `q`.
+fn decide(index: &[f32], labels: &[u32], q: &[f32], dim: usize) -> Vec<u32> {
+    top_k(index, q, dim, 1)
+        .into_iter()
+        .map(|r| labels[r[0].1])
+        .collect()
+}
+
+/// Scores one method on one level's embedded queries.
+#[allow(clippy::too_many_arguments)]
+fn score_level(
+    value: f64,
+    set: &ImageSet,
+    qe: &[f32],
+    dim: usize,
+    index: &[f32],
+    labels: &[u32],
+    unseen_rank: Option<&dyn Fn(u32, u32) -> usize>,
+) -> LevelScore {
+    let mut presses: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+    for (i, m) in set.items.iter().enumerate() {
+        presses.entry(m.press).or_default().push(i);
+    }
+    let per_frame = decide(index, labels, qe, dim);
+    let mut q = Vec::new();
+    let mut classes = Vec::new();
+    let (mut flips, mut pairs) = (0usize, 0usize);
+    for rows in presses.values() {
+        let mut m = mean_rows(qe, dim, rows);
+        normalize_rows(&mut m, dim);
+        q.extend(m);
+        classes.push(set.items[rows[0]].class);
+        for w in rows.windows(2) {
+            pairs += 1;
+            flips += (per_frame[w[0]] != per_frame[w[1]]) as usize;
+        }
+    }
+    let per_press = decide(index, labels, &q, dim);
+    let ok = |truth: u32, got: u32| match unseen_rank {
+        Some(rank) => rank(truth, got) <= 10,
+        None => truth == got,
+    };
+    let press_ok = classes
+        .iter()
+        .zip(&per_press)
+        .filter(|(t, g)| ok(**t, **g))
+        .count();
+    let frame_ok = set
+        .items
+        .iter()
+        .zip(&per_frame)
+        .filter(|(m, g)| ok(m.class, **g))
+        .count();
+    let attr_rank_median = unseen_rank.map(|rank| {
+        let r: Vec<f64> = classes
+            .iter()
+            .zip(&per_press)
+            .map(|(t, g)| rank(*t, *g) as f64)
+            .collect();
+        crate::bench::median(&r)
+    });
+    LevelScore {
+        value,
+        press_top1: press_ok as f64 / classes.len().max(1) as f64,
+        frame_top1: frame_ok as f64 / set.len().max(1) as f64,
+        flip_rate: flips as f64 / pairs.max(1) as f64,
+        attr_rank_median,
+        presses: classes.len(),
+    }
+}
+
+/// Runs the suite for every method.
+pub fn run_suite(
+    sim: &Simulator,
+    methods: &[Method],
+    cfg: &SuiteConfig,
+    ort_threads: usize,
+) -> Result<StabilityReport> {
+    let mut textiles: Vec<String> = sim.catalogue().training().map(|t| t.id.clone()).collect();
+    if let Some(n) = cfg.textiles {
+        textiles.truncate(n);
+    }
+    let unseen: Vec<String> = sim.catalogue().unseen().map(|t| t.id.clone()).collect();
+    let classes: Vec<String> = textiles.iter().chain(&unseen).cloned().collect();
+    let attrs: Vec<Vec<f32>> = classes
+        .iter()
+        .map(|c| {
+            sim.catalogue()
+                .get(c)
+                .map(|t| t.attributes.to_vec().to_vec())
+                .unwrap_or_default()
+        })
+        .collect();
+    let known = textiles.len();
+    // Rank (1 = closest) of known textile `got` among the known textiles
+    // by attribute distance to `truth`.
+    let adist = |a: usize, b: usize| -> f64 {
+        attrs[a]
+            .iter()
+            .zip(&attrs[b])
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+    };
+    let rank = |truth: u32, got: u32| -> usize {
+        let d = adist(truth as usize, got as usize);
+        (0..known).filter(|&k| adist(truth as usize, k) < d).count() + 1
+    };
+    let t0 = std::time::Instant::now();
+    let mut render_s = 0.0;
+    let mut embed_s = 0.0;
+    // The index: two reference presses per textile, 6 frames each.
+    let index_plans: Vec<Plan> = textiles
+        .iter()
+        .enumerate()
+        .flat_map(|(c, t)| {
+            (0..2).map(move |k| Plan {
+                spec: base_spec(t, 7000 + k),
+                class: c as u32,
+                consecutive: None,
+                from_contact: false,
+                post: Post::None,
+            })
+        })
+        .collect();
+    let index_set = render(sim, &classes, &index_plans, 6, cfg.threads)?;
+    let sensors: Vec<u32> = (0..8).collect();
+    let refs = references(sim, &sensors)?;
+    render_s += t0.elapsed().as_secs_f64();
+    let mut embedders: Vec<Embedder> = methods
+        .iter()
+        .map(|m| Embedder::new(m, ort_threads))
+        .collect::<Result<_>>()?;
+    // Per method: its index embeddings (in its view).
+    let mut indexes = Vec::new();
+    let t1 = std::time::Instant::now();
+    for (m, e) in methods.iter().zip(embedders.iter_mut()) {
+        let (crop, input) = m.view();
+        let v = view_set(&index_set, crop, input)?;
+        let r = view_set(&refs, crop, input)?;
+        let (emb, dim) = e.embed(&v, |s| background_of(&r, s))?;
+        let labels: Vec<u32> = v.items.iter().map(|m| m.class).collect();
+        indexes.push((emb, labels, dim, r));
+    }
+    embed_s += t1.elapsed().as_secs_f64();
+    drop(index_set);
+    let mut out: Vec<MethodStability> = methods
+        .iter()
+        .map(|m| MethodStability {
+            name: m.name(),
+            curves: Vec::new(),
+        })
+        .collect();
+    for &factor in &cfg.factors {
+        let mut curves: Vec<Vec<LevelScore>> = vec![Vec::new(); methods.len()];
+        for value in factor.levels(cfg.quick) {
+            let t = std::time::Instant::now();
+            let plans = level_plans(factor, value, &textiles, &unseen, cfg.frames);
+            let set = render(sim, &classes, &plans, 6, cfg.threads)?;
+            render_s += t.elapsed().as_secs_f64();
+            let t = std::time::Instant::now();
+            for (mi, (m, e)) in methods.iter().zip(embedders.iter_mut()).enumerate() {
+                let (crop, input) = m.view();
+                let v = view_set(&set, crop, input)?;
+                let (index, labels, dim, refs) = &indexes[mi];
+                let (qe, _) = e.embed(&v, |s| background_of(refs, s))?;
+                let r: &dyn Fn(u32, u32) -> usize = &rank;
+                curves[mi].push(score_level(
+                    value,
+                    &v,
+                    &qe,
+                    *dim,
+                    index,
+                    labels,
+                    (factor == Factor::Unseen).then_some(r),
+                ));
+            }
+            embed_s += t.elapsed().as_secs_f64();
+            eprintln!(
+                "stability {factor:?} {value}: {} presses, {:.0} s so far",
+                plans.len(),
+                t0.elapsed().as_secs_f64()
+            );
+        }
+        for (o, c) in out.iter_mut().zip(curves) {
+            o.curves.push(FactorCurve { factor, levels: c });
+        }
+    }
+    Ok(StabilityReport {
+        config: cfg.clone(),
+        textiles: textiles.len(),
+        methods: out,
+        render_s,
+        embed_s,
+    })
+}
+
+/// Where a method's press accuracy first drops below `threshold` as the
+/// factor moves away from its nominal level (both directions for force
+/// and LED gain; rotation by the absolute angle). Text for the table.
+pub fn failure_point(curve: &FactorCurve, threshold: f64) -> String {
+    let f = curve.factor;
+    let lv = &curve.levels;
+    let fails = |s: &LevelScore| s.press_top1 < threshold;
+    let unit = match f {
+        Factor::Rotation | Factor::Tilt => "°",
+        Factor::Force => " N",
+        Factor::Noise => " DN",
+        Factor::StaleBackground => " px",
+        _ => "",
+    };
+    match f {
+        Factor::Unseen => {
+            let s = &lv[0];
+            format!(
+                "{:.0}% in attribute top-10, median rank {}",
+                100.0 * s.press_top1,
+                s.attr_rank_median.map_or("-".into(), |r| format!("{r:.0}"))
+            )
+        }
+        Factor::HandHeld | Factor::SensorSwap => {
+            let bad: Vec<String> = lv
+                .iter()
+                .filter(|s| fails(s))
+                .map(|s| format!("{}", s.value))
+                .collect();
+            let what = if f == Factor::HandHeld {
+                "people"
+            } else {
+                "units"
+            };
+            if bad.is_empty() {
+                format!("none of {} {what}", lv.len())
+            } else {
+                format!("{} of {} {what} ({})", bad.len(), lv.len(), bad.join(", "))
+            }
+        }
+        _ => {
+            let nominal = f.nominal();
+            let dev = |v: f64| {
+                if f == Factor::Rotation {
+                    let a = v.rem_euclid(360.0);
+                    a.min(360.0 - a)
+                } else {
+                    (v - nominal).abs()
+                }
+            };
+            if let Some(n) = lv.iter().find(|s| dev(s.value) < 1e-9) {
+                if fails(n) {
+                    return format!("below at nominal ({:.0}%)", 100.0 * n.press_top1);
+                }
+            }
+            let side = |below: bool| -> Option<f64> {
+                let mut v: Vec<&LevelScore> = lv
+                    .iter()
+                    .filter(|s| {
+                        let d = s.value - nominal;
+                        f == Factor::Rotation || (if below { d < 0.0 } else { d > 0.0 })
+                    })
+                    .collect();
+                v.sort_by(|a, b| dev(a.value).total_cmp(&dev(b.value)));
+                v.into_iter().find(|s| fails(s)).map(|s| s.value)
+            };
+            match f {
+                Factor::Force | Factor::LedDrift => {
+                    let lo = side(true).map_or("-".into(), |v| format!("≤ {v}{unit}"));
+                    let hi = side(false).map_or("-".into(), |v| format!("≥ {v}{unit}"));
+                    if lo == "-" && hi == "-" {
+                        "never".into()
+                    } else {
+                        format!("{lo} / {hi}")
+                    }
+                }
+                Factor::Rotation => side(false).map_or("never".into(), |v| {
+                    let a = v.rem_euclid(360.0);
+                    format!("{:.0}{unit}", a.min(360.0 - a))
+                }),
+                _ => side(false).map_or("never".into(), |v| format!("{v}{unit}")),
+            }
+        }
+    }
+}
+
+/// Accuracy against time since first contact, across people: the held-out
+/// people's jig presses (the same presses as the evaluation cache), each
+/// method's running mean over the first n consecutive frames from the
+/// first contact frame, against the training people's index.
+#[derive(Clone, Debug, Serialize)]
+pub struct DecisionCurve {
+    pub name: String,
+    /// (frames since first contact, top-1 of the running mean).
+    pub top1: Vec<(usize, f64)>,
+}
+
+/// Renders the held-out presses from first contact on (`frames` consecutive
+/// frames).
+pub fn decision_queries(
+    sim: &Simulator,
+    classes: &[String],
+    textiles: &[String],
+    heldout: &[(u32, u32)],
+    frames: usize,
+    threads: usize,
+) -> Result<ImageSet> {
+    let plans: Vec<Plan> = textiles
+        .iter()
+        .enumerate()
+        .flat_map(|(c, t)| {
+            heldout.iter().map(move |&(person, sensor)| Plan {
+                spec: PressSpec {
+                    person,
+                    sensor,
+                    jig: true,
+                    ..PressSpec::new(t.as_str(), 2000 + person as u64)
+                },
+                class: c as u32,
+                consecutive: Some(frames),
+                from_contact: true,
+                post: Post::None,
+            })
+        })
+        .collect();
+    render(sim, classes, &plans, 0, threads)
+}
+
+/// One method's accuracy against frames since first contact; `index` is the
+/// training people's index in the method's view.
+pub fn decision_curve(
+    m: &Method,
+    emb: &mut Embedder,
+    queries: &ImageSet,
+    index: &ImageSet,
+    refs: &ImageSet,
+) -> Result<DecisionCurve> {
+    let (crop, input) = m.view();
+    let iv = view_set(index, crop, input)?;
+    let rv = view_set(refs, crop, input)?;
+    let (ie, dim) = emb.embed(&iv, |s| background_of(&rv, s))?;
+    let labels: Vec<u32> = iv.items.iter().map(|x| x.class).collect();
+    let qv = view_set(queries, crop, input)?;
+    let (qe, _) = emb.embed(&qv, |s| background_of(&rv, s))?;
+    let mut presses: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+    for (i, it) in qv.items.iter().enumerate() {
+        presses.entry(it.press).or_default().push(i);
+    }
+    let longest = presses.values().map(Vec::len).max().unwrap_or(0);
+    let mut top1 = Vec::new();
+    for n in 1..=longest {
+        let mut q = Vec::new();
+        let mut ql = Vec::new();
+        for rows in presses.values() {
+            q.extend(mean_rows(&qe, dim, &rows[..n.min(rows.len())]));
+            ql.push(qv.items[rows[0]].class);
+        }
+        normalize_rows(&mut q, dim);
+        top1.push((n, crate::methods::top1(&ie, &labels, &q, &ql, dim)));
+    }
+    Ok(DecisionCurve {
+        name: m.name(),
+        top1,
+    })
+}
+
+/// Charts: accuracy per factor (one panel each) and flip rate per factor,
+/// for the named methods.
+pub fn charts(
+    report: &StabilityReport,
+    names: &[String],
+    accuracy_svg: &std::path::Path,
+    flips_svg: &std::path::Path,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let e = |x: Box<dyn std::error::Error + '_>| anyhow!("chart: {x}");
+    let methods: Vec<&MethodStability> = report
+        .methods
+        .iter()
+        .filter(|m| names.contains(&m.name))
+        .collect();
+    let factors: Vec<Factor> = report
+        .config
+        .factors
+        .iter()
+        .copied()
+        .filter(|f| *f != Factor::Unseen)
+        .collect();
+    for (svg, flips) in [(accuracy_svg, false), (flips_svg, true)] {
+        let root = SVGBackend::new(svg, (1400, 760)).into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
+        let (title, body) = root.split_vertically(40);
+        title
+            .draw(&Text::new(
+                if flips {
+                    "Decision flip rate between consecutive frames (60 fps) as one condition changes"
+                } else {
+                    "Top-1 per press as one condition changes (index: person 0, sensor 0, jig, 0°, 4 N)"
+                },
+                (20, 12),
+                ("sans-serif", 20),
+            ))
+            .map_err(|x| e(Box::new(x)))?;
+        let panels = body.split_evenly((2, 4));
+        for (pi, (panel, f)) in panels.iter().zip(&factors).enumerate() {
+            let levels: Vec<f64> = methods
+                .first()
+                .and_then(|m| m.curves.iter().find(|c| c.factor == *f))
+                .map(|c| c.levels.iter().map(|l| l.value).collect())
+                .unwrap_or_default();
+            if levels.is_empty() {
+                continue;
+            }
+            let (lo, hi) = levels
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            let hi = if hi > lo { hi } else { lo + 1.0 };
+            let mut c = ChartBuilder::on(panel)
+                .margin(8)
+                .x_label_area_size(35)
+                .y_label_area_size(40)
+                .build_cartesian_2d(lo..hi, 0.0..100.0)
+                .map_err(|x| e(Box::new(x)))?;
+            c.configure_mesh()
+                .x_desc(f.label())
+                .y_desc(if flips { "flips, %" } else { "top-1, %" })
+                .x_labels(6)
+                .y_labels(6)
+                .draw()
+                .map_err(|x| e(Box::new(x)))?;
+            if !flips {
+                c.draw_series(LineSeries::new(
+                    [(lo, 90.0), (hi, 90.0)],
+                    RED.mix(0.5).stroke_width(1),
+                ))
+                .map_err(|x| e(Box::new(x)))?;
+            }
+            for (mi, m) in methods.iter().enumerate() {
+                let Some(curve) = m.curves.iter().find(|c| c.factor == *f) else {
+                    continue;
+                };
+                let color = Palette99::pick(mi).to_rgba();
+                let pts: Vec<(f64, f64)> = curve
+                    .levels
+                    .iter()
+                    .map(|l| {
+                        (
+                            l.value,
+                            100.0 * if flips { l.flip_rate } else { l.press_top1 },
+                        )
+                    })
+                    .collect();
+                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                    .map_err(|x| e(Box::new(x)))?;
+                let s = c
+                    .draw_series(LineSeries::new(pts, color.stroke_width(2)))
+                    .map_err(|x| e(Box::new(x)))?;
+                if pi == 0 {
+                    s.label(m.name.clone()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                    });
+                }
+            }
+            if pi == 0 {
+                c.configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 11))
+                    .position(SeriesLabelPosition::LowerLeft)
+                    .draw()
+                    .map_err(|x| e(Box::new(x)))?;
+            }
+        }
+        root.present().map_err(|x| e(Box::new(x)))?;
+    }
+    Ok(())
+}
+
+/// Accuracy against ms since first contact, one line per method.
+pub fn decision_chart(curves: &[DecisionCurve], svg: &std::path::Path) -> Result<()> {
+    use plotters::prelude::*;
+    let e = |x: Box<dyn std::error::Error + '_>| anyhow!("chart: {x}");
+    let root = SVGBackend::new(svg, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
+    let n = curves
+        .iter()
+        .map(|c| c.top1.len())
+        .max()
+        .unwrap_or(1)
+        .max(2);
+    let ms = |k: usize| k as f64 * 1000.0 / 60.0;
+    let mut c = ChartBuilder::on(&root)
+        .caption(
+            "Accuracy against time since first contact (held-out people, running mean)",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(ms(1)..ms(n), 0.0..100.0)
+        .map_err(|x| e(Box::new(x)))?;
+    c.configure_mesh()
+        .x_desc("ms since the first contact frame (frames aggregated x 16.7 ms)")
+        .y_desc("top-1 per press, %")
+        .draw()
+        .map_err(|x| e(Box::new(x)))?;
+    for (i, cv) in curves.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        c.draw_series(LineSeries::new(
+            cv.top1.iter().map(|&(k, a)| (ms(k), 100.0 * a)),
+            color.stroke_width(2),
+        ))
+        .map_err(|x| e(Box::new(x)))?
+        .label(cv.name.clone())
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+    }
+    c.configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(|x| e(Box::new(x)))?;
+    root.present().map_err(|x| e(Box::new(x)))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn curve(factor: Factor, pts: &[(f64, f64)]) -> FactorCurve {
+        FactorCurve {
+            factor,
+            levels: pts
+                .iter()
+                .map(|&(value, acc)| LevelScore {
+                    value,
+                    press_top1: acc,
+                    frame_top1: acc,
+                    flip_rate: 0.0,
+                    attr_rank_median: None,
+                    presses: 10,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn failure_points_read_the_curves_outward_from_nominal() {
+        let rot = curve(
+            Factor::Rotation,
+            &[
+                (0.0, 1.0),
+                (15.0, 0.95),
+                (30.0, 0.8),
+                (330.0, 0.85),
+                (345.0, 0.97),
+            ],
+        );
+        // 330° is 30° the other way; the first failure outward is at 30°.
+        assert_eq!(failure_point(&rot, 0.9), "30°");
+        let force = curve(
+            Factor::Force,
+            &[
+                (1.0, 0.5),
+                (2.0, 0.92),
+                (4.0, 1.0),
+                (6.0, 0.95),
+                (10.0, 0.91),
+            ],
+        );
+        assert_eq!(failure_point(&force, 0.9), "≤ 1 N / -");
+        let noise = curve(Factor::Noise, &[(0.0, 0.99), (4.0, 0.95), (8.0, 0.95)]);
+        assert_eq!(failure_point(&noise, 0.9), "never");
+        let bad = curve(Factor::Noise, &[(0.0, 0.5), (4.0, 0.4)]);
+        assert!(failure_point(&bad, 0.9).starts_with("below at nominal"));
+        let sensors = curve(Factor::SensorSwap, &[(0.0, 1.0), (1.0, 0.5), (2.0, 0.95)]);
+        assert_eq!(failure_point(&sensors, 0.9), "1 of 3 units (1)");
+    }
+
+    #[test]
+    fn post_processing_changes_frames_as_described() {
+        let sim = Simulator::new().unwrap();
+        let spec = base_spec("T010", 1);
+        let f = sim.render_frame(&spec, 60).unwrap();
+        let mut same = f.clone();
+        apply_post(&sim, &mut same, Post::Shift(0), 0, 1);
+        assert_eq!(same, f, "a zero shift changes nothing");
+        let mut g = f.clone();
+        apply_post(&sim, &mut g, Post::Gain(1.0), 0, 1);
+        assert_eq!(g, f);
+        apply_post(&sim, &mut g, Post::Gain(0.5), 0, 1);
+        let mean = |i: &RgbImage| i.iter().map(|&v| v as f64).sum::<f64>() / i.len() as f64;
+        assert!((mean(&g) / mean(&f) - 0.5).abs() < 0.01);
+        let mut n = f.clone();
+        apply_post(&sim, &mut n, Post::Noise(8.0), 0, 1);
+        let sd = (n
+            .iter()
+            .zip(f.iter())
+            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+            .sum::<f64>()
+            / f.len() as f64)
+            .sqrt();
+        assert!((6.0..10.0).contains(&sd), "noise sd {sd}");
+        // A shifted background: the frame minus the old background plus the
+        // shifted one; the contact signal (frame - background) is kept.
+        let mut s = f.clone();
+        apply_post(&sim, &mut s, Post::Shift(4), 0, 1);
+        assert_ne!(s, f);
+        let bg = sim.background(0);
+        let (x, y) = (120, 160);
+        let want = f.get_pixel(x, y)[0] as i32 - bg.get_pixel(x, y)[0] as i32
+            + bg.get_pixel(x - 4, y - 4)[0] as i32;
+        assert_eq!(s.get_pixel(x, y)[0] as i32, want.clamp(0, 255));
+    }
+
+    #[test]
+    fn levels_start_from_the_nominal_conditions() {
+        for f in Factor::ALL {
+            let full = f.levels(false);
+            let quick = f.levels(true);
+            assert!(!quick.is_empty() && quick.len() <= full.len());
+            if f != Factor::HandHeld && f != Factor::Unseen {
+                assert!(full.contains(&f.nominal()), "{f:?}");
+            }
+        }
+        assert_eq!(Factor::Rotation.levels(false).len(), 24);
+    }
+}

@@ -1,0 +1,140 @@
+//! `telextiles-lab bench` end to end on a few simulated textiles (the reduced
+//! run CI does; the committed figures come from the full run, see
+//! docs/benchmarks.md): frame caches, every classical descriptor and an
+//! encoder, Pareto frontier and knee, time to decision, the stability suite
+//! (two levels per factor), the user test, and every output file.
+
+use telextiles_lab::methods::Method;
+use telextiles_lab::model::ArchConfig;
+use telextiles_lab::onnx::{export_encoder, EncoderMeta};
+use telextiles_lab::protocol::{Protocol, SourceKind};
+use telextiles_lab::report::{self, BenchConfig};
+use telextiles_lab::stability::{Factor, SuiteConfig};
+
+#[test]
+fn the_bench_runs_end_to_end_on_simulated_presses() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let mut p = Protocol::paper(64, 64);
+    p.max_textiles = Some(3);
+    let arch = ArchConfig {
+        blocks: [1, 1, 1, 1],
+        width: 4,
+        input: 32,
+        embed_dim: Some(8),
+    };
+    let enc = arch.init_encoder(&burn::tensor::Device::flex());
+    let bytes = export_encoder(
+        &enc,
+        &EncoderMeta {
+            arch,
+            crop: 32,
+            train_data_hash: "untrained".into(),
+        },
+    )
+    .unwrap();
+    let mut methods = report::descriptor_methods().unwrap();
+    methods.push(Method::onnx("tiny-encoder", bytes).unwrap());
+    let cfg = BenchConfig {
+        source: SourceKind::Sim,
+        protocol: p,
+        cache_dir: dir.path().join("cache"),
+        threads: 2,
+        models: vec![],
+        time_threads: vec![1, 2],
+        runs: 5,
+        stability: Some(SuiteConfig {
+            textiles: Some(3),
+            frames: 3,
+            threads: 2,
+            quick: true,
+            ..SuiteConfig::default()
+        }),
+        decision_frames: 4,
+        roller: vec!["T001".into(), "T002".into()],
+        out: out.clone(),
+    };
+    let r = report::run(&cfg, &methods).unwrap();
+    assert_eq!(r.methods.len(), methods.len());
+    let knee = r.knee.clone().expect("a knee");
+    assert!(r.pareto.contains(&knee), "{:?} {knee}", r.pareto);
+    // Three textiles: the power spectrum tells them apart across people
+    // well above chance (1/3).
+    let fft = r
+        .methods
+        .iter()
+        .find(|m| m.name == "fft-radial-c64")
+        .unwrap();
+    assert!(fft.press_top1 > 0.5, "{fft:?}");
+    // Time to decision: one curve per method, `decision_frames` long.
+    assert_eq!(r.decision.len(), methods.len());
+    assert!(r.decision.iter().all(|d| d.top1.len() == 4));
+    // Stability: every factor, two levels (one for unseen), every method;
+    // at the nominal conditions the power spectrum is right on 3 textiles.
+    let st = r.stability.as_ref().unwrap();
+    assert_eq!(st.methods.len(), methods.len());
+    for m in &st.methods {
+        assert_eq!(m.curves.len(), Factor::ALL.len());
+        for c in &m.curves {
+            let want = c.factor.levels(true).len();
+            assert!(want >= 1);
+            assert_eq!(c.levels.len(), want, "{} {:?}", m.name, c.factor);
+            for l in &c.levels {
+                assert!((0.0..=1.0).contains(&l.press_top1) && (0.0..=1.0).contains(&l.flip_rate));
+                let presses = if c.factor == Factor::Unseen { 20 } else { 3 };
+                assert_eq!(l.presses, presses, "{} {:?}", m.name, c.factor);
+            }
+        }
+    }
+    let fft_st = st
+        .methods
+        .iter()
+        .find(|m| m.name == "fft-radial-c64")
+        .unwrap();
+    let nominal = &fft_st.curves[0].levels[0];
+    assert_eq!(nominal.value, 0.0);
+    assert!(nominal.press_top1 > 0.6, "{nominal:?}");
+    let unseen = fft_st
+        .curves
+        .iter()
+        .find(|c| c.factor == Factor::Unseen)
+        .unwrap();
+    assert!(unseen.levels[0].attr_rank_median.is_some());
+    // User test: seen trials are the held-out presses of the textiles not
+    // on the roller (1 textile x 3 people), unseen ones 20 x 3.
+    assert_eq!(r.usertest.len(), methods.len());
+    for u in &r.usertest {
+        assert_eq!(u.seen.trials, 3, "{}", u.name);
+        assert_eq!(u.unseen.trials, 60, "{}", u.name);
+        assert_eq!(u.seen.topk_agreement.len(), 2);
+        assert_eq!(u.unseen.top1_in_topk[1], 1.0);
+    }
+    for f in [
+        "bench.json",
+        "report.md",
+        "speed-accuracy.svg",
+        "decision-time.svg",
+        "stability-accuracy.svg",
+        "stability-flips.svg",
+        "usertest.svg",
+    ] {
+        let s = std::fs::read_to_string(out.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert!(s.len() > 200, "{f}");
+        if f.ends_with(".svg") {
+            assert!(s.starts_with("<svg"), "{f}");
+        }
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for section in [
+        "## Methods",
+        "**knee**",
+        "## Accuracy against time since first contact",
+        "## Stability",
+        "## The paper's user test",
+    ] {
+        assert!(md.contains(section), "report.md lacks {section}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["knee"], serde_json::Value::String(knee));
+}
