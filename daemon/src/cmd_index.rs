@@ -87,16 +87,24 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// Embeddings of the in-contact frames of a press (every `stride`-th), with
-/// the first frame as the no-contact reference.
+/// the first frame as the no-contact reference (of the contact detector and
+/// of a background-subtracting encoder).
 pub fn press_embeddings(enc: &mut Encoder, press: &Press, stride: usize) -> Result<Vec<Vec<f32>>> {
     let Some(first) = press.frames.first() else {
         return Ok(Vec::new());
     };
     let mut contact = ContactDetector::with_reference(ContactConfig::default(), first);
+    // A background-subtracting encoder starts from the same reference and
+    // follows the untouched frames, as in a live session.
+    enc.set_reference(first)?;
     let mut out = Vec::new();
     let mut k = 0usize;
     for (frame, &t) in press.frames.iter().zip(&press.meta.timestamps_us) {
-        if contact.update(frame, t).in_contact {
+        let up = contact.update(frame, t);
+        if up.quiet {
+            enc.observe_background(frame)?;
+        }
+        if up.in_contact {
             if k.is_multiple_of(stride.max(1)) {
                 out.push(enc.encode(frame)?.to_vec());
             }

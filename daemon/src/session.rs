@@ -585,6 +585,15 @@ fn sensing_thread(
         let capture_us = now_us();
         lock(&state.counters).frames += 1;
         let up = contact.update(&frame.image, frame.timestamp_us);
+        if up.quiet {
+            // Background-subtracting encoders follow the untouched frames.
+            if let Err(e) = encoder.observe_background(&frame.image) {
+                let _ = state.events.send(Event::Error {
+                    source: "encoder".into(),
+                    message: e.to_string(),
+                });
+            }
+        }
         let contact_us = now_us();
         match up.event {
             Some(ContactEvent::PressStart { .. }) => {

@@ -117,6 +117,10 @@ pub struct ContactUpdate {
     pub in_contact: bool,
     /// What happened on this frame, if anything.
     pub event: Option<ContactEvent>,
+    /// The frame counts as untouched: it went into the reference (captured,
+    /// or idle with a score below the exit threshold). Encoders that
+    /// subtract the background follow these frames.
+    pub quiet: bool,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -260,12 +264,14 @@ impl ContactDetector {
                 score: 0.0,
                 in_contact: false,
                 event,
+                quiet: true,
             };
         }
         let score = mad(&self.samples, &self.reference);
         let cfg = &self.cfg;
         let (enter, exit) = (self.floor + cfg.enter, self.floor + cfg.exit);
         let mut event = None;
+        let mut quiet = false;
         self.state = match self.state.clone() {
             State::Capturing { .. } => unreachable!("handled above"),
             State::Idle { run, run_start } => {
@@ -288,6 +294,7 @@ impl ContactDetector {
                     }
                 } else {
                     if score < exit {
+                        quiet = true;
                         self.floor = (self.floor + 0.05 * (score - self.floor)).min(cfg.max_floor);
                         if cfg.background_alpha > 0.0 {
                             let a = cfg.background_alpha;
@@ -360,6 +367,7 @@ impl ContactDetector {
             score,
             in_contact: self.in_contact(),
             event,
+            quiet,
         }
     }
 }

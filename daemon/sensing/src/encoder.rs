@@ -8,6 +8,13 @@
 //! `telextiles.input_size`, output `embedding` f32 `[N,D]` with D equal to
 //! `telextiles.embedding_dim`, and one dry run on a blank frame producing D
 //! finite values. Anything else is a clear error before the first frame.
+//!
+//! `telextiles.background = subtract`: the model takes the frame minus the
+//! sensor's no-contact reference, both preprocessed (`normalise(frame) -
+//! normalise(reference)`). The encoder keeps that reference itself: set it
+//! ([`Encoder::set_reference`]) or let it follow the untouched frames the
+//! contact detector reports ([`Encoder::observe_background`]); encoding
+//! before there is one is an error.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -55,6 +62,10 @@ pub enum EncoderError {
     /// Inference failed.
     #[error("encoder inference failed: {0}")]
     Inference(String),
+    /// A background-subtracting model got a frame before any no-contact
+    /// reference.
+    #[error("the encoder subtracts the sensor's no-contact reference and has none yet (the sensor must be seen untouched first)")]
+    NoReference,
     /// A frame of the wrong size.
     #[error(transparent)]
     Frame(#[from] crate::frame::FrameError),
@@ -90,7 +101,8 @@ pub struct ModelInfo {
     pub arch: String,
     /// `telextiles.train_data_hash`.
     pub train_data_hash: String,
-    /// `telextiles.background` (only "none" is supported).
+    /// `telextiles.background`: "none", or "subtract" (the model takes
+    /// the frame minus the no-contact reference).
     pub background: String,
     /// Embedding dimension D.
     pub dim: usize,
@@ -139,7 +151,22 @@ pub struct Encoder {
     pre: Preprocessor,
     embedding: Vec<f32>,
     info: ModelInfo,
+    /// `telextiles.background = subtract`.
+    subtract: bool,
+    /// The preprocessed no-contact reference (subtracting models).
+    reference: Option<Vec<f32>>,
+    /// Scratch for [`Encoder::observe_background`].
+    scratch: Vec<f32>,
+    /// Untouched frames seen since the last reference update.
+    quiet_frames: u32,
 }
+
+/// Weight of an observed untouched frame in the reference (exponential
+/// average), and how often one is taken: every 4th untouched frame, so the
+/// reference follows LED and temperature drift over about 1.3 s at 60 fps
+/// for 1/4 of a preprocessing per idle frame.
+const REFERENCE_ALPHA: f32 = 0.05;
+const REFERENCE_EVERY: u32 = 4;
 
 fn contract(path: &Path, msg: impl Into<String>) -> EncoderError {
     EncoderError::Contract {
@@ -230,14 +257,18 @@ impl Encoder {
         let arch = get("telextiles.arch")?;
         let train_data_hash = get("telextiles.train_data_hash")?;
         let background = get("telextiles.background")?;
-        if background != "none" {
-            return Err(contract(
-                path,
-                format!(
-                    "telextiles.background = {background:?}; this daemon supports only \"none\""
-                ),
-            ));
-        }
+        let subtract = match background.as_str() {
+            "none" => false,
+            "subtract" => true,
+            other => {
+                return Err(contract(
+                    path,
+                    format!(
+                        "telextiles.background = {other:?}; this daemon supports \"none\" and \"subtract\""
+                    ),
+                ))
+            }
+        };
         drop(meta);
         let spec = PreprocessSpec {
             crop,
@@ -312,6 +343,7 @@ impl Encoder {
             dim,
             preprocess: spec,
         };
+        let n = pre.len();
         let mut enc = Encoder {
             session,
             binding,
@@ -320,41 +352,27 @@ impl Encoder {
             pre,
             embedding: vec![0.0; dim],
             info,
+            subtract,
+            reference: None,
+            scratch: vec![0.0; n],
+            quiet_frames: 0,
         };
-        // Dry run: shape and finiteness of the output, before any frame.
-        enc.preprocess(&Frame::blank().image)?;
-        enc.infer()
+        // Dry run: shape and finiteness of the output, before any frame (a
+        // subtracting model sees a blank frame against a blank reference). A
+        // zero embedding is allowed here: fixed descriptors give one for a
+        // featureless frame.
+        let blank = Frame::blank().image;
+        enc.set_reference(&blank)?;
+        enc.preprocess(&blank)?;
+        enc.run_raw()
             .map_err(|e| contract(path, format!("dry run on a blank frame failed: {e}")))?;
+        enc.reference = None;
         Ok(enc)
     }
 
-    /// What the model says about itself.
-    pub fn info(&self) -> &ModelInfo {
-        &self.info
-    }
-
-    /// Embedding dimension.
-    pub fn dim(&self) -> usize {
-        self.info.dim
-    }
-
-    /// Preprocess a frame into the bound input tensor.
-    pub fn preprocess(&mut self, frame: &RgbImage) -> Result<(), EncoderError> {
-        if (frame.width(), frame.height()) != (crate::frame::FRAME_W, crate::frame::FRAME_H) {
-            return Err(crate::frame::FrameError::WrongSize {
-                width: frame.width(),
-                height: frame.height(),
-            }
-            .into());
-        }
-        let (_, data) = self.input.extract_tensor_mut();
-        self.pre.run(frame, data);
-        Ok(())
-    }
-
-    /// Run the model on the preprocessed input; returns the L2-normalised
-    /// embedding (valid until the next call).
-    pub fn infer(&mut self) -> Result<&[f32], EncoderError> {
+    /// Run the model on the bound input; checks the output's length and
+    /// finiteness.
+    fn run_raw(&mut self) -> Result<(), EncoderError> {
         let outputs: SessionOutputs<'_> = self
             .session
             .run_binding(&self.binding)
@@ -368,6 +386,95 @@ impl Encoder {
                 self.info.dim
             )));
         }
+        if data.iter().any(|v| !v.is_finite()) {
+            return Err(EncoderError::Inference(
+                "the model produced non-finite values".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// What the model says about itself.
+    pub fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    /// Embedding dimension.
+    pub fn dim(&self) -> usize {
+        self.info.dim
+    }
+
+    /// Whether the model takes the frame minus the no-contact reference.
+    pub fn subtracts_background(&self) -> bool {
+        self.subtract
+    }
+
+    /// Whether a subtracting model has a reference (always true otherwise).
+    pub fn has_reference(&self) -> bool {
+        !self.subtract || self.reference.is_some()
+    }
+
+    /// Take `frame` (untouched) as the no-contact reference. No-op for
+    /// models that do not subtract it.
+    pub fn set_reference(&mut self, frame: &RgbImage) -> Result<(), EncoderError> {
+        if !self.subtract {
+            return Ok(());
+        }
+        check_size(frame)?;
+        let mut r = vec![0.0; self.pre.len()];
+        self.pre.run(frame, &mut r);
+        self.reference = Some(r);
+        self.quiet_frames = 0;
+        Ok(())
+    }
+
+    /// An untouched frame (the contact detector's `quiet`): the first one
+    /// becomes the reference, then every 4th one is averaged in. No-op for
+    /// models that do not subtract the background.
+    pub fn observe_background(&mut self, frame: &RgbImage) -> Result<(), EncoderError> {
+        if !self.subtract {
+            return Ok(());
+        }
+        if self.reference.is_none() {
+            return self.set_reference(frame);
+        }
+        self.quiet_frames += 1;
+        if self.quiet_frames < REFERENCE_EVERY {
+            return Ok(());
+        }
+        self.quiet_frames = 0;
+        check_size(frame)?;
+        self.pre.run(frame, &mut self.scratch);
+        if let Some(r) = self.reference.as_mut() {
+            for (r, s) in r.iter_mut().zip(&self.scratch) {
+                *r += REFERENCE_ALPHA * (s - *r);
+            }
+        }
+        Ok(())
+    }
+
+    /// Preprocess a frame into the bound input tensor (minus the reference
+    /// for subtracting models).
+    pub fn preprocess(&mut self, frame: &RgbImage) -> Result<(), EncoderError> {
+        check_size(frame)?;
+        if self.subtract && self.reference.is_none() {
+            return Err(EncoderError::NoReference);
+        }
+        let (_, data) = self.input.extract_tensor_mut();
+        self.pre.run(frame, data);
+        if let Some(r) = &self.reference {
+            for (v, r) in data.iter_mut().zip(r) {
+                *v -= r;
+            }
+        }
+        Ok(())
+    }
+
+    /// Run the model on the preprocessed input; returns the L2-normalised
+    /// embedding (valid until the next call).
+    pub fn infer(&mut self) -> Result<&[f32], EncoderError> {
+        self.run_raw()?;
+        let (_, data) = self.output.extract_tensor();
         let norm = data.iter().map(|v| v * v).sum::<f32>().sqrt();
         if !norm.is_finite() || norm == 0.0 {
             return Err(EncoderError::Inference(format!(
@@ -385,6 +492,17 @@ impl Encoder {
         self.preprocess(frame)?;
         self.infer()
     }
+}
+
+fn check_size(frame: &RgbImage) -> Result<(), EncoderError> {
+    if (frame.width(), frame.height()) != (crate::frame::FRAME_W, crate::frame::FRAME_H) {
+        return Err(crate::frame::FrameError::WrongSize {
+            width: frame.width(),
+            height: frame.height(),
+        }
+        .into());
+    }
+    Ok(())
 }
 
 fn describe(d: Option<(TensorElementType, Vec<i64>)>) -> String {

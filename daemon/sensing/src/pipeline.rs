@@ -176,8 +176,14 @@ impl<I: TextileIndex> Pipeline<I> {
         if index.is_empty() {
             return Err("the index has no textiles".into());
         }
+        let mut encoder = encoder;
         let contact = match reference {
-            Some(r) => ContactDetector::with_reference(cfg.contact, r),
+            Some(r) => {
+                encoder
+                    .set_reference(r)
+                    .map_err(|e| format!("reference frame: {e}"))?;
+                ContactDetector::with_reference(cfg.contact, r)
+            }
             None => ContactDetector::new(cfg.contact),
         };
         let decider = Decider::new(cfg.decide, encoder.dim());
@@ -216,6 +222,10 @@ impl<I: TextileIndex> Pipeline<I> {
         let t = frame.timestamp_us;
         let t0 = Instant::now();
         let c = self.contact.update(&frame.image, t);
+        if c.quiet {
+            // Background-subtracting encoders follow the untouched frames.
+            self.encoder.observe_background(&frame.image)?;
+        }
         times.contact_ns = t0.elapsed().as_nanos() as u64;
         times.preprocess_ns = 0;
         times.encode_ns = 0;

@@ -165,3 +165,56 @@ fn preprocessing_crops_resizes_and_normalises_as_specified() {
     })
     .is_err());
 }
+
+/// `fixture_subtract.onnx`: the radially averaged log power spectrum of the
+/// 32x32 centre crop minus the no-contact reference (`telextiles-lab
+/// export-descriptor --kind fft --crop 32 --subtract`), 15-d.
+#[test]
+fn background_subtracting_models_keep_and_follow_a_reference() {
+    let sim = common::sim();
+    let mut enc = open("fixture_subtract.onnx").unwrap();
+    assert_eq!(enc.info().background, "subtract");
+    assert_eq!(enc.dim(), 15);
+    assert!(enc.subtracts_background() && !enc.has_reference());
+    let spec = telextiles_sim::PressSpec::new("T030", 1);
+    let touched = sim.render_frame(&spec, 100).unwrap();
+    let untouched = sim.background(0);
+    // No reference yet: a clear error, not a silent wrong embedding.
+    let e = enc.encode(&touched).unwrap_err();
+    assert!(matches!(e, EncoderError::NoReference), "{e}");
+    assert!(e.to_string().contains("untouched"), "{e}");
+    // The first untouched frame becomes the reference.
+    enc.observe_background(&untouched).unwrap();
+    assert!(enc.has_reference());
+    let with_bg = enc.encode(&touched).unwrap().to_vec();
+    // Subtracting another reference gives another embedding.
+    let other = sim.background(4);
+    enc.set_reference(&other).unwrap();
+    let with_other = enc.encode(&touched).unwrap().to_vec();
+    let d: f32 = with_bg
+        .iter()
+        .zip(&with_other)
+        .map(|(a, b)| (a - b).abs())
+        .sum();
+    assert!(d > 1e-3, "the reference is ignored");
+    // Untouched frames are averaged in every 4th frame, slowly: three
+    // observations change nothing, the fourth moves the reference a little.
+    enc.set_reference(&untouched).unwrap();
+    let before = enc.encode(&touched).unwrap().to_vec();
+    for _ in 0..3 {
+        enc.observe_background(&other).unwrap();
+    }
+    assert_eq!(enc.encode(&touched).unwrap(), &before[..]);
+    enc.observe_background(&other).unwrap();
+    let after = enc.encode(&touched).unwrap().to_vec();
+    assert_ne!(after, before);
+    let moved: f32 = after.iter().zip(&before).map(|(a, b)| (a - b).abs()).sum();
+    assert!(moved < d, "one observation moved the reference all the way");
+    // Models that do not subtract ignore references.
+    let mut plain = common::fixture_encoder();
+    assert!(!plain.subtracts_background() && plain.has_reference());
+    let e1 = plain.encode(&touched).unwrap().to_vec();
+    plain.set_reference(&untouched).unwrap();
+    plain.observe_background(&other).unwrap();
+    assert_eq!(plain.encode(&touched).unwrap(), &e1[..]);
+}

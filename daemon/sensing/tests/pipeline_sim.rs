@@ -223,3 +223,44 @@ fn an_idle_sim_source_presses_once_on_command_then_rests_and_lifts_on_command() 
     assert!(handle.send(SimCommand::Lift));
     assert!((0..300).all(|_| is_bg(&mut src)), "lifted: rests");
 }
+
+/// A background-subtracting model in the pipeline: it learns the reference
+/// from the untouched frames at the start of each recording (no reference
+/// given) and then tells the textiles apart.
+#[test]
+fn a_background_subtracting_model_follows_the_untouched_frames() {
+    let sim = common::sim();
+    let open = || {
+        Encoder::open(
+            &common::fixture("fixture_subtract.onnx"),
+            &telextiles_sensing::encoder::EncoderOptions::default(),
+        )
+        .unwrap()
+    };
+    let mut enc = open();
+    let mut textiles = Vec::new();
+    for id in TEXTILES {
+        let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
+        enc.set_reference(&p.frames[0]).unwrap();
+        let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
+        let embs = p.frames[hold..]
+            .iter()
+            .map(|f| enc.encode(f).unwrap().to_vec())
+            .collect();
+        textiles.push((id.to_string(), embs));
+    }
+    let index = FlatIndex::from_embeddings(&textiles).unwrap();
+    let mut pipeline = Pipeline::new(open(), index, PipelineConfig::default(), None).unwrap();
+    assert!(!pipeline.encoder().has_reference());
+    let mut right = 0;
+    for id in TEXTILES {
+        let reports = classify(
+            &mut pipeline,
+            sim.render_press(&PressSpec::new(id, 2)).unwrap(),
+        );
+        assert!(pipeline.encoder().has_reference());
+        assert_eq!(reports.len(), 1, "{id}: {reports:?}");
+        right += (reports[0].textile.as_deref() == Some(id)) as usize;
+    }
+    assert!(right >= 5, "{right} of 6 right");
+}
