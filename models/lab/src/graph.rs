@@ -22,6 +22,17 @@ use protobuf::EnumOrUnknown;
 use std::f64::consts::PI;
 
 use crate::baselines::{radial_bins, BaselineKind};
+
+/// The cells of rows 0..=n/2 of an `n` x `n` spectrum (index `ky * n + kx`)
+/// that fall in radius bins 1..n/2, with their radius (as
+/// [`radial_bins`], restricted to the half plane).
+pub fn half_plane_bins(n: usize) -> Vec<(usize, usize)> {
+    radial_bins(n)
+        .0
+        .into_iter()
+        .filter(|&(cell, _)| cell / n <= n / 2)
+        .collect()
+}
 use crate::onnx::{contract_props, INPUT_NAME, OUTPUT_NAME};
 use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
 
@@ -31,6 +42,7 @@ pub const GREY: [f32; 3] = [0.299, 0.587, 0.114];
 /// ONNX opset the graphs use.
 const OPSET: i64 = 18;
 const FLOAT: i32 = 1;
+const INT32: i32 = 6;
 const INT64: i32 = 7;
 
 /// A small graph builder: nodes and initialisers with generated names.
@@ -46,6 +58,14 @@ fn attr_int(name: &str, v: i64) -> AttributeProto {
     a.name = name.into();
     a.type_ = EnumOrUnknown::new(AttributeType::INT);
     a.i = v;
+    a
+}
+
+fn attr_str(name: &str, v: &str) -> AttributeProto {
+    let mut a = AttributeProto::new();
+    a.name = name.into();
+    a.type_ = EnumOrUnknown::new(AttributeType::STRING);
+    a.s = v.as_bytes().to_vec().into();
     a
 }
 
@@ -84,6 +104,22 @@ impl Builder {
         t.name = self.name(hint);
         t.dims = vec![data.len() as i64];
         t.data_type = INT64;
+        t.raw_data = data
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>()
+            .into();
+        let n = t.name.clone();
+        self.inits.push(t);
+        n
+    }
+
+    fn i32s(&mut self, hint: &str, dims: &[i64], data: Vec<i32>) -> String {
+        assert_eq!(dims.iter().product::<i64>() as usize, data.len(), "{hint}");
+        let mut t = TensorProto::new();
+        t.name = self.name(hint);
+        t.dims = dims.to_vec();
+        t.data_type = INT32;
         t.raw_data = data
             .iter()
             .flat_map(|v| v.to_le_bytes())
@@ -161,8 +197,13 @@ pub struct DescriptorSpec {
     pub kind: BaselineKind,
     /// Centre crop of the frame (px).
     pub crop: u32,
-    /// Side S of the input (a power of two; crop == S: no resampling).
+    /// Side S of the input (even; crop == S: no resampling).
     pub input: u32,
+    /// The model takes the frame minus the sensor's no-contact reference
+    /// (`telextiles.background = subtract`). The graph is the same: the
+    /// reference only removes what the mean subtraction and the window do
+    /// not (the static LED pattern under the crop).
+    pub subtract: bool,
 }
 
 impl DescriptorSpec {
@@ -173,10 +214,11 @@ impl DescriptorSpec {
             BaselineKind::Pixels => "pixels16",
             BaselineKind::Lbp => "lbp-riu2",
         };
+        let bg = if self.subtract { "-bg" } else { "" };
         if self.crop == self.input {
-            format!("{k}-c{}", self.crop)
+            format!("{k}-c{}{bg}", self.crop)
         } else {
-            format!("{k}-c{}-s{}", self.crop, self.input)
+            format!("{k}-c{}-s{}{bg}", self.crop, self.input)
         }
     }
 
@@ -201,8 +243,8 @@ pub fn hann(n: usize) -> Vec<f32> {
 pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
     let n = spec.input as usize;
     ensure!(
-        n.is_power_of_two() && (16..=256).contains(&n),
-        "descriptor input size {n} must be a power of two in 16..=256"
+        n % 2 == 0 && (16..=240).contains(&n),
+        "descriptor input size {n} must be even, in 16..=240"
     );
     ensure!(
         spec.crop >= spec.input && spec.crop <= 240,
@@ -228,7 +270,11 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
             let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
             let win = b.f32s("hann2d", &[ni, ni], win);
             let x = b.op("Mul", &[&centred, &win], vec![]);
-            // DFT matrices (symmetric): W = C - iS.
+            // DFT matrices (symmetric): W = C - iS. Along rows first (all n
+            // column frequencies), then along columns for the row
+            // frequencies 0..=n/2 only: the power spectrum of a real image
+            // is point-symmetric, P[ky, kx] = P[-ky, -kx].
+            let h = n / 2 + 1;
             let (mut cm, mut sm) = (vec![0f32; n * n], vec![0f32; n * n]);
             for k in 0..n {
                 for j in 0..n {
@@ -237,30 +283,59 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
                     sm[k * n + j] = a.sin() as f32;
                 }
             }
-            let c = b.f32s("dft_cos", &[ni, ni], cm);
-            let s = b.f32s("dft_sin", &[ni, ni], sm);
-            // Along rows, then along columns.
+            let c = b.f32s("dft_cos", &[ni, ni], cm.clone());
+            let s = b.f32s("dft_sin", &[ni, ni], sm.clone());
+            let c_half = b.f32s("dft_cos_half", &[h as i64, ni], cm[..h * n].to_vec());
+            let s_half = b.f32s("dft_sin_half", &[h as i64, ni], sm[..h * n].to_vec());
             let xc = b.op("MatMul", &[&x, &c], vec![]);
             let xs = b.op("MatMul", &[&x, &s], vec![]);
-            let cxc = b.op("MatMul", &[&c, &xc], vec![]);
-            let sxs = b.op("MatMul", &[&s, &xs], vec![]);
-            let cxs = b.op("MatMul", &[&c, &xs], vec![]);
-            let sxc = b.op("MatMul", &[&s, &xc], vec![]);
+            let cxc = b.op("MatMul", &[&c_half, &xc], vec![]);
+            let sxs = b.op("MatMul", &[&s_half, &xs], vec![]);
+            let cxs = b.op("MatMul", &[&c_half, &xs], vec![]);
+            let sxc = b.op("MatMul", &[&s_half, &xc], vec![]);
             let re = b.op("Sub", &[&cxc, &sxs], vec![]);
             let im = b.op("Add", &[&cxs, &sxc], vec![]);
             let re2 = b.op("Mul", &[&re, &re], vec![]);
             let im2 = b.op("Mul", &[&im, &im], vec![]);
             let power = b.op("Add", &[&re2, &im2], vec![]);
-            let shape = b.i64s("flat_shape", vec![-1, ni * ni]);
+            let shape = b.i64s("flat_shape", vec![-1, (h * n) as i64]);
             let flat = b.op("Reshape", &[&power, &shape], vec![]);
-            // Radial mean: bins 1..n/2.
-            let mut bins = vec![0f32; n * n * dim];
-            let (cells, counts) = radial_bins(n);
-            for &(cell, r) in &cells {
-                bins[cell * dim + (r - 1)] = 1.0 / counts[r] as f32;
+            // Radial mean over bins 1..n/2: gather the half-plane cells of
+            // each bin, weight the rows that stand for their mirror too (all
+            // but ky = 0 and n/2) by 2, sum per bin (scatter-add), divide by
+            // the bin's full-plane cell count.
+            let (_, counts) = radial_bins(n);
+            let (mut cells, mut radius, mut weight) = (Vec::new(), Vec::new(), Vec::new());
+            for (cell, r) in half_plane_bins(n) {
+                cells.push(cell as i32);
+                radius.push((r - 1) as i32);
+                weight.push(if cell / n == 0 || cell / n == n / 2 {
+                    1.0
+                } else {
+                    2.0
+                });
             }
-            let bins = b.f32s("radial_bins", &[ni * ni, dim as i64], bins);
-            let radial = b.op("MatMul", &[&flat, &bins], vec![]);
+            let m = cells.len() as i64;
+            let cells = b.i32s("bin_cells", &[m], cells);
+            let gathered = b.op("Gather", &[&flat, &cells], vec![attr_int("axis", 1)]);
+            let weight = b.f32s("bin_weights", &[m], weight);
+            let weighted = b.op("Mul", &[&gathered, &weight], vec![]);
+            let radius = b.i32s("bin_radius", &[1, m], radius);
+            let wshape = b.op("Shape", &[&weighted], vec![]);
+            let radius = b.op("Expand", &[&radius, &wshape], vec![]);
+            let (zero, one) = (b.i64s("zero", vec![0]), b.i64s("one", vec![1]));
+            let batch = b.op("Slice", &[&wshape, &zero, &one], vec![]);
+            let dims = b.i64s("bins_dim", vec![dim as i64]);
+            let zshape = b.op("Concat", &[&batch, &dims], vec![attr_int("axis", 0)]);
+            let zeros = b.op("ConstantOfShape", &[&zshape], vec![]);
+            let sums = b.op(
+                "ScatterElements",
+                &[&zeros, &radius, &weighted],
+                vec![attr_int("axis", 1), attr_str("reduction", "add")],
+            );
+            let inv: Vec<f32> = (1..=dim).map(|r| 1.0 / counts[r] as f32).collect();
+            let inv = b.f32s("bin_inv_count", &[dim as i64], inv);
+            let radial = b.op("Mul", &[&sums, &inv], vec![]);
             let eps = b.f32s("log_eps", &[1], vec![1e-3]);
             let shifted = b.op("Add", &[&radial, &eps], vec![]);
             let log = b.op("Log", &[&shifted], vec![]);
@@ -270,7 +345,10 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
             b.rename_last_output(OUTPUT_NAME);
         }
         BaselineKind::Pixels => {
-            ensure!(n.is_multiple_of(16), "pixels needs an input size divisible by 16");
+            ensure!(
+                n.is_multiple_of(16),
+                "pixels needs an input size divisible by 16"
+            );
             // Back to 0..255 per channel (a depthwise 1x1 convolution).
             let w: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_STD[c]).collect();
             let bias: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_MEAN[c]).collect();
@@ -301,6 +379,7 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
         dim,
         &spec.arch(),
         "none (fixed descriptor, not trained)",
+        spec.subtract,
     );
     b.finish(n, dim, props)
 }
@@ -346,6 +425,7 @@ mod tests {
                 kind,
                 crop: n as u32,
                 input: n as u32,
+                subtract: false,
             };
             let bytes = descriptor_model(&spec).unwrap();
             let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
@@ -377,20 +457,116 @@ mod tests {
         }
     }
 
+    /// The descriptor by direct f64 DFT (any even n): the reference for
+    /// sizes the Rust FFT does not take.
+    fn radial_reference(grey: &[f64], n: usize) -> Vec<f32> {
+        let mean = grey.iter().sum::<f64>() / grey.len() as f64;
+        let h = hann(n);
+        let x: Vec<f64> = (0..n * n)
+            .map(|i| (grey[i] - mean) * h[i / n] as f64 * h[i % n] as f64)
+            .collect();
+        let (cells, cnt) = radial_bins(n);
+        let mut sum = vec![0f64; n / 2];
+        for &(cell, r) in &cells {
+            let (ky, kx) = (cell / n, cell % n);
+            let (mut re, mut im) = (0f64, 0f64);
+            for y in 0..n {
+                for xx in 0..n {
+                    let a = -2.0 * PI * (((ky * y) % n) as f64 + ((kx * xx) % n) as f64) / n as f64;
+                    re += x[y * n + xx] * a.cos();
+                    im += x[y * n + xx] * a.sin();
+                }
+            }
+            sum[r] += re * re + im * im;
+        }
+        let f: Vec<f64> = (1..n / 2)
+            .map(|r| (sum[r] / cnt[r] as f64 + 1e-3).ln())
+            .collect();
+        let m = f.iter().sum::<f64>() / f.len() as f64;
+        l2(f.iter().map(|v| (v - m) as f32).collect())
+    }
+
+    fn grey_of(img: &[u8]) -> Vec<f64> {
+        img.chunks(3)
+            .map(|p| (0..3).map(|c| GREY[c] as f64 * p[c] as f64).sum())
+            .collect()
+    }
+
     #[test]
-    fn bad_specs_are_refused() {
-        let e = descriptor_model(&DescriptorSpec {
+    fn any_even_size_and_background_subtraction_match_references() {
+        // 48 is no power of two: against the direct f64 DFT.
+        let n = 48;
+        let spec = DescriptorSpec {
+            kind: BaselineKind::Fft,
+            crop: 48,
+            input: 48,
+            subtract: false,
+        };
+        let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
+        let imgs = images(n, 2);
+        for img in &imgs {
+            let mut x = Vec::new();
+            normalize_into(img, n, &mut x);
+            let got = l2(enc.embed(&x).unwrap());
+            let want = radial_reference(&grey_of(img), n);
+            let d = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
+            assert!(d < 1e-3, "n=48: max diff {d}");
+        }
+        // Background subtraction: the model fed normalise(frame) -
+        // normalise(reference) computes the descriptor of frame - reference,
+        // as the Rust descriptor with bgsub does.
+        let n = 64;
+        let spec = DescriptorSpec {
             kind: BaselineKind::Fft,
             crop: 64,
-            input: 48,
-        })
-        .unwrap_err();
-        assert!(e.to_string().contains("power of two"), "{e}");
-        assert!(descriptor_model(&DescriptorSpec {
-            kind: BaselineKind::Lbp,
-            crop: 64,
             input: 64,
+            subtract: true,
+        };
+        let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
+        let imgs = images(n, 2);
+        let (frame, reference) = (&imgs[0], &imgs[1]);
+        let mut x = Vec::new();
+        crate::methods::input_into(frame, Some(reference), n, &mut x);
+        let got = l2(enc.embed(&x).unwrap());
+        let want = Baseline {
+            kind: BaselineKind::Fft,
+            bgsub: true,
+        }
+        .features(frame, n, n, Some(reference));
+        let d = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(d < 1e-3, "subtract: max diff {d}");
+    }
+
+    #[test]
+    fn bad_specs_are_refused() {
+        let spec = |kind, crop, input| DescriptorSpec {
+            kind,
+            crop,
+            input,
+            subtract: false,
+        };
+        let e = descriptor_model(&spec(BaselineKind::Fft, 64, 47)).unwrap_err();
+        assert!(e.to_string().contains("even"), "{e}");
+        assert!(descriptor_model(&spec(BaselineKind::Fft, 300, 64)).is_err());
+        assert!(descriptor_model(&spec(BaselineKind::Lbp, 64, 64)).is_err());
+        // Any even size works for the matrix DFT (the crop need not be a
+        // power of two), and background subtraction is declared.
+        let bytes = descriptor_model(&DescriptorSpec {
+            subtract: true,
+            ..spec(BaselineKind::Fft, 96, 96)
         })
-        .is_err());
+        .unwrap();
+        let enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert_eq!(enc.dim, 47);
+        assert_eq!(enc.meta["telextiles.background"], "subtract");
+        assert_eq!(enc.meta["telextiles.arch"], "fft-radial-c96-bg");
     }
 }

@@ -108,9 +108,13 @@ struct ExportDescriptorArgs {
     /// `fft` (radially averaged log power spectrum) or `pixels`.
     #[arg(long, default_value = "fft")]
     kind: String,
-    /// Centre crop of the frame in px (= input size, a power of two).
+    /// Centre crop of the frame in px (= input size; even, up to 240).
     #[arg(long, default_value_t = 64)]
     crop: u32,
+    /// The model takes the frame minus the no-contact reference
+    /// (`telextiles.background = subtract`).
+    #[arg(long)]
+    subtract: bool,
     /// Output ONNX file.
     #[arg(long)]
     out: PathBuf,
@@ -630,6 +634,7 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
         kind,
         crop: a.crop,
         input: a.crop,
+        subtract: a.subtract,
     };
     let bytes = descriptor_model(&spec)?;
     // Load it back through ONNX Runtime (the contract checks) before writing.

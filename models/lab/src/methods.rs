@@ -30,9 +30,7 @@ pub const FRAME_BUDGET_MS: f64 = 1000.0 / 60.0;
 /// A method on the chart.
 pub enum Method {
     /// A classical descriptor computed in Rust on the `crop` x `crop`
-    /// centre square at native resolution (LBP has no ONNX graph; the
-    /// background-subtracted variants need the sensor's reference, which the
-    /// encoder contract does not carry).
+    /// centre square at native resolution (LBP, which has no ONNX graph).
     Rust {
         /// The descriptor.
         base: Baseline,
@@ -53,6 +51,9 @@ pub enum Method {
         input: u32,
         /// `telextiles.arch`.
         arch: String,
+        /// `telextiles.background = subtract`: the input is the normalised
+        /// frame minus the normalised no-contact reference.
+        subtract: bool,
     },
 }
 
@@ -68,12 +69,18 @@ impl Method {
             .parse()
             .context("telextiles.crop is not a number")?;
         let arch = enc.meta.get("telextiles.arch").cloned().unwrap_or_default();
+        let subtract = match enc.meta.get("telextiles.background").map(String::as_str) {
+            Some("subtract") => true,
+            Some("none") | None => false,
+            Some(other) => anyhow::bail!("model {name}: unknown telextiles.background {other:?}"),
+        };
         Ok(Method::Onnx {
             name,
             bytes,
             crop,
             input: enc.input_size as u32,
             arch,
+            subtract,
         })
     }
 
@@ -110,7 +117,10 @@ impl Method {
 
     /// Whether it needs the sensor's no-contact reference.
     pub fn needs_background(&self) -> bool {
-        matches!(self, Method::Rust { base, .. } if base.bgsub)
+        match self {
+            Method::Rust { base, .. } => base.bgsub,
+            Method::Onnx { subtract, .. } => *subtract,
+        }
     }
 }
 
@@ -148,30 +158,57 @@ impl<'a> Embedder<'a> {
             set.side,
             set.crop
         );
+        let reference = |i: usize| -> Result<Option<&'b [u8]>> {
+            if !self.method.needs_background() {
+                return Ok(None);
+            }
+            let s = set.items[i].sensor;
+            background(s).map(Some).with_context(|| {
+                format!("{}: no reference frame of sensor {s}", self.method.name())
+            })
+        };
         match (&mut self.enc, self.method) {
             (Some(enc), _) => {
-                let emb = crate::protocol::embed_ort(enc, set)?;
-                Ok((emb, enc.dim))
+                let side = set.side;
+                let mut out = Vec::with_capacity(set.len() * enc.dim);
+                let mut x = Vec::new();
+                for start in (0..set.len()).step_by(64) {
+                    let end = (start + 64).min(set.len());
+                    x.clear();
+                    for i in start..end {
+                        input_into(set.image(i), reference(i)?, side, &mut x);
+                    }
+                    out.extend(enc.embed(&x)?);
+                }
+                normalize_rows(&mut out, enc.dim);
+                Ok((out, enc.dim))
             }
             (None, Method::Rust { base, .. }) => {
                 let mut out = Vec::new();
                 let mut dim = 0;
                 for i in 0..set.len() {
-                    let bg = if base.bgsub {
-                        let s = set.items[i].sensor;
-                        Some(background(s).with_context(|| {
-                            format!("{}: no reference frame of sensor {s}", self.method.name())
-                        })?)
-                    } else {
-                        None
-                    };
-                    let f = base.features(set.image(i), set.side, set.side, bg);
+                    let f = base.features(set.image(i), set.side, set.side, reference(i)?);
                     dim = f.len();
                     out.extend(f);
                 }
                 Ok((out, dim))
             }
             (None, Method::Onnx { .. }) => unreachable!("ONNX methods have a session"),
+        }
+    }
+}
+
+/// The model input of one image (HWC u8, `side` x `side`) appended to
+/// `out` as CHW f32: the contract's normalisation, minus the normalised
+/// reference when there is one (`telextiles.background = subtract`).
+pub fn input_into(img: &[u8], reference: Option<&[u8]>, side: usize, out: &mut Vec<f32>) {
+    let base = out.len();
+    normalize_into(img, side, out);
+    if let Some(r) = reference {
+        let mut rn = Vec::with_capacity(3 * side * side);
+        normalize_into(r, side, &mut rn);
+        for (v, r) in out[base..].iter_mut().zip(&rn) {
+            *v -= r;
         }
     }
 }
@@ -245,14 +282,24 @@ pub fn time_method(
             })?;
             Ok(vec![(1, p50, p95)])
         }
-        Method::Onnx { bytes, .. } => threads
+        Method::Onnx {
+            bytes, subtract, ..
+        } => threads
             .iter()
             .map(|&th| {
                 let mut enc = OrtEncoder::from_bytes(bytes, th)?;
                 let mut x = Vec::new();
+                // The reference is normalised once, as the daemon does.
+                let mut rn = Vec::new();
+                if let (true, Some(r)) = (*subtract, bg) {
+                    normalize_into(r, set.side, &mut rn);
+                }
                 let (p50, p95) = time_runs(runs, || {
                     x.clear();
                     normalize_into(img, set.side, &mut x);
+                    for (v, r) in x.iter_mut().zip(&rn) {
+                        *v -= r;
+                    }
                     std::hint::black_box(enc.embed(&x)?);
                     Ok(())
                 })?;

@@ -39,18 +39,24 @@ impl EncoderMeta {
             self.arch.embedding_dim(),
             &self.arch.name(),
             &self.train_data_hash,
+            false,
         )
     }
 }
 
 /// The contract's `telextiles.*` metadata of a model with this input size,
 /// crop, embedding length, architecture name and training-data hash.
+/// `subtract`: the model takes the frame minus the sensor's no-contact
+/// reference (`telextiles.background = subtract`: the input is
+/// `normalise(frame) - normalise(reference)`), else the frame
+/// (`none`).
 pub fn contract_props(
     input: u32,
     crop: u32,
     dim: usize,
     arch: &str,
     train_data_hash: &str,
+    subtract: bool,
 ) -> Vec<(String, String)> {
     let f3 = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
     vec![
@@ -65,7 +71,10 @@ pub fn contract_props(
             "telextiles.train_data_hash".into(),
             train_data_hash.to_string(),
         ),
-        ("telextiles.background".into(), "none".into()),
+        (
+            "telextiles.background".into(),
+            if subtract { "subtract" } else { "none" }.into(),
+        ),
     ]
 }
 

@@ -55,29 +55,35 @@ pub struct BenchConfig {
 /// variants.
 pub fn descriptor_methods() -> Result<Vec<Method>> {
     let mut v = Vec::new();
-    for (kind, crop) in [
-        (BaselineKind::Pixels, 64),
-        (BaselineKind::Fft, 32),
-        (BaselineKind::Fft, 64),
-        (BaselineKind::Fft, 128),
+    for (kind, crop, subtract) in [
+        (BaselineKind::Pixels, 64, false),
+        (BaselineKind::Pixels, 64, true),
+        (BaselineKind::Fft, 32, false),
+        (BaselineKind::Fft, 64, false),
+        (BaselineKind::Fft, 64, true),
+        (BaselineKind::Fft, 96, false),
+        (BaselineKind::Fft, 96, true),
+        (BaselineKind::Fft, 128, false),
+        (BaselineKind::Fft, 128, true),
+        (BaselineKind::Fft, 160, true),
+        (BaselineKind::Fft, 192, false),
+        (BaselineKind::Fft, 192, true),
+        (BaselineKind::Fft, 240, true),
     ] {
         let spec = DescriptorSpec {
             kind,
             crop,
             input: crop,
+            subtract,
         };
         v.push(Method::onnx(spec.arch(), descriptor_model(&spec)?)?);
     }
-    v.push(Method::Rust {
-        base: Baseline {
-            kind: BaselineKind::Lbp,
-            bgsub: false,
-        },
-        crop: 64,
-    });
-    for kind in [BaselineKind::Pixels, BaselineKind::Lbp, BaselineKind::Fft] {
+    for bgsub in [false, true] {
         v.push(Method::Rust {
-            base: Baseline { kind, bgsub: true },
+            base: Baseline {
+                kind: BaselineKind::Lbp,
+                bgsub,
+            },
             crop: 64,
         });
     }
