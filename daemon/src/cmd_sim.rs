@@ -50,7 +50,7 @@ struct PressArgs {
     force: Option<f32>,
     /// Tilt about the sensor's x and y axes in degrees, e.g. `--tilt 1.5,-0.5`
     /// (default: drawn from the jig's or the person's steadiness).
-    #[arg(long, value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     tilt: Option<Vec<f32>>,
     /// Number of frames.
     #[arg(long, default_value_t = telextiles_sim::PRESS_FRAMES)]
@@ -127,6 +127,11 @@ fn press(a: PressArgs) -> Result<()> {
     let (Some(textile), Some(out)) = (a.textile, a.out) else {
         bail!("usage: telextilesd sim --textile <id> --seed <n> --out <dir> (or a subcommand: dataset, contact-sheet, list)");
     };
+    let tilt_deg = match a.tilt.as_deref() {
+        None => None,
+        Some(&[x, y]) => Some([x, y]),
+        Some(t) => bail!("--tilt takes two angles, x,y in degrees (got {t:?})"),
+    };
     let sim = Simulator::new()?;
     let spec = PressSpec {
         person: a.person,
@@ -134,7 +139,7 @@ fn press(a: PressArgs) -> Result<()> {
         jig: !a.no_jig,
         rotation_deg: a.rotation,
         force: a.force,
-        tilt_deg: a.tilt.map(|t| [t[0], t[1]]),
+        tilt_deg,
         frames: a.frames,
         noise: !a.no_noise,
         ..PressSpec::new(textile, a.seed)
@@ -323,6 +328,26 @@ mod tests {
         let o = tmp.path().join("x");
         let e = run(parse(&["--textile", "X9", "--out", o.to_str().unwrap()])).unwrap_err();
         assert!(e.to_string().contains("X9"), "{e}");
+        let e = run(parse(&[
+            "--textile",
+            "T001",
+            "--tilt",
+            "1",
+            "--out",
+            o.to_str().unwrap(),
+        ]))
+        .unwrap_err();
+        assert!(e.to_string().contains("two angles"), "{e}");
+        let e = run(parse(&[
+            "--textile",
+            "T001",
+            "--tilt",
+            "30,0",
+            "--out",
+            o.to_str().unwrap(),
+        ]))
+        .unwrap_err();
+        assert!(e.to_string().contains("tilt"), "{e}");
         let e = run(parse(&["--textile", "T001"])).unwrap_err();
         assert!(e.to_string().contains("--out"), "{e}");
         assert!(Cli::try_parse_from(["sim", "--jig", "--no-jig"]).is_err());

@@ -1,8 +1,11 @@
-//! The shipped encoder `models/encoder.onnx` (trained by `telextiles-lab`)
-//! against the daemon's own encoder loader and preprocessing (real ONNX
-//! Runtime): it passes the contract checks, gives unit-norm 128-d
-//! embeddings, and frames of one jig press of a simulated textile are closer
-//! to each other than to frames of other textiles.
+//! The shipped encoder `models/encoder.onnx` (the knee of the
+//! speed-vs-accuracy frontier, docs/benchmarks.md: the radially averaged log
+//! power spectrum of the 192x192 centre crop minus the no-contact reference,
+//! written by `telextiles-lab export-descriptor`) against the daemon's own
+//! encoder loader and preprocessing (real ONNX Runtime): it passes the
+//! contract checks, gives unit-norm 95-d embeddings, and frames of one press
+//! of a simulated textile are closer to each other than to frames of other
+//! textiles, across people and sensor units.
 
 use std::path::PathBuf;
 
@@ -20,22 +23,26 @@ fn cos(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 fn shipped_encoder_loads_in_the_daemon_and_separates_presses() {
     let mut enc = Encoder::open(&shipped_model(), &EncoderOptions::default()).unwrap();
-    assert_eq!(enc.dim(), 128);
-    assert_eq!(enc.info().arch, "resnet-d1111-w16-s64");
-    assert_eq!(enc.info().preprocess.crop, 64);
-    assert_eq!(enc.info().preprocess.size, 64);
+    assert_eq!(enc.dim(), 95);
+    assert_eq!(enc.info().arch, "fft-radial-c192-bg");
+    assert_eq!(enc.info().background, "subtract");
+    assert_eq!(enc.info().preprocess.crop, 192);
+    assert_eq!(enc.info().preprocess.size, 192);
     let sim = Simulator::new().unwrap();
     let mut per_textile = Vec::new();
     for id in ["T005", "T047", "T090"] {
-        let spec = PressSpec {
-            person: 9,
-            sensor: 0,
-            ..PressSpec::new(id, 77)
-        };
-        let meta = sim.press_meta(&spec).unwrap();
-        let hold = meta.params.as_ref().unwrap().hold_frame as usize;
+        // Two presses of each textile by different people on different
+        // sensor units, each against its own unit's no-contact frame.
         let mut embs = Vec::new();
-        for f in [hold + 2, hold + 12] {
+        for (person, sensor, seed) in [(9, 0, 77), (3, 5, 78)] {
+            let spec = PressSpec {
+                person,
+                sensor,
+                ..PressSpec::new(id, seed)
+            };
+            enc.set_reference(&sim.background(sensor)).unwrap();
+            let meta = sim.press_meta(&spec).unwrap();
+            let f = meta.params.as_ref().unwrap().hold_frame as usize + 10;
             let e = enc
                 .encode(&sim.render_frame(&spec, f).unwrap())
                 .unwrap()
@@ -53,7 +60,7 @@ fn shipped_encoder_loads_in_the_daemon_and_separates_presses() {
                 let other = cos(&a[0], &b[0]);
                 assert!(
                     same > other,
-                    "textile {i}: same-press cos {same} <= cos to textile {j} {other}"
+                    "textile {i}: cos across people {same} <= cos to textile {j} {other}"
                 );
             }
         }

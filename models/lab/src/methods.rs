@@ -457,31 +457,24 @@ pub fn pareto(results: &[MethodResult]) -> Vec<usize> {
         .collect()
 }
 
-/// The knee of the Pareto frontier among the methods that fit the 60 fps
-/// frame budget on one thread: with the frontier's latency (log scale) and
-/// accuracy each scaled to 0..1, the point farthest above the line from
-/// the fastest to the most accurate frontier point (Kneedle). Beyond it,
-/// each step up in accuracy costs more time than the steps before it; when
-/// no frontier point lies above that line the most accurate one is taken.
+/// The knee of the Pareto frontier: among the frontier methods that fit the
+/// 60 fps frame budget on one thread, the one that maximises accuracy minus
+/// the share of the frame budget it uses (`press_top1 - ms / 16.7`). That is
+/// where the frontier's slope falls to one percentage point of accuracy per
+/// one percent of the frame budget (the tangent of slope 100 % per 16.7 ms):
+/// every step before it buys more accuracy than budget, every step after it
+/// less. The two axes the chart is judged by, accuracy (0-100 %) and the
+/// frame budget (0-16.7 ms), are weighed one for one.
 pub fn knee(results: &[MethodResult]) -> Option<usize> {
-    let mut front: Vec<usize> = pareto(results)
+    pareto(results)
         .into_iter()
         .filter(|&i| results[i].ms() <= FRAME_BUDGET_MS && results[i].press_top1.is_finite())
-        .collect();
-    front.sort_by(|&a, &b| results[a].ms().total_cmp(&results[b].ms()));
-    let (first, last) = (*front.first()?, *front.last()?);
-    let x = |i: usize| results[i].ms().max(1e-6).log10();
-    let y = |i: usize| results[i].press_top1;
-    let (x0, x1, y0, y1) = (x(first), x(last), y(first), y(last));
-    if front.len() < 3 || x1 <= x0 || y1 <= y0 {
-        return Some(last);
-    }
-    let score = |i: usize| (y(i) - y0) / (y1 - y0) - (x(i) - x0) / (x1 - x0);
-    let best = front
-        .iter()
-        .copied()
-        .max_by(|&a, &b| score(a).total_cmp(&score(b)))?;
-    Some(if score(best) > 1e-9 { best } else { last })
+        .max_by(|&a, &b| knee_score(&results[a]).total_cmp(&knee_score(&results[b])))
+}
+
+/// Accuracy minus the share of the frame budget ([`knee`]).
+pub fn knee_score(r: &MethodResult) -> f64 {
+    r.press_top1 - r.ms() / FRAME_BUDGET_MS
 }
 
 /// The markdown table.
@@ -576,6 +569,19 @@ pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()
             .label("Pareto frontier")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         if let Some(k) = knee(results) {
+            // Methods on this curve are worth as much as the knee: one
+            // percentage point of accuracy per 1 % of the frame budget.
+            let v = knee_score(&results[k]);
+            let steps = 200;
+            let curve: Vec<(f64, f64)> = (0..=steps)
+                .map(|i| xmin * (xmax / xmin).powf(i as f64 / steps as f64))
+                .map(|x| (x, 100.0 * (v + x / FRAME_BUDGET_MS)))
+                .filter(|p| p.1 <= 100.0)
+                .collect();
+            c.draw_series(LineSeries::new(curve, GREEN.mix(0.5).stroke_width(1)))
+                .map_err(e)?
+                .label("as good as the knee: +1 point of accuracy per +1 % of the budget")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN.mix(0.5)));
             let p = (results[k].ms(), 100.0 * results[k].press_top1);
             c.draw_series(std::iter::once(Circle::new(p, 11, GREEN.stroke_width(3))))
                 .map_err(e)?
@@ -603,7 +609,7 @@ pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()
         c.configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
+            .position(SeriesLabelPosition::LowerRight)
             .draw()
             .map_err(e)?;
         root.present().map_err(e)?;

@@ -61,13 +61,13 @@ pub fn descriptor_methods() -> Result<Vec<Method>> {
         (BaselineKind::Fft, 32, false),
         (BaselineKind::Fft, 64, false),
         (BaselineKind::Fft, 64, true),
-        (BaselineKind::Fft, 96, false),
         (BaselineKind::Fft, 96, true),
         (BaselineKind::Fft, 128, false),
         (BaselineKind::Fft, 128, true),
         (BaselineKind::Fft, 160, true),
         (BaselineKind::Fft, 192, false),
         (BaselineKind::Fft, 192, true),
+        (BaselineKind::Fft, 224, true),
         (BaselineKind::Fft, 240, true),
     ] {
         let spec = DescriptorSpec {
