@@ -507,16 +507,17 @@ fn embed_set_raw(encoder: &telextiles_lab::model::Encoder, set: &ImageSet) -> Re
 }
 
 fn eval(a: EvalArgs) -> Result<()> {
-    let mut enc = OrtEncoder::from_file(&a.model, a.ort_threads)?;
-    ensure!(
-        enc.input_size as u32 == a.data.input,
-        "model input {} differs from --input {}",
-        enc.input_size,
-        a.data.input
-    );
-    let p = a.data.protocol();
+    let bytes =
+        std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
+    let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes)?;
+    // The model's own crop and input size (its metadata), whatever
+    // --input/--crop say.
+    let (crop, input) = m.view();
+    let mut p = a.data.protocol();
+    p.crop = crop;
+    p.input = input;
     let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
-    let report = protocol::evaluate(&mut enc, &sets, &p)?;
+    let report = protocol::evaluate(&m, &sets, &p, a.ort_threads)?;
     println!("{}", report.markdown(&a.model));
     if let Some(j) = a.json {
         write_atomic(&j, serde_json::to_string_pretty(&report)?.as_bytes())?;

@@ -11,9 +11,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use crate::data::{build_sets, hex, FrameSource, ImageSet, PressKey, PressPlan};
-use crate::knn::{knn_score, normalize_rows, top_k, KnnScore};
-use crate::onnx::OrtEncoder;
-use crate::preprocess::normalize_into;
+use crate::knn::{knn_score, top_k, KnnScore};
 use crate::train::INDEX_FRAMES;
 
 /// Which frame source to use.
@@ -371,21 +369,6 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
     })
 }
 
-/// Embed an input set through ONNX Runtime (L2-normalised rows).
-pub fn embed_ort(enc: &mut OrtEncoder, set: &ImageSet) -> Result<Vec<f32>> {
-    let mut out = Vec::with_capacity(set.len() * enc.dim);
-    for start in (0..set.len()).step_by(64) {
-        let end = (start + 64).min(set.len());
-        let mut x = Vec::new();
-        for i in start..end {
-            normalize_into(set.image(i), set.side, &mut x);
-        }
-        out.extend(enc.embed(&x)?);
-    }
-    normalize_rows(&mut out, enc.dim);
-    Ok(out)
-}
-
 /// One row of a results table.
 #[derive(Clone, Debug, Serialize)]
 pub struct Row {
@@ -453,13 +436,21 @@ fn cat(a: (Vec<f32>, Vec<u32>), b: (Vec<f32>, Vec<u32>)) -> (Vec<f32>, Vec<u32>)
     )
 }
 
-/// Run the whole evaluation with an ONNX Runtime encoder.
-pub fn evaluate(enc: &mut OrtEncoder, sets: &Sets, p: &Protocol) -> Result<Report> {
-    let d = enc.dim;
-    let e_train = embed_ort(enc, &sets.train_index)?;
-    let e_held = embed_ort(enc, &sets.heldout)?;
-    let e_hand = embed_ort(enc, &sets.handheld)?;
-    let e_unseen = embed_ort(enc, &sets.unseen)?;
+/// Run the whole evaluation with an ONNX model through ONNX Runtime (`sets`
+/// in the model's view; a background-subtracting model gets each frame's
+/// sensor reference from `sets.backgrounds`).
+pub fn evaluate(
+    model: &crate::methods::Method,
+    sets: &Sets,
+    p: &Protocol,
+    threads: usize,
+) -> Result<Report> {
+    let mut enc = crate::methods::Embedder::new(model, threads)?;
+    let bg = |s: u32| sets.background(s);
+    let (e_train, d) = enc.embed(&sets.train_index, bg)?;
+    let (e_held, _) = enc.embed(&sets.heldout, bg)?;
+    let (e_hand, _) = enc.embed(&sets.handheld, bg)?;
+    let (e_unseen, _) = enc.embed(&sets.unseen, bg)?;
     let is_idx = |m: &crate::data::FrameMeta| m.frame < INDEX_FRAMES;
     let is_q = |m: &crate::data::FrameMeta| m.frame >= INDEX_FRAMES;
     let mut across = Vec::new();
