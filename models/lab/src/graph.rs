@@ -204,6 +204,10 @@ pub struct DescriptorSpec {
     /// reference only removes what the mean subtraction and the window do
     /// not (the static LED pattern under the crop).
     pub subtract: bool,
+    /// `fft`: the lowest radius bin kept (1: everything but DC; higher
+    /// values drop the coarsest scales, where illumination gradients and
+    /// the background's own pattern live).
+    pub min_bin: u32,
 }
 
 impl DescriptorSpec {
@@ -215,17 +219,22 @@ impl DescriptorSpec {
             BaselineKind::Lbp => "lbp-riu2",
         };
         let bg = if self.subtract { "-bg" } else { "" };
-        if self.crop == self.input {
-            format!("{k}-c{}{bg}", self.crop)
+        let r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
+            format!("-r{}", self.min_bin)
         } else {
-            format!("{k}-c{}-s{}{bg}", self.crop, self.input)
+            String::new()
+        };
+        if self.crop == self.input {
+            format!("{k}-c{}{r}{bg}", self.crop)
+        } else {
+            format!("{k}-c{}-s{}{r}{bg}", self.crop, self.input)
         }
     }
 
     /// Length of the descriptor.
     pub fn dim(&self) -> usize {
         match self.kind {
-            BaselineKind::Fft => self.input as usize / 2 - 1,
+            BaselineKind::Fft => self.input as usize / 2 - self.min_bin.max(1) as usize,
             BaselineKind::Pixels => 16 * 16 * 3,
             BaselineKind::Lbp => 30,
         }
@@ -245,6 +254,12 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
     ensure!(
         n % 2 == 0 && (16..=240).contains(&n),
         "descriptor input size {n} must be even, in 16..=240"
+    );
+    ensure!(
+        spec.min_bin >= 1 && (spec.min_bin as usize) < n / 4,
+        "min_bin {} must be in 1..{}",
+        spec.min_bin,
+        n / 4
     );
     ensure!(
         spec.crop >= spec.input && spec.crop <= 240,
@@ -305,10 +320,11 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
             // but ky = 0 and n/2) by 2, sum per bin (scatter-add), divide by
             // the bin's full-plane cell count.
             let (_, counts) = radial_bins(n);
+            let r0 = spec.min_bin.max(1) as usize;
             let (mut cells, mut radius, mut weight) = (Vec::new(), Vec::new(), Vec::new());
-            for (cell, r) in half_plane_bins(n) {
+            for (cell, r) in half_plane_bins(n).into_iter().filter(|&(_, r)| r >= r0) {
                 cells.push(cell as i32);
-                radius.push((r - 1) as i32);
+                radius.push((r - r0) as i32);
                 weight.push(if cell / n == 0 || cell / n == n / 2 {
                     1.0
                 } else {
@@ -333,7 +349,7 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
                 &[&zeros, &radius, &weighted],
                 vec![attr_int("axis", 1), attr_str("reduction", "add")],
             );
-            let inv: Vec<f32> = (1..=dim).map(|r| 1.0 / counts[r] as f32).collect();
+            let inv: Vec<f32> = (r0..r0 + dim).map(|r| 1.0 / counts[r] as f32).collect();
             let inv = b.f32s("bin_inv_count", &[dim as i64], inv);
             let radial = b.op("Mul", &[&sums, &inv], vec![]);
             let eps = b.f32s("log_eps", &[1], vec![1e-3]);
@@ -426,6 +442,7 @@ mod tests {
                 crop: n as u32,
                 input: n as u32,
                 subtract: false,
+                min_bin: 1,
             };
             let bytes = descriptor_model(&spec).unwrap();
             let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
@@ -459,7 +476,7 @@ mod tests {
 
     /// The descriptor by direct f64 DFT (any even n): the reference for
     /// sizes the Rust FFT does not take.
-    fn radial_reference(grey: &[f64], n: usize) -> Vec<f32> {
+    fn radial_reference(grey: &[f64], n: usize, r0: usize) -> Vec<f32> {
         let mean = grey.iter().sum::<f64>() / grey.len() as f64;
         let h = hann(n);
         let x: Vec<f64> = (0..n * n)
@@ -479,7 +496,7 @@ mod tests {
             }
             sum[r] += re * re + im * im;
         }
-        let f: Vec<f64> = (1..n / 2)
+        let f: Vec<f64> = (r0..n / 2)
             .map(|r| (sum[r] / cnt[r] as f64 + 1e-3).ln())
             .collect();
         let m = f.iter().sum::<f64>() / f.len() as f64;
@@ -501,6 +518,7 @@ mod tests {
             crop: 48,
             input: 48,
             subtract: false,
+            min_bin: 1,
         };
         let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
         let imgs = images(n, 2);
@@ -508,7 +526,7 @@ mod tests {
             let mut x = Vec::new();
             normalize_into(img, n, &mut x);
             let got = l2(enc.embed(&x).unwrap());
-            let want = radial_reference(&grey_of(img), n);
+            let want = radial_reference(&grey_of(img), n, 1);
             let d = got
                 .iter()
                 .zip(&want)
@@ -516,6 +534,21 @@ mod tests {
                 .fold(0f32, f32::max);
             assert!(d < 1e-3, "n=48: max diff {d}");
         }
+        // Dropping the coarsest bins (min_bin 4): bins 4..24, centred anew.
+        let spec = DescriptorSpec { min_bin: 4, ..spec };
+        assert_eq!(spec.arch(), "fft-radial-c48-r4");
+        let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
+        assert_eq!(enc.dim, 20);
+        let mut x = Vec::new();
+        normalize_into(&imgs[0], n, &mut x);
+        let got = l2(enc.embed(&x).unwrap());
+        let want = radial_reference(&grey_of(&imgs[0]), n, 4);
+        let d = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(d < 1e-3, "min_bin 4: max diff {d}");
         // Background subtraction: the model fed normalise(frame) -
         // normalise(reference) computes the descriptor of frame - reference,
         // as the Rust descriptor with bgsub does.
@@ -525,6 +558,7 @@ mod tests {
             crop: 64,
             input: 64,
             subtract: true,
+            min_bin: 1,
         };
         let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
         let imgs = images(n, 2);
@@ -552,6 +586,7 @@ mod tests {
             crop,
             input,
             subtract: false,
+            min_bin: 1,
         };
         let e = descriptor_model(&spec(BaselineKind::Fft, 64, 47)).unwrap_err();
         assert!(e.to_string().contains("even"), "{e}");
@@ -561,6 +596,7 @@ mod tests {
         // power of two), and background subtraction is declared.
         let bytes = descriptor_model(&DescriptorSpec {
             subtract: true,
+            min_bin: 1,
             ..spec(BaselineKind::Fft, 96, 96)
         })
         .unwrap();

@@ -88,6 +88,10 @@ struct BenchArgs {
     /// Skip the stability suite.
     #[arg(long)]
     no_stability: bool,
+    /// Stability factors to run (default: all): rotation, force, tilt,
+    /// handheld, led, sensor, noise, stale, unseen.
+    #[arg(long, value_delimiter = ',')]
+    factors: Vec<String>,
     /// Consecutive hold frames per stability query press.
     #[arg(long, default_value_t = 8)]
     stability_frames: usize,
@@ -115,6 +119,9 @@ struct ExportDescriptorArgs {
     /// (`telextiles.background = subtract`).
     #[arg(long)]
     subtract: bool,
+    /// `fft`: the lowest radius bin kept (1 keeps all but DC).
+    #[arg(long, default_value_t = 1)]
+    min_bin: u32,
     /// Output ONNX file.
     #[arg(long)]
     out: PathBuf,
@@ -529,7 +536,7 @@ fn eval(a: EvalArgs) -> Result<()> {
 fn bench_cmd(a: BenchArgs) -> Result<()> {
     use telextiles_lab::methods::Method;
     use telextiles_lab::report::{self, BenchConfig};
-    use telextiles_lab::stability::SuiteConfig;
+    use telextiles_lab::stability::{Factor, SuiteConfig};
     let mut list = if a.no_descriptors {
         Vec::new()
     } else {
@@ -574,13 +581,25 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         models,
         time_threads: a.time_threads.clone(),
         runs: a.runs,
-        stability: (!a.no_stability).then(|| SuiteConfig {
-            textiles: a.data.textiles,
-            frames: a.stability_frames,
-            threads: a.data.threads,
-            quick: a.quick,
-            ..SuiteConfig::default()
-        }),
+        stability: if a.no_stability {
+            None
+        } else {
+            let mut sc = SuiteConfig {
+                textiles: a.data.textiles,
+                frames: a.stability_frames,
+                threads: a.data.threads,
+                quick: a.quick,
+                ..SuiteConfig::default()
+            };
+            if !a.factors.is_empty() {
+                sc.factors = a
+                    .factors
+                    .iter()
+                    .map(|f| Factor::parse(f))
+                    .collect::<Result<_>>()?;
+            }
+            Some(sc)
+        },
         decision_frames: a.decision_frames,
         roller,
         out: a.out.clone(),
@@ -636,6 +655,7 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
         crop: a.crop,
         input: a.crop,
         subtract: a.subtract,
+        min_bin: a.min_bin,
     };
     let bytes = descriptor_model(&spec)?;
     // Load it back through ONNX Runtime (the contract checks) before writing.

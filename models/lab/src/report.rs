@@ -75,6 +75,7 @@ pub fn descriptor_methods() -> Result<Vec<Method>> {
             crop,
             input: crop,
             subtract,
+            min_bin: 1,
         };
         v.push(Method::onnx(spec.arch(), descriptor_model(&spec)?)?);
     }

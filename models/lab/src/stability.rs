@@ -70,6 +70,25 @@ impl Factor {
         Factor::Unseen,
     ];
 
+    /// From its command-line name (rotation, force, tilt, handheld, led,
+    /// sensor, noise, stale, unseen).
+    pub fn parse(s: &str) -> Result<Factor> {
+        Ok(match s {
+            "rotation" => Factor::Rotation,
+            "force" => Factor::Force,
+            "tilt" => Factor::Tilt,
+            "handheld" => Factor::HandHeld,
+            "led" => Factor::LedDrift,
+            "sensor" => Factor::SensorSwap,
+            "noise" => Factor::Noise,
+            "stale" => Factor::StaleBackground,
+            "unseen" => Factor::Unseen,
+            _ => anyhow::bail!(
+                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, noise, stale, unseen)"
+            ),
+        })
+    }
+
     /// Axis label.
     pub fn label(&self) -> &'static str {
         match self {
