@@ -252,7 +252,7 @@ pub fn hann(n: usize) -> Vec<f32> {
 pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
     let n = spec.input as usize;
     ensure!(
-        n % 2 == 0 && (16..=240).contains(&n),
+        n.is_multiple_of(2) && (16..=240).contains(&n),
         "descriptor input size {n} must be even, in 16..=240"
     );
     ensure!(
