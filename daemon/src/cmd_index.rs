@@ -39,6 +39,10 @@ pub struct BuildArgs {
     /// Simulated people (0..N) whose presses build the index (with --sim).
     #[arg(long, default_value_t = 3)]
     pub people: u32,
+    /// Simulated sensor units every person presses with (with --sim):
+    /// several units make the index hold up on a DIGIT it has not seen.
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    pub sensors: Vec<u32>,
     /// Also index the unseen sample book (with --sim; off by default, so
     /// that unseen textiles stay unknown to the index).
     #[arg(long)]
@@ -227,13 +231,14 @@ fn build(a: BuildArgs) -> Result<()> {
         }
     } else if a.sim {
         let sim = Simulator::new()?;
-        let mut protocol = Protocol::paper();
-        protocol.people = a.people;
-        protocol.sensors = vec![0];
-        protocol.jig = vec![true];
-        if !a.include_unseen {
-            protocol.books = vec![Book::Training];
-        }
+        let protocol = sim_protocol(
+            &a,
+            if a.include_unseen {
+                None
+            } else {
+                Some(Book::Training)
+            },
+        )?;
         let total = protocol.len(&cat);
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
@@ -278,11 +283,7 @@ fn build(a: BuildArgs) -> Result<()> {
     let mut unseen = Vec::new();
     if a.sim && !a.include_unseen {
         let sim = Simulator::new()?;
-        let mut protocol = Protocol::paper();
-        protocol.people = a.people;
-        protocol.sensors = vec![0];
-        protocol.jig = vec![true];
-        protocol.books = vec![Book::Unseen];
+        let protocol = sim_protocol(&a, Some(Book::Unseen))?;
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
             let embs = press_embeddings(&mut enc, &press, a.stride)?;
@@ -296,6 +297,22 @@ fn build(a: BuildArgs) -> Result<()> {
 }
 
 /// The L2-normalised mean of L2-normalised vectors (None when empty).
+/// The simulated presses of `--sim`: every person (0..people) on every
+/// sensor unit, jig, one press per textile of `book` (both books: None).
+fn sim_protocol(a: &BuildArgs, book: Option<Book>) -> Result<Protocol> {
+    if a.people == 0 || a.sensors.is_empty() {
+        bail!("--people and --sensors must name at least one simulated person and sensor");
+    }
+    let mut protocol = Protocol::paper();
+    protocol.people = a.people;
+    protocol.sensors = a.sensors.clone();
+    protocol.jig = vec![true];
+    if let Some(b) = book {
+        protocol.books = vec![b];
+    }
+    Ok(protocol)
+}
+
 fn mean_normalised(v: &[Vec<f32>]) -> Option<Vec<f32>> {
     let first = v.first()?;
     let mut m = vec![0.0f32; first.len()];
@@ -441,6 +458,48 @@ mod tests {
                 (m, w.filter_map(|x| x.parse().ok()).collect())
             })
             .collect()
+    }
+
+    #[test]
+    fn simulated_index_presses_cover_every_person_on_every_sensor() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            b: BuildArgs,
+        }
+        use clap::Parser;
+        let parse = |args: &[&str]| {
+            Cli::try_parse_from(
+                ["index-build", "--model", "m.onnx", "--sim"]
+                    .iter()
+                    .chain(args),
+            )
+            .unwrap()
+            .b
+        };
+        let cat = telextiles_sim::Catalogue::builtin();
+        let a = parse(&["--people", "2", "--sensors", "0,3,5"]);
+        assert_eq!(a.sensors, vec![0, 3, 5]);
+        let p = sim_protocol(&a, Some(Book::Training)).unwrap();
+        let specs: Vec<_> = p.specs(&cat).collect();
+        assert_eq!(specs.len(), 119 * 2 * 3);
+        let mut combos: Vec<(u32, u32)> = specs.iter().map(|s| (s.person, s.sensor)).collect();
+        combos.sort_unstable();
+        combos.dedup();
+        assert_eq!(combos.len(), 6);
+        assert!(specs.iter().all(|s| s.jig && s.textile.starts_with('T')));
+        // The default stays one unit (sensor 0); unseen presses for coverage.
+        let d = parse(&[]);
+        assert_eq!(d.sensors, vec![0]);
+        let u: Vec<_> = sim_protocol(&d, Some(Book::Unseen))
+            .unwrap()
+            .specs(&cat)
+            .collect();
+        assert!(u
+            .iter()
+            .all(|s| s.textile.starts_with('U') && s.sensor == 0));
+        let none = parse(&["--people", "0"]);
+        assert!(sim_protocol(&none, None).is_err());
     }
 
     #[test]

@@ -16,7 +16,8 @@
 //! Factors: in-plane rotation (15° steps over 360°), force, tilt (jig),
 //! hand-held presses (people 0..5, no jig), LED intensity drift (every
 //! channel of the frame scaled: the LEDs light both the gel and the
-//! background), sensor swap (queries on other units, index from sensor 0),
+//! background), sensor swap (queries on other units, index from sensor 0;
+//! and again with the index pooled over units 0..=3),
 //! extra camera noise, a stale background (the sensor's no-contact image
 //! shifted since the reference was taken; background-subtracting methods
 //! keep subtracting the old reference) and unseen textiles (scored by the
@@ -48,6 +49,9 @@ pub enum Factor {
     LedDrift,
     /// Sensor unit of the queries (the index is from sensor 0).
     SensorSwap,
+    /// Sensor unit of the queries, the index pooled over units 0..=3 (as
+    /// a manufacturer would build it with several sensors).
+    SensorPool,
     /// Extra Gaussian camera noise, DN (standard deviation).
     Noise,
     /// Shift of the no-contact background since the reference, px.
@@ -58,13 +62,14 @@ pub enum Factor {
 
 impl Factor {
     /// All factors in table order.
-    pub const ALL: [Factor; 9] = [
+    pub const ALL: [Factor; 10] = [
         Factor::Rotation,
         Factor::Force,
         Factor::Tilt,
         Factor::HandHeld,
         Factor::LedDrift,
         Factor::SensorSwap,
+        Factor::SensorPool,
         Factor::Noise,
         Factor::StaleBackground,
         Factor::Unseen,
@@ -80,11 +85,12 @@ impl Factor {
             "handheld" => Factor::HandHeld,
             "led" => Factor::LedDrift,
             "sensor" => Factor::SensorSwap,
+            "sensors" => Factor::SensorPool,
             "noise" => Factor::Noise,
             "stale" => Factor::StaleBackground,
             "unseen" => Factor::Unseen,
             _ => anyhow::bail!(
-                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, noise, stale, unseen)"
+                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, sensors, noise, stale, unseen)"
             ),
         })
     }
@@ -98,6 +104,7 @@ impl Factor {
             Factor::HandHeld => "hand-held, person",
             Factor::LedDrift => "LED intensity (gain)",
             Factor::SensorSwap => "query sensor unit (index: 0)",
+            Factor::SensorPool => "query sensor unit (index: units 0-3)",
             Factor::Noise => "extra camera noise (DN, σ)",
             Factor::StaleBackground => "background shift since reference (px)",
             Factor::Unseen => "unseen textiles",
@@ -126,8 +133,8 @@ impl Factor {
             (Factor::HandHeld, true) => vec![0.0],
             (Factor::LedDrift, false) => vec![0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4],
             (Factor::LedDrift, true) => vec![0.7, 1.0],
-            (Factor::SensorSwap, false) => (0..8).map(f64::from).collect(),
-            (Factor::SensorSwap, true) => vec![0.0, 4.0],
+            (Factor::SensorSwap | Factor::SensorPool, false) => (0..8).map(f64::from).collect(),
+            (Factor::SensorSwap | Factor::SensorPool, true) => vec![0.0, 4.0],
             (Factor::Noise, false) => vec![0.0, 2.0, 4.0, 8.0, 12.0, 16.0, 24.0],
             (Factor::Noise, true) => vec![0.0, 8.0],
             (Factor::StaleBackground, false) => vec![0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0],
@@ -475,7 +482,7 @@ fn level_plans(
                     class,
                     Post::None,
                 ),
-                Factor::SensorSwap => plan(
+                Factor::SensorSwap | Factor::SensorPool => plan(
                     PressSpec {
                         sensor: value as u32,
                         ..b
@@ -617,6 +624,30 @@ pub fn run_suite(
         })
         .collect();
     let index_set = render(sim, &classes, &index_plans, 6, cfg.threads)?;
+    // The pooled index of `SensorPool`: the same presses on units 0..=3.
+    let pooled_set = if cfg.factors.contains(&Factor::SensorPool) {
+        let plans: Vec<Plan> = textiles
+            .iter()
+            .enumerate()
+            .flat_map(|(c, t)| {
+                (0..4u32).flat_map(move |sensor| {
+                    (0..2).map(move |k| Plan {
+                        spec: PressSpec {
+                            sensor,
+                            ..base_spec(t, 7000 + k)
+                        },
+                        class: c as u32,
+                        consecutive: None,
+                        from_contact: false,
+                        post: Post::None,
+                    })
+                })
+            })
+            .collect();
+        Some(render(sim, &classes, &plans, 6, cfg.threads)?)
+    } else {
+        None
+    };
     let sensors: Vec<u32> = (0..8).collect();
     let refs = references(sim, &sensors)?;
     render_s += t0.elapsed().as_secs_f64();
@@ -633,10 +664,19 @@ pub fn run_suite(
         let r = view_set(&refs, crop, input)?;
         let (emb, dim) = e.embed(&v, |s| background_of(&r, s))?;
         let labels: Vec<u32> = v.items.iter().map(|m| m.class).collect();
-        indexes.push((emb, labels, dim, r));
+        let pooled = match &pooled_set {
+            Some(p) => {
+                let v = view_set(p, crop, input)?;
+                let (emb, _) = e.embed(&v, |s| background_of(&r, s))?;
+                Some((emb, v.items.iter().map(|m| m.class).collect::<Vec<u32>>()))
+            }
+            None => None,
+        };
+        indexes.push((emb, labels, dim, r, pooled));
     }
     embed_s += t1.elapsed().as_secs_f64();
     drop(index_set);
+    drop(pooled_set);
     let mut out: Vec<MethodStability> = methods
         .iter()
         .map(|m| MethodStability {
@@ -655,7 +695,11 @@ pub fn run_suite(
             for (mi, (m, e)) in methods.iter().zip(embedders.iter_mut()).enumerate() {
                 let (crop, input) = m.view();
                 let v = view_set(&set, crop, input)?;
-                let (index, labels, dim, refs) = &indexes[mi];
+                let (index, labels, dim, refs, pooled) = &indexes[mi];
+                let (index, labels) = match (factor, pooled) {
+                    (Factor::SensorPool, Some((pi, pl))) => (pi, pl),
+                    _ => (index, labels),
+                };
                 let (qe, _) = e.embed(&v, |s| background_of(refs, s))?;
                 let r: &dyn Fn(u32, u32) -> usize = &rank;
                 curves[mi].push(score_level(
@@ -711,7 +755,7 @@ pub fn failure_point(curve: &FactorCurve, threshold: f64) -> String {
                 s.attr_rank_median.map_or("-".into(), |r| format!("{r:.0}"))
             )
         }
-        Factor::HandHeld | Factor::SensorSwap => {
+        Factor::HandHeld | Factor::SensorSwap | Factor::SensorPool => {
             let bad: Vec<String> = lv
                 .iter()
                 .filter(|s| fails(s))
@@ -877,7 +921,7 @@ pub fn charts(
         .filter(|f| *f != Factor::Unseen)
         .collect();
     for (svg, flips) in [(accuracy_svg, false), (flips_svg, true)] {
-        let root = SVGBackend::new(svg, (1400, 760)).into_drawing_area();
+        let root = SVGBackend::new(svg, (1750, 760)).into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
         let (title, body) = root.split_vertically(40);
         title
@@ -891,7 +935,7 @@ pub fn charts(
                 ("sans-serif", 20),
             ))
             .map_err(|x| e(Box::new(x)))?;
-        let panels = body.split_evenly((2, 4));
+        let panels = body.split_evenly((2, 5));
         for (pi, (panel, f)) in panels.iter().zip(&factors).enumerate() {
             let levels: Vec<f64> = methods
                 .first()
