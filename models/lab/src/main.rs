@@ -626,8 +626,9 @@ fn quantize_cmd(a: QuantizeArgs) -> Result<()> {
     )?;
     let calib = protocol::view_set(&sets.train_index, crop, input)?;
     let compare = protocol::view_set(&sets.heldout, crop, input)?;
+    let refs = protocol::view_set(&sets.backgrounds, crop, input)?;
     let (q, report) =
-        telextiles_lab::quantize::quantize(&bytes, &calib, a.calibration_frames, &compare)?;
+        telextiles_lab::quantize::quantize(&bytes, &calib, a.calibration_frames, &compare, &refs)?;
     write_atomic(&a.out, &q)?;
     println!(
         "wrote {} ({} bytes; float {} bytes): calibrated on {} frames; cosine to the float model on {} held-out frames: mean {:.4}, min {:.4}",

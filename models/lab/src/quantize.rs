@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 
 use crate::data::ImageSet;
 use crate::onnx::OrtEncoder;
-use crate::preprocess::normalize_into;
 
 /// Where `.ci/setup` puts a Python with onnxruntime 1.31.1, onnx and numpy.
 pub const DEFAULT_PYTHON: &str = "/opt/telextiles/pyenv/bin/python3";
@@ -79,13 +78,33 @@ fn spread_indices(n: usize, k: usize) -> Vec<usize> {
 /// Quantises `model` (float ONNX with the encoder contract) with
 /// `calibration` frames (in the model's view; `frames` of them, spread over
 /// the set) and compares it with the float model on `compare` frames.
+/// `references`: the sensors' no-contact frames in the same view, which a
+/// background-subtracting model's inputs are taken against.
 pub fn quantize(
     model: &[u8],
     calibration: &ImageSet,
     frames: usize,
     compare: &ImageSet,
+    references: &ImageSet,
 ) -> Result<(Vec<u8>, QuantReport)> {
     let mut float = OrtEncoder::from_bytes(model, 2).context("the float model")?;
+    let subtract = float
+        .meta
+        .get("telextiles.background")
+        .is_some_and(|b| b == "subtract");
+    let input = |set: &ImageSet, i: usize, x: &mut Vec<f32>| -> Result<()> {
+        let r = if subtract {
+            let s = set.items[i].sensor;
+            Some(
+                crate::methods::background_of(references, s)
+                    .with_context(|| format!("no reference frame of sensor {s}"))?,
+            )
+        } else {
+            None
+        };
+        crate::methods::input_into(set.image(i), r, set.side, x);
+        Ok(())
+    };
     let s = float.input_size;
     ensure!(
         calibration.side == s && compare.side == s,
@@ -96,7 +115,7 @@ pub fn quantize(
     ensure!(!idx.is_empty(), "no calibration frames");
     let mut x = Vec::with_capacity(idx.len() * 3 * s * s);
     for &i in &idx {
-        normalize_into(calibration.image(i), s, &mut x);
+        input(calibration, i, &mut x)?;
     }
     let dir = tempfile::tempdir().context("temporary directory")?;
     let (src, npy, out, script) = (
@@ -139,7 +158,7 @@ pub fn quantize(
     for chunk in cidx.chunks(32) {
         let mut x = Vec::new();
         for &i in chunk {
-            normalize_into(compare.image(i), s, &mut x);
+            input(compare, i, &mut x)?;
         }
         let (a, b) = (float.embed(&x)?, q.embed(&x)?);
         for (u, v) in a.chunks_exact(float.dim).zip(b.chunks_exact(float.dim)) {

@@ -32,7 +32,8 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
     .unwrap();
     let calib = view_set(&sets.train_index, 32, 32).unwrap();
     let compare = view_set(&sets.heldout, 32, 32).unwrap();
-    let (q, report) = quantize(&float, &calib, 64, &compare).unwrap();
+    let refs = view_set(&sets.backgrounds, 32, 32).unwrap();
+    let (q, report) = quantize(&float, &calib, 64, &compare, &refs).unwrap();
     assert_eq!(report.calibration_frames, 64);
     assert!(report.cosine_mean > 0.95, "{report:?}");
     let m = OrtEncoder::from_bytes(&q, 1).unwrap();
@@ -56,7 +57,7 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
 
     // Without a Python that has the tool: a clear error, nothing written.
     std::env::set_var("TELEXTILES_PYTHON", "/nonexistent/python3");
-    let e = quantize(&float, &calib, 8, &compare).unwrap_err();
+    let e = quantize(&float, &calib, 8, &compare, &refs).unwrap_err();
     std::env::remove_var("TELEXTILES_PYTHON");
     let msg = format!("{e:#}");
     assert!(
