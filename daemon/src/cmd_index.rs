@@ -41,7 +41,7 @@ pub struct BuildArgs {
     pub people: u32,
     /// Simulated sensor units every person presses with (with --sim):
     /// several units make the index hold up on a DIGIT it has not seen.
-    #[arg(long, value_delimiter = ',', default_value = "0")]
+    #[arg(long, value_delimiter = ',', default_value = "0,1,2,3")]
     pub sensors: Vec<u32>,
     /// Also index the unseen sample book (with --sim; off by default, so
     /// that unseen textiles stay unknown to the index).
