@@ -488,9 +488,9 @@ mod tests {
         combos.dedup();
         assert_eq!(combos.len(), 6);
         assert!(specs.iter().all(|s| s.jig && s.textile.starts_with('T')));
-        // The default stays one unit (sensor 0); unseen presses for coverage.
-        let d = parse(&[]);
-        assert_eq!(d.sensors, vec![0]);
+        // The default: four units; unseen presses for coverage.
+        assert_eq!(parse(&[]).sensors, vec![0, 1, 2, 3]);
+        let d = parse(&["--sensors", "0"]);
         let u: Vec<_> = sim_protocol(&d, Some(Book::Unseen))
             .unwrap()
             .specs(&cat)
