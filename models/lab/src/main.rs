@@ -61,6 +61,10 @@ struct QuantizeArgs {
     /// Calibration frames (spread over the training people's frames).
     #[arg(long, default_value_t = 256)]
     calibration_frames: usize,
+    /// Write the int8 model even if it gives non-finite embeddings (for the
+    /// study's chart; such a model must not ship).
+    #[arg(long)]
+    allow_nonfinite: bool,
     #[command(flatten)]
     data: DataArgs,
 }
@@ -627,18 +631,32 @@ fn quantize_cmd(a: QuantizeArgs) -> Result<()> {
     let calib = protocol::view_set(&sets.train_index, crop, input)?;
     let compare = protocol::view_set(&sets.heldout, crop, input)?;
     let refs = protocol::view_set(&sets.backgrounds, crop, input)?;
-    let (q, report) =
-        telextiles_lab::quantize::quantize(&bytes, &calib, a.calibration_frames, &compare, &refs)?;
+    let (q, report) = telextiles_lab::quantize::quantize(
+        &bytes,
+        &calib,
+        a.calibration_frames,
+        &compare,
+        &refs,
+        a.allow_nonfinite,
+    )?;
     write_atomic(&a.out, &q)?;
     println!(
-        "wrote {} ({} bytes; float {} bytes): calibrated on {} frames; cosine to the float model on {} held-out frames: mean {:.4}, min {:.4}",
+        "wrote {} ({} bytes; float {} bytes): calibrated on {} frames; cosine to the float model on {} held-out frames: mean {:.4}, min {:.4}{}",
         a.out.display(),
         q.len(),
         bytes.len(),
         report.calibration_frames,
         report.compared_frames,
         report.cosine_mean,
-        report.cosine_min
+        report.cosine_min,
+        if report.nonfinite_frames > 0 {
+            format!(
+                "; NON-FINITE embeddings on {} frames (written because of --allow-nonfinite)",
+                report.nonfinite_frames
+            )
+        } else {
+            String::new()
+        }
     );
     Ok(())
 }

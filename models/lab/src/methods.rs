@@ -240,6 +240,16 @@ pub struct MethodResult {
     pub by_frames: Vec<(usize, f64)>,
     pub queries: usize,
     pub presses: usize,
+    /// Frames (index and queries) whose embedding has a NaN or infinity.
+    #[serde(default)]
+    pub nonfinite_frames: usize,
+}
+
+/// Rows of an embedding matrix with a NaN or infinity.
+pub fn nonfinite_rows(e: &[f32], dim: usize) -> usize {
+    e.chunks_exact(dim.max(1))
+        .filter(|r| r.iter().any(|v| !v.is_finite()))
+        .count()
 }
 
 impl MethodResult {
@@ -410,6 +420,13 @@ pub fn evaluate(
         by_frames.push((n, top1(&index, &labels, &q, &ql, dim)));
     }
     let press_top1 = by_frames.last().map_or(f64::NAN, |x| x.1);
+    let nonfinite_frames = nonfinite_rows(&ie, dim) + nonfinite_rows(&qe, dim);
+    if nonfinite_frames > 0 {
+        eprintln!(
+            "warning: {} gives non-finite embeddings on {nonfinite_frames} frames",
+            m.name()
+        );
+    }
     let bg0 = heldout
         .items
         .first()
@@ -430,6 +447,7 @@ pub fn evaluate(
         by_frames,
         queries: qlabels.len(),
         presses: presses.len(),
+        nonfinite_frames,
     })
 }
 
@@ -504,9 +522,17 @@ pub fn markdown(results: &[MethodResult]) -> String {
         } else {
             ""
         };
+        let name = if r.nonfinite_frames > 0 {
+            format!(
+                "{} (non-finite output on {} frames)",
+                r.name, r.nonfinite_frames
+            )
+        } else {
+            r.name.clone()
+        };
         s.push_str(&format!(
             "| {} | {} | {} → {} | {} | {:.3} | {:.3} | {} | {} | {:.2}% | {:.2}% | {} |\n",
-            r.name,
+            name,
             r.runtime,
             r.crop,
             r.input,

@@ -65,9 +65,12 @@ pub struct QuantReport {
     pub calibration_frames: usize,
     /// Frames compared.
     pub compared_frames: usize,
-    /// Cosine similarity of int8 and float embeddings: mean and minimum.
+    /// Cosine similarity of int8 and float embeddings over the frames where
+    /// both are finite: mean and minimum.
     pub cosine_mean: f64,
     pub cosine_min: f64,
+    /// Compared frames whose int8 embedding has a NaN or infinity.
+    pub nonfinite_frames: usize,
 }
 
 fn spread_indices(n: usize, k: usize) -> Vec<usize> {
@@ -80,12 +83,17 @@ fn spread_indices(n: usize, k: usize) -> Vec<usize> {
 /// the set) and compares it with the float model on `compare` frames.
 /// `references`: the sensors' no-contact frames in the same view, which a
 /// background-subtracting model's inputs are taken against.
+///
+/// An int8 model that gives non-finite embeddings on any compared frame is
+/// refused (a log of a power that rounded to zero, say) unless
+/// `allow_nonfinite` (to put such a model on a chart, never to ship it).
 pub fn quantize(
     model: &[u8],
     calibration: &ImageSet,
     frames: usize,
     compare: &ImageSet,
     references: &ImageSet,
+    allow_nonfinite: bool,
 ) -> Result<(Vec<u8>, QuantReport)> {
     let mut float = OrtEncoder::from_bytes(model, 2).context("the float model")?;
     let subtract = float
@@ -154,7 +162,7 @@ pub fn quantize(
     let mut q = OrtEncoder::from_bytes(&bytes, 2).context("the int8 model")?;
     ensure!(q.dim == float.dim, "int8 model changed the embedding size");
     let cidx = spread_indices(compare.len(), 256);
-    let (mut sum, mut min) = (0.0f64, f64::INFINITY);
+    let (mut sum, mut min, mut n, mut nonfinite) = (0.0f64, f64::INFINITY, 0usize, 0usize);
     for chunk in cidx.chunks(32) {
         let mut x = Vec::new();
         for &i in chunk {
@@ -162,6 +170,11 @@ pub fn quantize(
         }
         let (a, b) = (float.embed(&x)?, q.embed(&x)?);
         for (u, v) in a.chunks_exact(float.dim).zip(b.chunks_exact(float.dim)) {
+            if v.iter().any(|x| !x.is_finite()) {
+                nonfinite += 1;
+                continue;
+            }
+            n += 1;
             let dot: f64 = u.iter().zip(v).map(|(p, q)| (p * q) as f64).sum();
             let nu = u.iter().map(|p| (p * p) as f64).sum::<f64>().sqrt();
             let nv = v.iter().map(|p| (p * p) as f64).sum::<f64>().sqrt();
@@ -174,13 +187,19 @@ pub fn quantize(
             min = min.min(c);
         }
     }
+    ensure!(
+        nonfinite == 0 || allow_nonfinite,
+        "the int8 model gives non-finite embeddings on {nonfinite} of {} held-out frames (8-bit steps cannot hold what this model computes); not writing it",
+        cidx.len()
+    );
     Ok((
         bytes,
         QuantReport {
             calibration_frames: idx.len(),
             compared_frames: cidx.len(),
-            cosine_mean: sum / cidx.len().max(1) as f64,
+            cosine_mean: if n > 0 { sum / n as f64 } else { f64::NAN },
             cosine_min: min,
+            nonfinite_frames: nonfinite,
         },
     ))
 }

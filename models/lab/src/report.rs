@@ -317,10 +317,16 @@ pub fn write(report: &BenchReport, out: &Path) -> Result<()> {
         serde_json::to_string_pretty(report)?.as_bytes(),
     )?;
     methods::chart(&report.methods, &out.join("speed-accuracy.svg"))?;
-    if !report.decision.is_empty() {
-        stability::decision_chart(&report.decision, &out.join("decision-time.svg"))?;
-    }
     let names = charted(report);
+    if !report.decision.is_empty() {
+        let shown: Vec<DecisionCurve> = report
+            .decision
+            .iter()
+            .filter(|d| names.contains(&d.name))
+            .cloned()
+            .collect();
+        stability::decision_chart(&shown, &out.join("decision-time.svg"))?;
+    }
     if let Some(s) = &report.stability {
         stability::charts(
             s,

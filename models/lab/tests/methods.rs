@@ -51,6 +51,7 @@ fn harness_scores_times_and_charts_every_method() {
         assert_eq!(r.queries, sets.heldout.len());
         assert_eq!(r.by_frames.last().unwrap().1, r.press_top1);
         assert!(r.latency.iter().all(|l| l.1 > 0.0 && l.2 >= l.1), "{r:?}");
+        assert_eq!(r.nonfinite_frames, 0, "{r:?}");
         // ONNX models are timed with each thread count, Rust descriptors once.
         assert_eq!(r.latency.len(), if m.runtime() == "ort" { 2 } else { 1 });
         assert_eq!((r.crop, r.input), m.view());
@@ -127,6 +128,7 @@ fn result(name: &str, ms: f64, acc: f64) -> MethodResult {
         by_frames: vec![(1, acc)],
         queries: 1,
         presses: 1,
+        nonfinite_frames: 0,
     }
 }
 

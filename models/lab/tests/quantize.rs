@@ -33,8 +33,9 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
     let calib = view_set(&sets.train_index, 32, 32).unwrap();
     let compare = view_set(&sets.heldout, 32, 32).unwrap();
     let refs = view_set(&sets.backgrounds, 32, 32).unwrap();
-    let (q, report) = quantize(&float, &calib, 64, &compare, &refs).unwrap();
+    let (q, report) = quantize(&float, &calib, 64, &compare, &refs, false).unwrap();
     assert_eq!(report.calibration_frames, 64);
+    assert_eq!(report.nonfinite_frames, 0);
     assert!(report.cosine_mean > 0.95, "{report:?}");
     let m = OrtEncoder::from_bytes(&q, 1).unwrap();
     assert_eq!(m.dim, 64);
@@ -57,7 +58,7 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
 
     // Without a Python that has the tool: a clear error, nothing written.
     std::env::set_var("TELEXTILES_PYTHON", "/nonexistent/python3");
-    let e = quantize(&float, &calib, 8, &compare, &refs).unwrap_err();
+    let e = quantize(&float, &calib, 8, &compare, &refs, false).unwrap_err();
     std::env::remove_var("TELEXTILES_PYTHON");
     let msg = format!("{e:#}");
     assert!(
