@@ -83,51 +83,33 @@ impl Builder {
         format!("{hint}_{}", self.n)
     }
 
-    fn f32s(&mut self, hint: &str, dims: &[i64], data: Vec<f32>) -> String {
-        assert_eq!(dims.iter().product::<i64>() as usize, data.len(), "{hint}");
+    /// An initialiser of `data_type` holding `raw` (little-endian values).
+    fn tensor(&mut self, hint: &str, dims: &[i64], data_type: i32, raw: Vec<u8>) -> String {
         let mut t = TensorProto::new();
         t.name = self.name(hint);
         t.dims = dims.to_vec();
-        t.data_type = FLOAT;
-        t.raw_data = data
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect::<Vec<u8>>()
-            .into();
+        t.data_type = data_type;
+        t.raw_data = raw.into();
         let n = t.name.clone();
         self.inits.push(t);
         n
     }
 
+    fn f32s(&mut self, hint: &str, dims: &[i64], data: Vec<f32>) -> String {
+        assert_eq!(dims.iter().product::<i64>() as usize, data.len(), "{hint}");
+        let raw = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+        self.tensor(hint, dims, FLOAT, raw)
+    }
+
     fn i64s(&mut self, hint: &str, data: Vec<i64>) -> String {
-        let mut t = TensorProto::new();
-        t.name = self.name(hint);
-        t.dims = vec![data.len() as i64];
-        t.data_type = INT64;
-        t.raw_data = data
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect::<Vec<u8>>()
-            .into();
-        let n = t.name.clone();
-        self.inits.push(t);
-        n
+        let raw = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+        self.tensor(hint, &[data.len() as i64], INT64, raw)
     }
 
     fn i32s(&mut self, hint: &str, dims: &[i64], data: Vec<i32>) -> String {
         assert_eq!(dims.iter().product::<i64>() as usize, data.len(), "{hint}");
-        let mut t = TensorProto::new();
-        t.name = self.name(hint);
-        t.dims = dims.to_vec();
-        t.data_type = INT32;
-        t.raw_data = data
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect::<Vec<u8>>()
-            .into();
-        let n = t.name.clone();
-        self.inits.push(t);
-        n
+        let raw = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+        self.tensor(hint, dims, INT32, raw)
     }
 
     fn op(&mut self, op: &str, inputs: &[&str], attrs: Vec<AttributeProto>) -> String {

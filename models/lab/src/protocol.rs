@@ -612,28 +612,22 @@ impl Report {
         let mut s = String::new();
         let pct = |x: f64| format!("{:.2}%", 100.0 * x);
         s.push_str(&format!("Model: `{}`\n\n", model.display()));
+        let rows = |s: &mut String, rows: &[Row]| {
+            for r in rows {
+                s.push_str(&format!(
+                    "| {} | {} | {} | {} | {} |\n",
+                    r.name,
+                    r.index,
+                    pct(r.score.top1_k1),
+                    pct(r.score.top1_weighted),
+                    r.score.queries
+                ));
+            }
+        };
         s.push_str("### (a) Across people\n\n| queries | index | kNN top-1 (k=1) | weighted kNN top-1 (k=20, T=0.07) | queries |\n|---|---|---|---|---|\n");
-        for r in &self.across_people {
-            s.push_str(&format!(
-                "| {} | {} | {} | {} | {} |\n",
-                r.name,
-                r.index,
-                pct(r.score.top1_k1),
-                pct(r.score.top1_weighted),
-                r.score.queries
-            ));
-        }
+        rows(&mut s, &self.across_people);
         s.push_str("\n### (b) One person, jig vs hand-held (shape of the paper's Table 2)\n\n| queries | index | kNN top-1 (k=1) | weighted kNN top-1 | queries |\n|---|---|---|---|---|\n");
-        for r in &self.jig_vs_handheld {
-            s.push_str(&format!(
-                "| {} | {} | {} | {} | {} |\n",
-                r.name,
-                r.index,
-                pct(r.score.top1_k1),
-                pct(r.score.top1_weighted),
-                r.score.queries
-            ));
-        }
+        rows(&mut s, &self.jig_vs_handheld);
         s.push_str("\n### (c) Unseen textiles mapped to the nearest known textile\n\n| unseen | nearest known | frames agreeing | mean cosine | attribute distance | attribute rank of nearest (of known) |\n|---|---|---|---|---|---|\n");
         for u in &self.unseen {
             s.push_str(&format!(
