@@ -69,11 +69,9 @@ impl Method {
             .parse()
             .context("telextiles.crop is not a number")?;
         let arch = enc.meta.get("telextiles.arch").cloned().unwrap_or_default();
-        let subtract = match enc.meta.get("telextiles.background").map(String::as_str) {
-            Some("subtract") => true,
-            Some("none") | None => false,
-            Some(other) => anyhow::bail!("model {name}: unknown telextiles.background {other:?}"),
-        };
+        let subtract = enc
+            .subtracts_background()
+            .with_context(|| format!("model {name}"))?;
         Ok(Method::Onnx {
             name,
             bytes,

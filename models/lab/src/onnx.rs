@@ -191,6 +191,16 @@ pub struct OrtEncoder {
 }
 
 impl OrtEncoder {
+    /// Whether the model takes the frame minus the sensor's no-contact
+    /// reference (`telextiles.background`: "subtract", or "none"/absent).
+    pub fn subtracts_background(&self) -> Result<bool> {
+        match self.meta.get("telextiles.background").map(String::as_str) {
+            Some("subtract") => Ok(true),
+            Some("none") | None => Ok(false),
+            Some(other) => anyhow::bail!("unknown telextiles.background {other:?}"),
+        }
+    }
+
     /// Load from bytes with `threads` intra-op threads; checks the contract.
     pub fn from_bytes(bytes: &[u8], threads: usize) -> Result<Self> {
         let env = init_ort()?;

@@ -96,10 +96,7 @@ pub fn quantize(
     allow_nonfinite: bool,
 ) -> Result<(Vec<u8>, QuantReport)> {
     let mut float = OrtEncoder::from_bytes(model, 2).context("the float model")?;
-    let subtract = float
-        .meta
-        .get("telextiles.background")
-        .is_some_and(|b| b == "subtract");
+    let subtract = float.subtracts_background()?;
     let input = |set: &ImageSet, i: usize, x: &mut Vec<f32>| -> Result<()> {
         let r = if subtract {
             let s = set.items[i].sensor;
@@ -198,7 +195,7 @@ pub fn quantize(
             calibration_frames: idx.len(),
             compared_frames: cidx.len(),
             cosine_mean: if n > 0 { sum / n as f64 } else { f64::NAN },
-            cosine_min: min,
+            cosine_min: if n > 0 { min } else { f64::NAN },
             nonfinite_frames: nonfinite,
         },
     ))

@@ -66,3 +66,31 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
         "{msg}"
     );
 }
+
+/// The spectrum descriptor's int8 version gives non-finite embeddings (its
+/// weak bins round to zero before the log): refused unless allowed, and
+/// then reported.
+#[test]
+fn int8_models_with_non_finite_output_are_refused_unless_allowed() {
+    use telextiles_lab::baselines::BaselineKind;
+    use telextiles_lab::graph::{descriptor_model, DescriptorSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Protocol::paper(32, 32);
+    p.max_textiles = Some(4);
+    let sets = protocol::load_base(&p, SourceKind::Synth, dir.path(), 2).unwrap();
+    let float = descriptor_model(&DescriptorSpec {
+        kind: BaselineKind::Fft,
+        crop: 32,
+        input: 32,
+        subtract: true,
+        min_bin: 1,
+    })
+    .unwrap();
+    let calib = view_set(&sets.train_index, 32, 32).unwrap();
+    let compare = view_set(&sets.heldout, 32, 32).unwrap();
+    let refs = view_set(&sets.backgrounds, 32, 32).unwrap();
+    let e = quantize(&float, &calib, 64, &compare, &refs, false).unwrap_err();
+    assert!(format!("{e:#}").contains("non-finite"), "{e:#}");
+    let (_, report) = quantize(&float, &calib, 64, &compare, &refs, true).unwrap();
+    assert!(report.nonfinite_frames > 0, "{report:?}");
+}
