@@ -161,6 +161,13 @@ pub struct PressMeta {
     pub sensor_serial: Option<String>,
     /// Simulator parameters of a simulated press.
     pub params: Option<PressParams>,
+    /// The first `reference_frames` frames show the sensor untouched: their
+    /// mean is this recording's own no-contact reference (`telextilesd
+    /// record` keeps the quiet frames before contact). None: not recorded
+    /// (older recordings, PyTouch data); readers capture a reference from
+    /// the recording's first quiet frames instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_frames: Option<u32>,
 }
 
 /// One press: metadata and frames (240 wide x 320 tall RGB).

@@ -197,6 +197,17 @@ fn read_file(dir: &Path) -> Result<PressFile, RecordingError> {
             format!("fps {} is not positive", file.meta.fps),
         ));
     }
+    if let Some(k) = file.meta.reference_frames {
+        if k as usize > file.frames.len() {
+            return Err(invalid(
+                &p,
+                format!(
+                    "reference_frames {k} but the press has only {} frames",
+                    file.frames.len()
+                ),
+            ));
+        }
+    }
     for n in &file.frames {
         if n.is_empty() || n.contains('/') || n.contains('\\') || n == ".." || n == "." {
             return Err(invalid(
@@ -340,6 +351,7 @@ pub fn read_pytouch(root: &Path) -> Result<Vec<Press>, RecordingError> {
                     source: "pytouch".into(),
                     sensor_serial: Some(e.serial),
                     params: None,
+                    reference_frames: None,
                 },
                 frames,
             })

@@ -307,6 +307,8 @@ impl Simulator {
             source: "sim".into(),
             sensor_serial: Some(format!("SIM{:04}", spec.sensor)),
             params: Some(setup.params.clone()),
+            // Frames before the first contact show the untouched sensor.
+            reference_frames: (setup.params.contact_frame > 0).then_some(setup.params.contact_frame),
         }
     }
 
