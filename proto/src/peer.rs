@@ -757,14 +757,34 @@ pub struct ClockSample {
     pub t4: u64,
 }
 
+/// `v` clamped into `i64` (the estimator's results saturate instead of
+/// overflowing on nonsense timestamps from a peer).
+fn sat_i64(v: i128) -> i64 {
+    v.clamp(i64::MIN as i128, i64::MAX as i128) as i64
+}
+
 impl ClockSample {
-    /// Round-trip time minus the peer's processing time (µs).
+    /// Round-trip time minus the peer's processing time (µs). Every field
+    /// comes (in part) from the peer, so the arithmetic is done in `i128`
+    /// and saturates: no input can overflow or panic.
     pub fn rtt(&self) -> i64 {
-        (self.t4 as i64 - self.t1 as i64) - (self.t3 as i64 - self.t2 as i64)
+        let (t1, t2, t3, t4) = (
+            self.t1 as i128,
+            self.t2 as i128,
+            self.t3 as i128,
+            self.t4 as i128,
+        );
+        sat_i64((t4 - t1) - (t3 - t2))
     }
-    /// Estimated `peer_clock - our_clock` (µs).
+    /// Estimated `peer_clock - our_clock` (µs), saturating like [`Self::rtt`].
     pub fn offset(&self) -> i64 {
-        ((self.t2 as i64 - self.t1 as i64) + (self.t3 as i64 - self.t4 as i64)) / 2
+        let (t1, t2, t3, t4) = (
+            self.t1 as i128,
+            self.t2 as i128,
+            self.t3 as i128,
+            self.t4 as i128,
+        );
+        sat_i64(((t2 - t1) + (t3 - t4)) / 2)
     }
 }
 
@@ -822,7 +842,7 @@ impl ClockOffset {
     /// within the estimator's error).
     pub fn one_way_us(&self, capture_us: u64, recv_us: u64) -> Option<i64> {
         self.offset_us()
-            .map(|off| recv_us as i64 - (capture_us as i64 - off))
+            .map(|off| sat_i64(recv_us as i128 - (capture_us as i128 - off as i128)))
     }
 
     pub fn len(&self) -> usize {

@@ -459,8 +459,52 @@ fn clock_offset_prefers_the_min_rtt_sample() {
     assert_eq!(est.len(), 8);
 }
 
+/// Peer-chosen timestamps at the ends of the u64 range (issue 19: the old
+/// `as i64` arithmetic overflowed and panicked in checked builds).
+#[test]
+fn clock_arithmetic_on_extreme_peer_timestamps_saturates() {
+    let max = u64::MAX;
+    let s = ClockSample {
+        t1: 0,
+        t2: max,
+        t3: max,
+        t4: 0,
+    };
+    assert_eq!(s.rtt(), 0);
+    assert_eq!(s.offset(), i64::MAX);
+    let s = ClockSample {
+        t1: max,
+        t2: 0,
+        t3: max,
+        t4: max,
+    };
+    assert_eq!(s.rtt(), i64::MIN);
+    assert_eq!(s.offset(), i64::MIN + 1);
+    let mut est = ClockOffset::new(4);
+    assert!(est.add(ClockSample {
+        t1: 0,
+        t2: max,
+        t3: max,
+        t4: 0
+    }));
+    assert_eq!(est.offset_us(), Some(i64::MAX));
+    assert_eq!(est.one_way_us(0, max), Some(i64::MAX));
+    assert_eq!(est.one_way_us(max, 0), Some(i64::MIN));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    #[test]
+    fn clock_offset_never_panics(t in proptest::collection::vec(any::<u64>(), 4..40), cap in any::<u64>(), recv in any::<u64>()) {
+        let mut est = ClockOffset::new(3);
+        for c in t.chunks_exact(4) {
+            let s = ClockSample { t1: c[0], t2: c[1], t3: c[2], t4: c[3] };
+            let _ = (s.rtt(), s.offset());
+            est.add(s);
+            let _ = (est.offset_us(), est.rtt_us(), est.one_way_us(cap, recv));
+        }
+    }
 
     #[test]
     fn control_decoder_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
