@@ -1,0 +1,1070 @@
+//! Recording presses: cut a frame stream into presses by contact, each with
+//! its own no-contact reference (`telextilesd record`, the control socket's
+//! `record.start`).
+//!
+//! Sans-IO: [`Recorder::push`] takes every frame with the [`ContactUpdate`]
+//! that [`crate::contact::ContactDetector::update`] returned for it, and
+//! [`Recorder::poll`] hands out what happened ([`RecordEvent`]): waiting for
+//! an untouched sensor, ready ("press now"), press started, hold progress,
+//! released, and a complete press ([`RecordedPress`], a
+//! [`telextiles_sim::Press`] ready for `telextiles_sim::recording::write_press`)
+//! or a rejected one. No clocks (timestamps come with the frames), no files.
+//!
+//! A recorded press is: the last quiet frames before contact (at most
+//! `pre_frames`; the frames the detector called `quiet`), the frames that
+//! led into contact, the press, and `post_frames` frames after the release.
+//! `meta.reference_frames` is the number of leading quiet frames: their mean
+//! is the recording's own no-contact reference. Timestamps are relative to
+//! the first kept frame; `meta.fps` is the given rate, else the rate measured
+//! from the kept frames' timestamps.
+//!
+//! Checks (see [`RecordWarning`]):
+//! * fewer than `min_quiet_frames` quiet frames right before contact (pressed
+//!   before the sensor was seen untouched, or a second press right after the
+//!   first): **rejected**, since the recording would have no reference;
+//! * held for less than `min_press_ms`: **rejected** (a tap, nothing to
+//!   classify: a decision needs about 120 ms of contact);
+//! * longer than `max_press_frames` in contact: **rejected** (bounds memory);
+//! * the reference re-captured during the press: **rejected**;
+//! * peak contact score below `min_peak`: **kept, with a warning** (soft
+//!   fabrics score low; the person may press harder next time);
+//! * the stream ended while still in contact ([`Recorder::finish`]): **kept,
+//!   with a warning** (no margin after the release).
+//!
+//! Memory is bounded: a ring of `pre_frames + approach_frames` frames before
+//! contact, at most `max_press_frames` in contact, `post_frames` after.
+
+use std::collections::VecDeque;
+use std::fmt;
+
+use image::RgbImage;
+use telextiles_sim::{Press, PressMeta};
+
+use crate::contact::{ContactEvent, ContactUpdate, EndReason};
+use crate::frame::Frame;
+
+/// Recorder tuning (defaults for a 60 fps DIGIT).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecorderConfig {
+    /// Quiet frames kept before contact (the recording's reference), at most.
+    pub pre_frames: usize,
+    /// Non-quiet frames between the last quiet frame and the press start that
+    /// are kept (the approach); older ones leave the ring.
+    pub approach_frames: usize,
+    /// Fewer quiet frames than this right before contact rejects the press.
+    pub min_quiet_frames: usize,
+    /// Quiet frames in a row before the recorder says it is ready ("press now").
+    pub ready_frames: usize,
+    /// Frames kept after the release.
+    pub post_frames: usize,
+    /// Frames in contact after which the press is rejected as too long.
+    pub max_press_frames: usize,
+    /// A press held for less than this (ms, contact start to release) is rejected.
+    pub min_press_ms: f64,
+    /// A press whose peak contact score stays below this is kept with a warning.
+    pub min_peak: f32,
+    /// Frame rate to record in the metadata; None: measured from timestamps.
+    pub fps: Option<f32>,
+}
+
+impl Default for RecorderConfig {
+    fn default() -> Self {
+        RecorderConfig {
+            pre_frames: 30,
+            approach_frames: 30,
+            min_quiet_frames: 8,
+            ready_frames: 15,
+            post_frames: 20,
+            max_press_frames: 900,
+            min_press_ms: 250.0,
+            min_peak: 1.0,
+            fps: None,
+        }
+    }
+}
+
+/// What a recording is of: written into every press's metadata.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RecordLabel {
+    /// Textile id (the directory the presses go into).
+    pub textile: String,
+    /// "digit", "sim" or "replay".
+    pub source: String,
+    /// The sensor's serial number, if known.
+    pub sensor_serial: Option<String>,
+    /// Sensor unit number (the simulator's unit; 0 for a real sensor).
+    pub sensor: u32,
+    /// Person number (0 unless known).
+    pub person: u32,
+    /// Pressed with a jig.
+    pub jig: bool,
+}
+
+impl RecordLabel {
+    /// A label for `textile` from `source`, everything else unknown.
+    pub fn new(textile: impl Into<String>, source: impl Into<String>) -> RecordLabel {
+        RecordLabel {
+            textile: textile.into(),
+            source: source.into(),
+            sensor_serial: None,
+            sensor: 0,
+            person: 0,
+            jig: false,
+        }
+    }
+}
+
+/// Something wrong with a press: a reason to reject it, or a warning on a kept one.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RecordWarning {
+    /// Held for less than the minimum (rejected).
+    TooShort {
+        /// How long it was held.
+        held_ms: f64,
+        /// The minimum.
+        min_ms: f64,
+    },
+    /// Peak contact score below the minimum (kept).
+    TooWeak {
+        /// The peak score.
+        peak: f32,
+        /// The minimum.
+        min: f32,
+    },
+    /// Too few quiet frames right before contact: no reference (rejected).
+    NoQuietBefore {
+        /// Quiet frames found.
+        quiet_frames: usize,
+        /// Quiet frames needed.
+        needed: usize,
+    },
+    /// In contact for more than the maximum number of frames (rejected).
+    TooLong {
+        /// The maximum.
+        max_frames: usize,
+    },
+    /// The contact reference was re-captured during the press (rejected).
+    Interrupted,
+    /// The frames ended while still in contact (kept, without a margin after).
+    NotReleased,
+}
+
+impl RecordWarning {
+    /// Short machine-readable name ("too_short", "too_weak", "no_quiet_before",
+    /// "too_long", "interrupted", "not_released").
+    pub fn code(&self) -> &'static str {
+        match self {
+            RecordWarning::TooShort { .. } => "too_short",
+            RecordWarning::TooWeak { .. } => "too_weak",
+            RecordWarning::NoQuietBefore { .. } => "no_quiet_before",
+            RecordWarning::TooLong { .. } => "too_long",
+            RecordWarning::Interrupted => "interrupted",
+            RecordWarning::NotReleased => "not_released",
+        }
+    }
+}
+
+impl fmt::Display for RecordWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            RecordWarning::TooShort { held_ms, min_ms } => write!(
+                f,
+                "press too short ({held_ms:.0} ms, at least {min_ms:.0} ms): hold it a little longer"
+            ),
+            RecordWarning::TooWeak { peak, min } => write!(
+                f,
+                "press weak (peak contact {peak:.2}, below {min:.2}): press a little harder"
+            ),
+            RecordWarning::NoQuietBefore {
+                quiet_frames,
+                needed,
+            } => write!(
+                f,
+                "no untouched frames before contact ({quiet_frames}, need {needed}): lift, wait for \"press now\", then press"
+            ),
+            RecordWarning::TooLong { max_frames } => write!(
+                f,
+                "press too long (more than {max_frames} frames in contact): release sooner"
+            ),
+            RecordWarning::Interrupted => {
+                write!(f, "the no-contact reference was re-captured during the press")
+            }
+            RecordWarning::NotReleased => {
+                write!(f, "the frames ended before the release (no margin after it)")
+            }
+        }
+    }
+}
+
+/// Figures of a recorded press.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PressSummary {
+    /// Frames in the recording.
+    pub frames: usize,
+    /// First to last kept frame, ms.
+    pub duration_ms: f64,
+    /// Contact start to release, ms.
+    pub held_ms: f64,
+    /// Peak contact score.
+    pub peak: f32,
+    /// Leading quiet frames (the reference).
+    pub reference_frames: u32,
+    /// Frame rate written into the metadata.
+    pub fps: f32,
+    /// Warnings on this kept press.
+    pub warnings: Vec<RecordWarning>,
+}
+
+/// A complete press, ready to write.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordedPress {
+    /// Frames and metadata.
+    pub press: Press,
+    /// Its figures.
+    pub summary: PressSummary,
+}
+
+/// What the recorder is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordState {
+    /// Waiting for enough untouched frames.
+    Waiting,
+    /// Ready for a press.
+    Ready,
+    /// A press is in progress (being recorded).
+    Pressing,
+    /// A rejected press is in progress: waiting for its release.
+    Ignoring,
+    /// Released: keeping the frames after it.
+    Releasing,
+}
+
+/// What happened (see [`Recorder::poll`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum RecordEvent {
+    /// Waiting for the sensor to be seen untouched (the no-contact reference).
+    WaitingForReference,
+    /// Enough quiet frames: press now.
+    Ready,
+    /// Contact.
+    PressStarted {
+        /// Timestamp of the first frame in contact (source clock).
+        t_us: u64,
+        /// Quiet frames right before it (kept as the reference).
+        quiet_frames: usize,
+    },
+    /// One more frame of a press being recorded.
+    Holding {
+        /// Time since contact, ms.
+        held_ms: f64,
+        /// This frame's contact score.
+        score: f32,
+        /// Peak score so far.
+        peak: f32,
+    },
+    /// The press ended.
+    Released {
+        /// Contact start to release, ms.
+        held_ms: f64,
+        /// Peak contact score.
+        peak: f32,
+    },
+    /// A press is complete and should be written.
+    PressComplete(Box<RecordedPress>),
+    /// A press was rejected (or is being ignored) for this reason.
+    Rejected(RecordWarning),
+}
+
+struct Held {
+    image: RgbImage,
+    t_us: u64,
+    quiet: bool,
+}
+
+struct Take {
+    frames: Vec<Held>,
+    reference: usize,
+    start_us: u64,
+    end_us: u64,
+    peak: f32,
+    in_contact: usize,
+}
+
+enum State {
+    Waiting,
+    Ready,
+    Pressing(Take),
+    Ignoring,
+    Releasing(Take, usize),
+}
+
+/// Cuts presses out of a frame stream (see the module docs).
+pub struct Recorder {
+    cfg: RecorderConfig,
+    label: RecordLabel,
+    /// Frames before contact, oldest first.
+    ring: VecDeque<Held>,
+    /// Trailing quiet frames in a row (including the ring's last ones).
+    quiet_run: usize,
+    /// Recycled frame buffers.
+    spare: Vec<RgbImage>,
+    state: State,
+    events: VecDeque<RecordEvent>,
+}
+
+impl Recorder {
+    /// A recorder; its first event is [`RecordEvent::WaitingForReference`].
+    pub fn new(cfg: RecorderConfig, label: RecordLabel) -> Recorder {
+        let mut events = VecDeque::new();
+        events.push_back(RecordEvent::WaitingForReference);
+        Recorder {
+            cfg,
+            label,
+            ring: VecDeque::new(),
+            quiet_run: 0,
+            spare: Vec::new(),
+            state: State::Waiting,
+            events,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RecorderConfig {
+        &self.cfg
+    }
+
+    /// The label written into every press.
+    pub fn label(&self) -> &RecordLabel {
+        &self.label
+    }
+
+    /// What the recorder is doing.
+    pub fn state(&self) -> RecordState {
+        match self.state {
+            State::Waiting => RecordState::Waiting,
+            State::Ready => RecordState::Ready,
+            State::Pressing(_) => RecordState::Pressing,
+            State::Ignoring => RecordState::Ignoring,
+            State::Releasing(..) => RecordState::Releasing,
+        }
+    }
+
+    /// Frames held in memory now (ring, press, spare buffers).
+    pub fn frames_held(&self) -> usize {
+        let take = match &self.state {
+            State::Pressing(t) | State::Releasing(t, _) => t.frames.len(),
+            _ => 0,
+        };
+        self.ring.len() + take + self.spare.len()
+    }
+
+    /// The next event, if any.
+    pub fn poll(&mut self) -> Option<RecordEvent> {
+        self.events.pop_front()
+    }
+
+    /// Forget everything but the configuration (a press in progress is
+    /// dropped without an event) and wait for quiet frames again.
+    pub fn reset(&mut self) {
+        let ring: Vec<Held> = self.ring.drain(..).collect();
+        ring.into_iter().for_each(|h| self.recycle(h.image));
+        self.quiet_run = 0;
+        self.state = State::Waiting;
+        self.events.push_back(RecordEvent::WaitingForReference);
+    }
+
+    /// The frames ended: complete a released press (with the margin it has),
+    /// keep one still in contact (with [`RecordWarning::NotReleased`]).
+    pub fn finish(&mut self) {
+        match std::mem::replace(&mut self.state, State::Waiting) {
+            State::Releasing(take, _) => self.complete(take, None),
+            State::Pressing(mut take) => {
+                take.end_us = take.frames.last().map(|h| h.t_us).unwrap_or(take.start_us);
+                self.complete(take, Some(RecordWarning::NotReleased))
+            }
+            _ => {}
+        }
+        let ring: Vec<Held> = self.ring.drain(..).collect();
+        ring.into_iter().for_each(|h| self.recycle(h.image));
+        self.quiet_run = 0;
+    }
+
+    fn copy(&mut self, image: &RgbImage) -> RgbImage {
+        match self.spare.pop() {
+            Some(mut b) => {
+                b.clone_from(image);
+                b
+            }
+            None => image.clone(),
+        }
+    }
+
+    fn recycle(&mut self, image: RgbImage) {
+        if self.spare.len() < self.ring_cap() {
+            self.spare.push(image);
+        }
+    }
+
+    fn ring_cap(&self) -> usize {
+        self.cfg.pre_frames + self.cfg.approach_frames + 1
+    }
+
+    fn push_ring(&mut self, frame: &Frame, quiet: bool) {
+        let image = if self.ring.len() >= self.ring_cap() {
+            let mut old = self.ring.pop_front().expect("ring is full").image;
+            old.clone_from(&frame.image);
+            old
+        } else {
+            self.copy(&frame.image)
+        };
+        self.ring.push_back(Held {
+            image,
+            t_us: frame.timestamp_us,
+            quiet,
+        });
+    }
+
+    /// Feed one frame and the contact detector's update for it.
+    pub fn push(&mut self, frame: &Frame, update: &ContactUpdate) {
+        let t = frame.timestamp_us;
+        self.quiet_run = if update.quiet { self.quiet_run + 1 } else { 0 };
+        let state = std::mem::replace(&mut self.state, State::Waiting);
+        self.state = match state {
+            State::Waiting | State::Ready => {
+                let was_ready = matches!(state, State::Ready);
+                self.push_ring(frame, update.quiet);
+                match update.event {
+                    Some(ContactEvent::PressStart { t_us }) => self.start(t_us, update.score),
+                    _ => {
+                        if !was_ready && self.quiet_run >= self.cfg.ready_frames.max(1) {
+                            self.events.push_back(RecordEvent::Ready);
+                            State::Ready
+                        } else {
+                            state
+                        }
+                    }
+                }
+            }
+            State::Ignoring => match update.event {
+                Some(ContactEvent::PressEnd { .. }) => {
+                    self.push_ring(frame, update.quiet);
+                    State::Waiting
+                }
+                _ => State::Ignoring,
+            },
+            State::Pressing(mut take) => {
+                let image = self.copy(&frame.image);
+                take.frames.push(Held {
+                    image,
+                    t_us: t,
+                    quiet: update.quiet,
+                });
+                take.in_contact += 1;
+                take.peak = take.peak.max(update.score);
+                let held_ms = t.saturating_sub(take.start_us) as f64 / 1000.0;
+                match update.event {
+                    Some(ContactEvent::PressEnd { reason, t_us, .. }) => {
+                        if reason != EndReason::Released {
+                            self.drop_take(take);
+                            self.events
+                                .push_back(RecordEvent::Rejected(RecordWarning::Interrupted));
+                            self.events.push_back(RecordEvent::WaitingForReference);
+                            State::Waiting
+                        } else {
+                            take.end_us = t_us;
+                            let held_ms = t_us.saturating_sub(take.start_us) as f64 / 1000.0;
+                            self.events.push_back(RecordEvent::Released {
+                                held_ms,
+                                peak: take.peak,
+                            });
+                            if self.cfg.post_frames == 0 {
+                                self.complete(take, None);
+                                State::Waiting
+                            } else {
+                                self.push_ring(frame, update.quiet);
+                                State::Releasing(take, self.cfg.post_frames)
+                            }
+                        }
+                    }
+                    _ if take.in_contact > self.cfg.max_press_frames => {
+                        self.drop_take(take);
+                        self.events
+                            .push_back(RecordEvent::Rejected(RecordWarning::TooLong {
+                                max_frames: self.cfg.max_press_frames,
+                            }));
+                        State::Ignoring
+                    }
+                    _ => {
+                        self.events.push_back(RecordEvent::Holding {
+                            held_ms,
+                            score: update.score,
+                            peak: take.peak,
+                        });
+                        State::Pressing(take)
+                    }
+                }
+            }
+            State::Releasing(mut take, left) => {
+                if let Some(ContactEvent::PressStart { t_us }) = update.event {
+                    // A new press before the margin was complete: finish
+                    // this one with what it has, then start the next.
+                    self.complete(take, None);
+                    self.push_ring(frame, update.quiet);
+                    self.start(t_us, update.score)
+                } else {
+                    let image = self.copy(&frame.image);
+                    take.frames.push(Held {
+                        image,
+                        t_us: t,
+                        quiet: update.quiet,
+                    });
+                    self.push_ring(frame, update.quiet);
+                    if left <= 1 {
+                        self.complete(take, None);
+                        State::Waiting
+                    } else {
+                        State::Releasing(take, left - 1)
+                    }
+                }
+            }
+        };
+    }
+
+    /// Contact started (the current frame is the ring's last).
+    fn start(&mut self, t_us: u64, score: f32) -> State {
+        // The ring's tail: [.. quiet run][approach: not quiet .. current frame].
+        let approach = self.ring.iter().rev().take_while(|h| !h.quiet).count();
+        let quiet = self
+            .ring
+            .iter()
+            .rev()
+            .skip(approach)
+            .take_while(|h| h.quiet)
+            .count();
+        let reference = quiet.min(self.cfg.pre_frames);
+        self.events.push_back(RecordEvent::PressStarted {
+            t_us,
+            quiet_frames: quiet,
+        });
+        if quiet < self.cfg.min_quiet_frames {
+            self.events
+                .push_back(RecordEvent::Rejected(RecordWarning::NoQuietBefore {
+                    quiet_frames: quiet,
+                    needed: self.cfg.min_quiet_frames,
+                }));
+            return State::Ignoring;
+        }
+        let keep = reference + approach;
+        let drop = self.ring.len() - keep;
+        for _ in 0..drop {
+            let h = self.ring.pop_front().expect("counted");
+            self.recycle(h.image);
+        }
+        let mut frames = Vec::with_capacity(keep + 64);
+        frames.extend(self.ring.drain(..));
+        // Frames of the approach at or after the contact start are in contact.
+        let in_contact = frames.iter().filter(|h| h.t_us >= t_us).count();
+        self.quiet_run = 0;
+        State::Pressing(Take {
+            frames,
+            reference,
+            start_us: t_us,
+            end_us: t_us,
+            peak: score,
+            in_contact,
+        })
+    }
+
+    fn drop_take(&mut self, take: Take) {
+        for h in take.frames {
+            self.recycle(h.image);
+        }
+    }
+
+    fn complete(&mut self, take: Take, extra: Option<RecordWarning>) {
+        let held_ms = take.end_us.saturating_sub(take.start_us) as f64 / 1000.0;
+        if held_ms < self.cfg.min_press_ms {
+            self.drop_take(take);
+            self.events
+                .push_back(RecordEvent::Rejected(RecordWarning::TooShort {
+                    held_ms,
+                    min_ms: self.cfg.min_press_ms,
+                }));
+            return;
+        }
+        let mut warnings = Vec::new();
+        if take.peak < self.cfg.min_peak {
+            warnings.push(RecordWarning::TooWeak {
+                peak: take.peak,
+                min: self.cfg.min_peak,
+            });
+        }
+        warnings.extend(extra);
+        let t0 = take.frames.first().map(|h| h.t_us).unwrap_or(0);
+        let t1 = take.frames.last().map(|h| h.t_us).unwrap_or(0);
+        let n = take.frames.len();
+        let fps = self
+            .cfg
+            .fps
+            .unwrap_or_else(|| measured_fps(n, t1.saturating_sub(t0)));
+        let timestamps_us: Vec<u64> = take
+            .frames
+            .iter()
+            .map(|h| h.t_us.saturating_sub(t0))
+            .collect();
+        let frames: Vec<RgbImage> = take.frames.into_iter().map(|h| h.image).collect();
+        let label = &self.label;
+        let meta = PressMeta {
+            textile: label.textile.clone(),
+            person: label.person,
+            sensor: label.sensor,
+            jig: label.jig,
+            fps,
+            timestamps_us,
+            seed: None,
+            source: label.source.clone(),
+            sensor_serial: label.sensor_serial.clone(),
+            params: None,
+            reference_frames: Some(take.reference as u32),
+        };
+        let summary = PressSummary {
+            frames: n,
+            duration_ms: t1.saturating_sub(t0) as f64 / 1000.0,
+            held_ms,
+            peak: take.peak,
+            reference_frames: take.reference as u32,
+            fps,
+            warnings,
+        };
+        self.events
+            .push_back(RecordEvent::PressComplete(Box::new(RecordedPress {
+                press: Press { meta, frames },
+                summary,
+            })));
+    }
+}
+
+/// Frames per second from `n` frames spanning `span_us` (60 when it cannot
+/// be measured), rounded to 0.01.
+pub fn measured_fps(n: usize, span_us: u64) -> f32 {
+    if n < 2 || span_us == 0 {
+        return 60.0;
+    }
+    let fps = (n - 1) as f64 * 1e6 / span_us as f64;
+    ((fps * 100.0).round() / 100.0) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contact::{ContactConfig, ContactDetector};
+    use telextiles_sim::{PressSpec, Simulator};
+
+    fn frame(image: &RgbImage, t_us: u64, seq: u64) -> Frame {
+        Frame {
+            image: image.clone(),
+            timestamp_us: t_us,
+            seq,
+        }
+    }
+
+    /// Feeds a detector and a recorder, collecting the events.
+    struct Rig {
+        det: ContactDetector,
+        rec: Recorder,
+        seq: u64,
+        period_us: u64,
+        events: Vec<RecordEvent>,
+    }
+
+    impl Rig {
+        fn new(cfg: RecorderConfig) -> Rig {
+            Rig {
+                det: ContactDetector::new(ContactConfig::default()),
+                rec: Recorder::new(cfg, RecordLabel::new("T030", "sim")),
+                seq: 0,
+                period_us: 16_667,
+                events: Vec::new(),
+            }
+        }
+        fn feed(&mut self, image: &RgbImage) {
+            let f = frame(image, self.seq * self.period_us, self.seq);
+            self.seq += 1;
+            let u = self.det.update(&f.image, f.timestamp_us);
+            self.rec.push(&f, &u);
+            while let Some(e) = self.rec.poll() {
+                self.events.push(e);
+            }
+        }
+        fn finish(&mut self) {
+            self.rec.finish();
+            while let Some(e) = self.rec.poll() {
+                self.events.push(e);
+            }
+        }
+        fn presses(&self) -> Vec<&RecordedPress> {
+            self.events
+                .iter()
+                .filter_map(|e| match e {
+                    RecordEvent::PressComplete(p) => Some(&**p),
+                    _ => None,
+                })
+                .collect()
+        }
+        fn rejections(&self) -> Vec<&RecordWarning> {
+            self.events
+                .iter()
+                .filter_map(|e| match e {
+                    RecordEvent::Rejected(w) => Some(w),
+                    _ => None,
+                })
+                .collect()
+        }
+    }
+
+    fn sim_press(textile: &str, seed: u64) -> (Simulator, Press) {
+        let sim = Simulator::new().expect("simulator");
+        let spec = PressSpec {
+            release: Some(true),
+            ..PressSpec::new(textile, seed)
+        };
+        let p = sim.render_press(&spec).expect("render");
+        (sim, p)
+    }
+
+    #[test]
+    fn record_segments_a_simulated_press_with_its_reference_and_margins() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..40 {
+            rig.feed(&bg);
+        }
+        for f in &press.frames {
+            rig.feed(f);
+        }
+        for _ in 0..40 {
+            rig.feed(&bg);
+        }
+        let kinds: Vec<&str> = rig
+            .events
+            .iter()
+            .map(|e| match e {
+                RecordEvent::WaitingForReference => "waiting",
+                RecordEvent::Ready => "ready",
+                RecordEvent::PressStarted { .. } => "started",
+                RecordEvent::Holding { .. } => "holding",
+                RecordEvent::Released { .. } => "released",
+                RecordEvent::PressComplete(_) => "complete",
+                RecordEvent::Rejected(_) => "rejected",
+            })
+            .collect();
+        let mut dedup = kinds.clone();
+        dedup.dedup();
+        assert_eq!(
+            dedup,
+            ["waiting", "ready", "started", "holding", "released", "complete", "ready"],
+            "{kinds:?}"
+        );
+        let presses = rig.presses();
+        let p = presses[0];
+        let cfg = RecorderConfig::default();
+        assert_eq!(p.summary.reference_frames as usize, cfg.pre_frames);
+        assert_eq!(
+            p.press.meta.reference_frames,
+            Some(cfg.pre_frames as u32),
+            "reference frames in the metadata"
+        );
+        assert_eq!(p.press.frames.len(), p.press.meta.timestamps_us.len());
+        assert_eq!(p.press.meta.timestamps_us[0], 0);
+        assert!(p.press.meta.timestamps_us.windows(2).all(|w| w[1] > w[0]));
+        assert!(
+            (p.press.meta.fps - 60.0).abs() < 0.05,
+            "{}",
+            p.press.meta.fps
+        );
+        assert_eq!(p.press.meta.textile, "T030");
+        assert_eq!(p.press.meta.source, "sim");
+        // The leading reference frames are the untouched sensor: they score
+        // like camera noise against the background; the press frames do not.
+        let mut det = ContactDetector::with_reference(ContactConfig::default(), &bg);
+        let k = cfg.pre_frames;
+        for f in &p.press.frames[..k] {
+            assert!(
+                det.score(f) < 0.6,
+                "reference frame scores {}",
+                det.score(f)
+            );
+        }
+        let peak = p.press.frames[k..]
+            .iter()
+            .map(|f| det.score(f))
+            .fold(0f32, f32::max);
+        assert!(peak > 1.0, "peak {peak}");
+        assert!(p.summary.peak > 1.0, "summary peak {}", p.summary.peak);
+        // The press (minus the margins) is all of the rendered contact; the
+        // margin after the release is there.
+        let last = p.press.frames.last().expect("frames");
+        assert!(det.score(last) < 0.6, "last frame is untouched again");
+        assert!(p.summary.warnings.is_empty(), "{:?}", p.summary.warnings);
+        assert!(p.summary.held_ms > cfg.min_press_ms);
+        assert!(
+            (p.summary.duration_ms - (p.press.frames.len() - 1) as f64 * 16.667).abs() < 1.0,
+            "{}",
+            p.summary.duration_ms
+        );
+    }
+
+    #[test]
+    fn record_presses_follow_one_another_and_memory_stays_bounded() {
+        let (sim, a) = sim_press("T030", 1);
+        let (_, b) = sim_press("T080", 2);
+        let bg = sim.background(0);
+        let cfg = RecorderConfig::default();
+        let bound = 2 * (cfg.pre_frames + cfg.approach_frames + 1) + 150 + cfg.post_frames;
+        let mut rig = Rig::new(cfg);
+        let mut most = 0;
+        for p in [&a, &b, &a] {
+            for _ in 0..30 {
+                rig.feed(&bg);
+                most = most.max(rig.rec.frames_held());
+            }
+            for f in &p.frames {
+                rig.feed(f);
+                most = most.max(rig.rec.frames_held());
+            }
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        assert_eq!(rig.presses().len(), 3, "{:?}", rig.rejections());
+        assert!(most <= bound, "held {most} frames (bound {bound})");
+        let readies = rig
+            .events
+            .iter()
+            .filter(|e| matches!(e, RecordEvent::Ready))
+            .count();
+        assert_eq!(
+            readies, 4,
+            "press now before every press, and after the last"
+        );
+    }
+
+    #[test]
+    fn record_rejects_a_press_without_quiet_frames_before_it() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        // The detector knows the background, but the recorder has seen no
+        // quiet frame: the press starts straight away.
+        let mut rig = Rig::new(RecorderConfig::default());
+        rig.det = ContactDetector::with_reference(ContactConfig::default(), &bg);
+        let touched = &press.frames[press.frames.len() / 2];
+        for _ in 0..30 {
+            rig.feed(touched);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        assert!(rig.presses().is_empty());
+        assert!(
+            matches!(
+                rig.rejections()[..],
+                [RecordWarning::NoQuietBefore {
+                    quiet_frames: 0,
+                    needed: 8
+                }]
+            ),
+            "{:?}",
+            rig.rejections()
+        );
+        // After the release the sensor is quiet again: ready for the next one.
+        assert!(matches!(rig.events.last(), Some(RecordEvent::Ready)));
+    }
+
+    #[test]
+    fn record_rejects_a_tap_and_warns_about_a_weak_press() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let touched = press.frames[press.frames.len() / 2].clone();
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for _ in 0..6 {
+            rig.feed(&touched);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        assert!(rig.presses().is_empty());
+        assert!(
+            matches!(rig.rejections()[..], [RecordWarning::TooShort { .. }]),
+            "{:?}",
+            rig.rejections()
+        );
+        // The same press long enough but with a peak under a high minimum: kept, flagged.
+        let mut rig = Rig::new(RecorderConfig {
+            min_peak: 1000.0,
+            ..RecorderConfig::default()
+        });
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for _ in 0..40 {
+            rig.feed(&touched);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let p = rig.presses();
+        assert_eq!(p.len(), 1);
+        assert!(
+            matches!(p[0].summary.warnings[..], [RecordWarning::TooWeak { .. }]),
+            "{:?}",
+            p[0].summary.warnings
+        );
+        assert_eq!(p[0].summary.warnings[0].code(), "too_weak");
+    }
+
+    #[test]
+    fn record_rejects_a_press_held_too_long_and_recovers() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let touched = press.frames[press.frames.len() / 2].clone();
+        let cfg = RecorderConfig {
+            max_press_frames: 50,
+            ..RecorderConfig::default()
+        };
+        let mut rig = Rig::new(cfg.clone());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let mut most = 0;
+        for _ in 0..200 {
+            rig.feed(&touched);
+            most = most.max(rig.rec.frames_held());
+        }
+        assert!(most <= 2 * (cfg.pre_frames + cfg.approach_frames + 1) + 52);
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        assert!(
+            matches!(
+                rig.rejections()[..],
+                [RecordWarning::TooLong { max_frames: 50 }]
+            ),
+            "{:?}",
+            rig.rejections()
+        );
+        // And the next (shorter) press records normally.
+        for _ in 0..40 {
+            rig.feed(&touched);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let tail: Vec<_> = rig
+            .events
+            .iter()
+            .filter(|e| !matches!(e, RecordEvent::Holding { .. }))
+            .collect();
+        assert_eq!(rig.presses().len(), 1, "{tail:?}");
+    }
+
+    #[test]
+    fn record_keeps_a_press_cut_off_by_the_end_of_the_frames() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let touched = press.frames[press.frames.len() / 2].clone();
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for _ in 0..40 {
+            rig.feed(&touched);
+        }
+        rig.finish();
+        let p = rig.presses();
+        assert_eq!(p.len(), 1);
+        assert_eq!(p[0].summary.warnings, [RecordWarning::NotReleased]);
+        assert_eq!(p[0].press.frames.len(), 30 + 40);
+    }
+
+    #[test]
+    fn record_interrupted_press_is_rejected() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let touched = press.frames[press.frames.len() / 2].clone();
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for _ in 0..20 {
+            rig.feed(&touched);
+        }
+        rig.det.recapture();
+        rig.feed(&bg);
+        assert_eq!(rig.rejections(), [&RecordWarning::Interrupted]);
+        assert_eq!(rig.rec.state(), RecordState::Waiting);
+    }
+
+    #[test]
+    fn record_given_fps_and_measured_fps() {
+        assert_eq!(measured_fps(26, 1_000_000), 25.0);
+        assert_eq!(measured_fps(1, 0), 60.0);
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let mut rig = Rig::new(RecorderConfig {
+            fps: Some(30.0),
+            ..RecorderConfig::default()
+        });
+        rig.period_us = 40_000; // the frames come at 25 fps, the config says 30
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for f in &press.frames {
+            rig.feed(f);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        assert_eq!(rig.presses()[0].press.meta.fps, 30.0);
+        let mut rig = Rig::new(RecorderConfig::default());
+        rig.period_us = 40_000;
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for f in &press.frames {
+            rig.feed(f);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let p = rig.presses()[0];
+        assert_eq!(p.press.meta.fps, 25.0);
+        assert_eq!(p.press.meta.timestamps_us[1], 40_000);
+    }
+
+    #[test]
+    fn record_written_press_reads_back_with_its_reference() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for f in &press.frames {
+            rig.feed(f);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let p = rig.presses()[0].press.clone();
+        let dir = tempfile::tempdir().expect("tempdir");
+        let d = dir.path().join("T030").join("0001");
+        telextiles_sim::recording::write_press(&d, &p).expect("write");
+        let back = telextiles_sim::recording::read_press(&d).expect("read");
+        assert_eq!(back, p);
+        assert!(telextiles_sim::recording::write_press(&d, &p).is_err());
+    }
+}
