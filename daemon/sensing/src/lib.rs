@@ -8,4 +8,5 @@ pub mod encoder;
 pub mod frame;
 pub mod pipeline;
 pub mod preprocess;
+pub mod record;
 pub mod source;
