@@ -10,6 +10,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
+use telextiles_sensing::front::recording_reference;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
@@ -225,29 +226,19 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
             args.press
         );
     }
-    let sim = Simulator::new()?;
-    let mut enc = Some(enc);
-    let mut pipeline: Option<Pipeline<Index>> = None;
-    for dir in dirs {
-        let src = RecordedSource::open(&dir, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
-        // Simulated recordings come with a known no-contact frame; real ones
-        // have their reference captured from their first frames.
-        let reference = (src.meta().source == "sim").then(|| sim.background(src.meta().sensor));
-        let e = match pipeline.take() {
-            Some(p) => p.into_encoder(),
-            None => enc.take().expect("encoder"),
-        };
-        let mut p = Pipeline::new(
-            e,
-            index.clone(),
-            PipelineConfig::default(),
-            reference.as_ref(),
-        )
+    // One pipeline, reset for every recording with the recording's own
+    // reference: nothing carries over from one recording to the next.
+    let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None)
         .map_err(anyhow::Error::msg)?;
-        let mut src = src;
+    let progress = telextiles_progress::Progress::new("classify", dirs.len() as u64, "presses");
+    for dir in dirs {
+        let press = telextiles_sim::recording::read_press(&dir)
+            .with_context(|| format!("cannot replay {}", dir.display()))?;
+        pipeline.reset(recording_reference(&press).as_deref());
         let name = dir.display().to_string();
+        let mut src = RecordedSource::from_press(press, pace, name.clone());
         let mut err = Ok(());
-        run_source(&mut p, &mut src, None, |r| {
+        run_source(&mut pipeline, &mut src, None, |r| {
             n += 1;
             if err.is_ok() {
                 err = print(out, &args, &name, n, &r, &index);
@@ -255,8 +246,9 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         })
         .map_err(anyhow::Error::msg)?;
         err?;
-        pipeline = Some(p);
+        progress.inc(1);
     }
+    progress.finish();
     Ok(())
 }
 

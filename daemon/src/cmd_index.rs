@@ -5,8 +5,10 @@ use clap::{Args as ClapArgs, Subcommand};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
-use telextiles_sensing::contact::{ContactConfig, ContactDetector};
+use telextiles_progress::Progress;
+use telextiles_sensing::contact::ContactConfig;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
+use telextiles_sensing::front::{recording_reference, FrontEnd};
 use telextiles_sim::catalogue::{Book, Catalogue};
 use telextiles_sim::dataset::Protocol;
 use telextiles_sim::{Press, Simulator};
@@ -90,27 +92,32 @@ pub fn run(args: Args) -> Result<()> {
     }
 }
 
-/// Embeddings of the in-contact frames of a press (every `stride`-th), with
-/// the first frame as the no-contact reference (of the contact detector and
-/// of a background-subtracting encoder).
-pub fn press_embeddings(enc: &mut Encoder, press: &Press, stride: usize) -> Result<Vec<Vec<f32>>> {
-    let Some(first) = press.frames.first() else {
-        return Ok(Vec::new());
-    };
-    let mut contact = ContactDetector::with_reference(ContactConfig::default(), first);
-    // A background-subtracting encoder starts from the same reference and
-    // follows the untouched frames, as in a live session.
-    enc.set_reference(first)?;
+/// Embeddings of the in-contact frames of a press (every `stride`-th),
+/// through the same front end as the live session and `classify`, reset
+/// for this press with its own no-contact reference (the quiet frames it
+/// starts with; captured from its first steady frames where it does not say).
+pub fn press_embeddings(
+    front: &mut FrontEnd,
+    press: &Press,
+    stride: usize,
+) -> Result<Vec<Vec<f32>>> {
+    front.reset(recording_reference(press).as_deref());
     let mut out = Vec::new();
     let mut k = 0usize;
-    for (frame, &t) in press.frames.iter().zip(&press.meta.timestamps_us) {
-        let up = contact.update(frame, t);
-        if up.quiet {
-            enc.observe_background(frame)?;
-        }
-        if up.in_contact {
+    for (i, (image, &t)) in press
+        .frames
+        .iter()
+        .zip(&press.meta.timestamps_us)
+        .enumerate()
+    {
+        let frame = telextiles_sensing::frame::Frame {
+            image: image.clone(),
+            timestamp_us: t,
+            seq: i as u64,
+        };
+        if let Some(e) = front.process(&frame)?.embedding {
             if k.is_multiple_of(stride.max(1)) {
-                out.push(enc.encode(frame)?.to_vec());
+                out.push(e.to_vec());
             }
             k += 1;
         }
@@ -187,7 +194,7 @@ fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
 }
 
 fn build(a: BuildArgs) -> Result<()> {
-    let mut enc = Encoder::open(
+    let enc = Encoder::open(
         &a.model,
         &EncoderOptions {
             threads: a.threads,
@@ -196,6 +203,7 @@ fn build(a: BuildArgs) -> Result<()> {
     )
     .with_context(|| format!("cannot load the encoder {}", a.model.display()))?;
     let info = enc.info().clone();
+    let mut front = FrontEnd::new(enc, ContactConfig::default(), None);
     let cat = Catalogue::builtin();
     // textile id -> (frame embeddings, per-press means)
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
@@ -217,18 +225,21 @@ fn build(a: BuildArgs) -> Result<()> {
                 root.display()
             );
         }
+        let progress = Progress::new("index build", dirs.len() as u64, "presses");
         for d in dirs {
             let press = telextiles_sim::recording::read_press(&d)?;
-            let embs = press_embeddings(&mut enc, &press, a.stride)?;
+            let embs = press_embeddings(&mut front, &press, a.stride)?;
             if embs.is_empty() {
-                eprintln!(
+                progress.println(&format!(
                     "warning: {}: no contact detected, press skipped",
                     d.display()
-                );
+                ));
             }
             add(&press.meta.textile, embs);
             presses += 1;
+            progress.inc(1);
         }
+        progress.finish();
     } else if a.sim {
         let sim = Simulator::new()?;
         let protocol = sim_protocol(
@@ -240,15 +251,17 @@ fn build(a: BuildArgs) -> Result<()> {
             },
         )?;
         let total = protocol.len(&cat);
+        let progress = Progress::new("index build", total as u64, "simulated presses");
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
-            add(&spec.textile, press_embeddings(&mut enc, &press, a.stride)?);
+            add(
+                &spec.textile,
+                press_embeddings(&mut front, &press, a.stride)?,
+            );
             presses += 1;
-            if presses.is_multiple_of(50) || presses == total {
-                eprint!("\rindexed {presses}/{total} presses");
-            }
+            progress.inc(1);
         }
-        eprintln!();
+        progress.finish();
     } else {
         bail!("say where the presses come from: --presses <dir> or --sim");
     }
@@ -286,7 +299,7 @@ fn build(a: BuildArgs) -> Result<()> {
         let protocol = sim_protocol(&a, Some(Book::Unseen))?;
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
-            let embs = press_embeddings(&mut enc, &press, a.stride)?;
+            let embs = press_embeddings(&mut front, &press, a.stride)?;
             if let Some(m) = mean_normalised(&embs) {
                 unseen.push(m);
             }

@@ -32,10 +32,11 @@ use telextiles_link::{now_us, HelloInfo, LinkConfig, LinkEvent, LinkHandle, Pair
 use telextiles_proto::peer::Control;
 use telextiles_proto::roller::steps_to_mdeg;
 use telextiles_roller::{DriverConfig, RollerDriver, RollerEvent, Target};
-use telextiles_sensing::contact::{ContactConfig, ContactDetector, ContactEvent};
+use telextiles_sensing::contact::{ContactConfig, ContactEvent};
 use telextiles_sensing::decide::{DecideConfig, Decider, TextileIndex};
 use telextiles_sensing::encoder::{Encoder, EncoderOptions, ModelInfo};
 use telextiles_sensing::frame::Frame;
+use telextiles_sensing::front::FrontEnd;
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::FrameSource;
@@ -540,12 +541,15 @@ fn open_source(cfg: &Config, opts: &SessionOptions) -> Result<OpenedSource> {
 fn sensing_thread(
     state: Arc<State>,
     mut source: Box<dyn FrameSource>,
-    mut encoder: Encoder,
+    encoder: Encoder,
     cmds: std_mpsc::Receiver<SensorCmd>,
 ) {
-    let mut contact = ContactDetector::new(ContactConfig::default());
+    // The one per-frame path (as `classify` and `index build` run it):
+    // contact detection and the no-contact reference, then encoding while
+    // in contact.
+    let mut front = FrontEnd::new(encoder, ContactConfig::default(), None);
     let mut frame = Frame::blank();
-    let dim = encoder.dim();
+    let dim = front.encoder().dim();
     let mut press_id: u32 = 0;
     let mut sum = vec![0.0f32; dim];
     let mut mean = vec![0.0f32; dim];
@@ -553,7 +557,7 @@ fn sensing_thread(
     loop {
         while let Ok(cmd) = cmds.try_recv() {
             match cmd {
-                SensorCmd::Recapture => contact.recapture(),
+                SensorCmd::Recapture => front.recapture(),
                 SensorCmd::Sim(c) => {
                     if let Some(h) = &state.sim {
                         h.send(c);
@@ -584,17 +588,19 @@ fn sensing_thread(
         }
         let capture_us = now_us();
         lock(&state.counters).frames += 1;
-        let up = contact.update(&frame.image, frame.timestamp_us);
-        if up.quiet {
-            // Background-subtracting encoders follow the untouched frames.
-            if let Err(e) = encoder.observe_background(&frame.image) {
+        let out = match front.process(&frame) {
+            Ok(o) => o,
+            Err(e) => {
+                lock(&state.counters).bad_frames += 1;
                 let _ = state.events.send(Event::Error {
                     source: "encoder".into(),
                     message: e.to_string(),
                 });
+                continue;
             }
-        }
-        let contact_us = now_us();
+        };
+        let up = out.contact;
+        let contact_us = capture_us + out.contact_ns / 1000;
         match up.event {
             Some(ContactEvent::PressStart { .. }) => {
                 press_id = press_id.wrapping_add(1);
@@ -622,40 +628,27 @@ fn sensing_thread(
             }
             _ => {}
         }
-        if up.in_contact {
-            match encoder.encode(&frame.image) {
-                Ok(emb) => {
-                    let encoded_us = now_us();
-                    let n = emb.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-                    for (s, v) in sum.iter_mut().zip(emb) {
-                        *s += v / n;
-                    }
-                    frames_in_press += 1;
-                    mean.copy_from_slice(&sum);
-                    normalise(&mut mean);
-                    let mut v = emb.to_vec();
-                    normalise(&mut v);
-                    if let Ok(sent) = state
-                        .link
-                        .send_latent_timed(press_id, &v, capture_us, false)
-                    {
-                        let sent_us = now_us();
-                        lock(&state.counters).latents_sent += 1;
-                        if let Some(t) = &state.trace {
-                            t.tx(
-                                sent.seq,
-                                press_id,
-                                [capture_us, contact_us, encoded_us, sent.encoded_us, sent_us],
-                            );
-                        }
-                    }
-                }
-                Err(e) => {
-                    lock(&state.counters).bad_frames += 1;
-                    let _ = state.events.send(Event::Error {
-                        source: "encoder".into(),
-                        message: e.to_string(),
-                    });
+        if let Some(emb) = out.embedding {
+            let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
+            // The embedding is L2-normalised by the encoder.
+            for (s, v) in sum.iter_mut().zip(emb) {
+                *s += v;
+            }
+            frames_in_press += 1;
+            mean.copy_from_slice(&sum);
+            normalise(&mut mean);
+            if let Ok(sent) = state
+                .link
+                .send_latent_timed(press_id, emb, capture_us, false)
+            {
+                let sent_us = now_us();
+                lock(&state.counters).latents_sent += 1;
+                if let Some(t) = &state.trace {
+                    t.tx(
+                        sent.seq,
+                        press_id,
+                        [capture_us, contact_us, encoded_us, sent.encoded_us, sent_us],
+                    );
                 }
             }
         }

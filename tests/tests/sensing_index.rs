@@ -61,7 +61,7 @@ fn replayed_presses_resolve_through_an_index_file() {
         enc,
         index.clone(),
         PipelineConfig::default(),
-        Some(&sim.background(0)),
+        Some(&telextiles_sensing::front::pixels_of(&sim.background(0))),
     )
     .unwrap();
     let mut slots = std::collections::BTreeSet::new();

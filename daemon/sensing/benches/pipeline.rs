@@ -91,7 +91,7 @@ fn main() {
         enc,
         index,
         PipelineConfig::default(),
-        Some(&sim.background(0)),
+        Some(&telextiles_sensing::front::pixels_of(&sim.background(0))),
     )
     .unwrap();
 

@@ -11,13 +11,33 @@
 //!
 //! The reference is the mean of the first `reference_frames` frames (the
 //! sensor must not be touched at start), or of the frames after
-//! [`ContactDetector::recapture`]. It is kept fresh: while there is no contact
-//! and the score is below `exit`, it follows the frames slowly (exponential
-//! average with weight `background_alpha`), absorbing LED warm-up and
-//! temperature drift. A reference gone stale while "in contact" (the gel
-//! settled, the LEDs changed) shows as a contact whose score stays flat for
-//! `stale_after_frames`; then the reference is re-captured from the current
-//! frames and the press ends with [`EndReason::StaleReference`].
+//! [`ContactDetector::recapture`]. A capture restarts while the frames move
+//! (a hand on the sensor at start-up): every frame of it must stay within
+//! `capture_motion` of the first. The detector keeps the reference twice: as
+//! 4x4 block means for scoring, and at full resolution
+//! ([`ContactDetector::reference_pixels`], with a version number that changes
+//! whenever it does) for encoders that subtract it, so the detector is the
+//! one place a pipeline's reference lives.
+//!
+//! The reference is kept fresh three ways:
+//! - while there is no contact and the score is below `exit`, it follows the
+//!   frames slowly (exponential average with weight `background_alpha`;
+//!   the full-resolution copy every `full_every` quiet frames), absorbing
+//!   LED warm-up and temperature drift;
+//! - after every release it is re-established: once the gel has settled
+//!   (`settle_frames` quiet frames), the mean of the next `reference_frames`
+//!   quiet frames replaces it (`renew_after_release`);
+//! - a reference gone stale while "in contact" (the gel settled, the LEDs
+//!   changed) shows as a contact whose score stays flat for
+//!   `stale_after_frames`; then the reference is re-captured from the
+//!   current frames and the press ends with [`EndReason::StaleReference`].
+//!
+//! A reference captured while something touched the sensor (a press that
+//! started before the daemon did) holds fabric detail that an untouched
+//! sensor does not show. When a "press" starts on a frame with clearly less
+//! fine detail than the reference (`touched_reference_ratio`), it is the
+//! release of that earlier touch, not a press: no press starts
+//! ([`ContactEvent::ReferenceRejected`]) and the reference is re-captured.
 //!
 //! Pure and deterministic: timestamps come with the frames.
 
@@ -29,6 +49,8 @@ const STEP: usize = 4;
 const SAMPLES_X: usize = FRAME_W as usize / STEP;
 const SAMPLES_Y: usize = FRAME_H as usize / STEP;
 const SAMPLES: usize = SAMPLES_X * SAMPLES_Y * 3;
+/// Values in a full-resolution frame.
+const FULL: usize = (FRAME_W * FRAME_H * 3) as usize;
 
 /// Contact-detector tuning.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,6 +76,20 @@ pub struct ContactConfig {
     pub stale_after_frames: u32,
     /// Score band for the stale test.
     pub stale_band: f32,
+    /// A reference capture restarts when a frame's score against the first
+    /// frame of the capture reaches this (the sensor is moving).
+    pub capture_motion: f32,
+    /// After this many restarts the capture is accepted anyway.
+    pub max_capture_restarts: u32,
+    /// Re-establish the reference after each release.
+    pub renew_after_release: bool,
+    /// Quiet frames after a release before the new reference is averaged.
+    pub settle_frames: u32,
+    /// The full-resolution reference follows every n-th quiet frame.
+    pub full_every: u32,
+    /// A press start whose frame has less fine detail than the reference
+    /// by this factor means the reference was captured touched (0 = off).
+    pub touched_reference_ratio: f32,
 }
 
 impl Default for ContactConfig {
@@ -69,6 +105,12 @@ impl Default for ContactConfig {
             background_alpha: 0.01,
             stale_after_frames: 1800,
             stale_band: 0.3,
+            capture_motion: 1.2,
+            max_capture_restarts: 240,
+            renew_after_release: true,
+            settle_frames: 15,
+            full_every: 4,
+            touched_reference_ratio: 1.3,
         }
     }
 }
@@ -95,6 +137,13 @@ pub enum ContactEvent {
     /// A press started.
     PressStart {
         /// Timestamp of the first frame over `enter` in the run that started it.
+        t_us: u64,
+    },
+    /// A would-be press showed that the reference had been captured while
+    /// the sensor was touched: no press started, the reference is being
+    /// re-captured.
+    ReferenceRejected {
+        /// Timestamp of the frame that showed it.
         t_us: u64,
     },
     /// A press ended.
@@ -127,10 +176,14 @@ pub struct ContactUpdate {
 enum State {
     Capturing {
         n: u32,
+        restarts: u32,
     },
     Idle {
         run: u32,
         run_start: u64,
+        /// Quiet frames since the last release while the reference is
+        /// being re-established (None: not renewing).
+        renew: Option<u32>,
     },
     Contact {
         start: u64,
@@ -148,6 +201,14 @@ pub struct ContactDetector {
     reference: Vec<f32>,
     acc: Vec<f32>,
     samples: Vec<f32>,
+    /// First frame of a capture (block means), for the motion test.
+    first: Vec<f32>,
+    /// Full-resolution reference, RGB interleaved, 0..255 (empty: none yet).
+    full: Vec<f32>,
+    full_acc: Vec<f32>,
+    /// Bumped whenever `full` changes.
+    version: u64,
+    quiet_count: u32,
     state: State,
     pending_end: Option<(u64, EndReason)>,
     floor: f32,
@@ -162,18 +223,38 @@ impl ContactDetector {
             reference: vec![0.0; SAMPLES],
             acc: vec![0.0; SAMPLES],
             samples: vec![0.0; SAMPLES],
-            state: State::Capturing { n: 0 },
+            first: vec![0.0; SAMPLES],
+            full: Vec::new(),
+            full_acc: vec![0.0; FULL],
+            version: 0,
+            quiet_count: 0,
+            state: State::Capturing { n: 0, restarts: 0 },
             pending_end: None,
         }
     }
 
-    /// A detector with a known reference frame (e.g. the simulator's background).
+    /// A detector with a known reference frame (e.g. a recording's own
+    /// no-contact frames, or the simulator's background).
     pub fn with_reference(cfg: ContactConfig, reference: &RgbImage) -> ContactDetector {
+        let px: Vec<f32> = reference.as_raw().iter().map(|&v| v as f32).collect();
+        ContactDetector::with_reference_pixels(cfg, &px)
+    }
+
+    /// A detector with a known reference given as full-resolution RGB
+    /// values (240x320x3, interleaved, 0..255; e.g. the mean of a
+    /// recording's quiet frames, see [`mean_pixels`]).
+    ///
+    /// # Panics
+    /// If `pixels` is not 240x320x3 long.
+    pub fn with_reference_pixels(cfg: ContactConfig, pixels: &[f32]) -> ContactDetector {
+        assert_eq!(pixels.len(), FULL, "reference size");
         let mut d = ContactDetector::new(cfg);
-        sample(reference, &mut d.reference);
+        d.set_full(pixels);
+        sample_f32(pixels, &mut d.reference);
         d.state = State::Idle {
             run: 0,
             run_start: 0,
+            renew: None,
         };
         d
     }
@@ -198,14 +279,31 @@ impl ContactDetector {
         matches!(self.state, State::Capturing { .. })
     }
 
+    /// Whether the reference is being re-established after a release.
+    pub fn renewing(&self) -> bool {
+        matches!(self.state, State::Idle { renew: Some(_), .. })
+    }
+
+    /// The full-resolution reference (240x320x3 RGB, interleaved, 0..255),
+    /// None until the first capture completes.
+    pub fn reference_pixels(&self) -> Option<&[f32]> {
+        (!self.full.is_empty()).then_some(self.full.as_slice())
+    }
+
+    /// Changes whenever [`ContactDetector::reference_pixels`] does.
+    pub fn reference_version(&self) -> u64 {
+        self.version
+    }
+
     /// Re-capture the reference from the next frames (the sensor must be
     /// free). A press in progress ends on the next frame with
-    /// [`EndReason::Recapture`].
+    /// [`EndReason::Recapture`]. The current reference stays in use until
+    /// the new one is complete.
     pub fn recapture(&mut self) {
         if let State::Contact { start, .. } = self.state {
             self.pending_end = Some((start, EndReason::Recapture));
         }
-        self.state = State::Capturing { n: 0 };
+        self.state = State::Capturing { n: 0, restarts: 0 };
     }
 
     /// Forget a press in progress (the frames stopped: end of a recording),
@@ -216,7 +314,68 @@ impl ContactDetector {
             self.state = State::Idle {
                 run: 0,
                 run_start: 0,
+                renew: None,
             };
+        }
+    }
+
+    fn set_full(&mut self, pixels: &[f32]) {
+        self.full.clear();
+        self.full.extend_from_slice(pixels);
+        self.version += 1;
+        self.quiet_count = 0;
+    }
+
+    /// Add a frame to the full-resolution accumulator (`n` frames so far).
+    fn accumulate_full(&mut self, image: &RgbImage, n: u32) {
+        let raw = image.as_raw();
+        if raw.len() != FULL {
+            return;
+        }
+        if n == 0 {
+            for (a, &v) in self.full_acc.iter_mut().zip(raw) {
+                *a = v as f32;
+            }
+        } else {
+            for (a, &v) in self.full_acc.iter_mut().zip(raw) {
+                *a += v as f32;
+            }
+        }
+    }
+
+    /// The accumulators (`n` frames) become the reference.
+    fn commit_reference(&mut self, n: u32) {
+        let inv = 1.0 / n.max(1) as f32;
+        for (r, a) in self.reference.iter_mut().zip(&self.acc) {
+            *r = a * inv;
+        }
+        self.full_acc.iter_mut().for_each(|a| *a *= inv);
+        std::mem::swap(&mut self.full, &mut self.full_acc);
+        if self.full_acc.len() != FULL {
+            self.full_acc = vec![0.0; FULL];
+        }
+        self.version += 1;
+        self.quiet_count = 0;
+    }
+
+    /// A quiet idle frame: the references follow it slowly.
+    fn follow(&mut self, image: &RgbImage) {
+        let a = self.cfg.background_alpha;
+        if a <= 0.0 {
+            return;
+        }
+        for (r, s) in self.reference.iter_mut().zip(&self.samples) {
+            *r += a * (s - *r);
+        }
+        let every = self.cfg.full_every.max(1);
+        self.quiet_count += 1;
+        if self.quiet_count >= every && self.full.len() == FULL && image.as_raw().len() == FULL {
+            self.quiet_count = 0;
+            let a = (a * every as f32).min(1.0);
+            for (r, &v) in self.full.iter_mut().zip(image.as_raw()) {
+                *r += a * (v as f32 - *r);
+            }
+            self.version += 1;
         }
     }
 
@@ -230,14 +389,7 @@ impl ContactDetector {
     /// have pixels).
     pub fn update(&mut self, image: &RgbImage, t_us: u64) -> ContactUpdate {
         sample(image, &mut self.samples);
-        if let State::Capturing { n } = self.state {
-            if n == 0 {
-                self.acc.iter_mut().for_each(|a| *a = 0.0);
-            }
-            for (a, s) in self.acc.iter_mut().zip(&self.samples) {
-                *a += s;
-            }
-            let n = n + 1;
+        if let State::Capturing { n, restarts } = self.state {
             let mut event =
                 self.pending_end
                     .take()
@@ -246,19 +398,35 @@ impl ContactDetector {
                         t_us,
                         reason,
                     });
+            let moved = n > 0
+                && restarts < self.cfg.max_capture_restarts
+                && mad(&self.samples, &self.first) >= self.cfg.capture_motion;
+            let (n, restarts) = if moved {
+                (0, restarts + 1)
+            } else {
+                (n, restarts)
+            };
+            if n == 0 {
+                self.first.copy_from_slice(&self.samples);
+                self.acc.iter_mut().for_each(|a| *a = 0.0);
+            }
+            for (a, s) in self.acc.iter_mut().zip(&self.samples) {
+                *a += s;
+            }
+            self.accumulate_full(image, n);
+            let n = n + 1;
             if n >= self.cfg.reference_frames.max(1) {
-                for (r, a) in self.reference.iter_mut().zip(&self.acc) {
-                    *r = a / n as f32;
-                }
+                self.commit_reference(n);
                 self.state = State::Idle {
                     run: 0,
                     run_start: t_us,
+                    renew: None,
                 };
                 if event.is_none() {
                     event = Some(ContactEvent::ReferenceCaptured { t_us });
                 }
             } else {
-                self.state = State::Capturing { n };
+                self.state = State::Capturing { n, restarts };
             }
             return ContactUpdate {
                 score: 0.0,
@@ -274,36 +442,83 @@ impl ContactDetector {
         let mut quiet = false;
         self.state = match self.state.clone() {
             State::Capturing { .. } => unreachable!("handled above"),
-            State::Idle { run, run_start } => {
+            State::Idle {
+                run,
+                run_start,
+                renew,
+            } => {
                 if score >= enter {
                     let run_start = if run == 0 { t_us } else { run_start };
                     if run + 1 >= cfg.min_enter_frames.max(1) {
-                        event = Some(ContactEvent::PressStart { t_us: run_start });
-                        State::Contact {
-                            start: run_start,
-                            run: 0,
-                            flat: 0,
-                            lo: score,
-                            hi: score,
+                        if self.touched_reference(image) {
+                            tracing::warn!(
+                                "the no-contact reference shows more detail than the sensor does now: it was captured while touched; re-capturing it"
+                            );
+                            event = Some(ContactEvent::ReferenceRejected { t_us });
+                            self.first.copy_from_slice(&self.samples);
+                            self.acc.copy_from_slice(&self.samples);
+                            self.accumulate_full(image, 0);
+                            State::Capturing { n: 1, restarts: 0 }
+                        } else {
+                            event = Some(ContactEvent::PressStart { t_us: run_start });
+                            State::Contact {
+                                start: run_start,
+                                run: 0,
+                                flat: 0,
+                                lo: score,
+                                hi: score,
+                            }
                         }
                     } else {
                         State::Idle {
                             run: run + 1,
                             run_start,
+                            renew,
                         }
                     }
-                } else {
-                    if score < exit {
-                        quiet = true;
-                        self.floor = (self.floor + 0.05 * (score - self.floor)).min(cfg.max_floor);
-                        if cfg.background_alpha > 0.0 {
-                            let a = cfg.background_alpha;
-                            for (r, s) in self.reference.iter_mut().zip(&self.samples) {
-                                *r += a * (s - *r);
+                } else if score < exit {
+                    quiet = true;
+                    self.floor = (self.floor + 0.05 * (score - self.floor)).min(cfg.max_floor);
+                    let settle = cfg.settle_frames;
+                    let frames = cfg.reference_frames.max(1);
+                    let renew = match renew {
+                        Some(k) if k >= settle => {
+                            // Averaging the new reference.
+                            let n = k - settle;
+                            if n == 0 {
+                                self.acc.copy_from_slice(&self.samples);
+                            } else {
+                                for (a, s) in self.acc.iter_mut().zip(&self.samples) {
+                                    *a += s;
+                                }
+                            }
+                            self.accumulate_full(image, n);
+                            if n + 1 >= frames {
+                                self.commit_reference(n + 1);
+                                event = Some(ContactEvent::ReferenceCaptured { t_us });
+                                None
+                            } else {
+                                Some(k + 1)
                             }
                         }
+                        Some(k) => Some(k + 1),
+                        None => {
+                            self.follow(image);
+                            None
+                        }
+                    };
+                    State::Idle {
+                        run: 0,
+                        run_start,
+                        renew,
                     }
-                    State::Idle { run: 0, run_start }
+                } else {
+                    // Neither touched nor quiet: a renewal starts over.
+                    State::Idle {
+                        run: 0,
+                        run_start,
+                        renew: renew.map(|_| 0),
+                    }
                 }
             }
             State::Contact {
@@ -329,6 +544,7 @@ impl ContactDetector {
                         State::Idle {
                             run: 0,
                             run_start: t_us,
+                            renew: cfg.renew_after_release.then_some(0),
                         }
                     } else {
                         State::Contact {
@@ -350,8 +566,10 @@ impl ContactDetector {
                     });
                     // This frame is the first of the new reference.
                     self.reference.copy_from_slice(&self.samples);
+                    self.first.copy_from_slice(&self.samples);
                     self.acc.copy_from_slice(&self.samples);
-                    State::Capturing { n: 1 }
+                    self.accumulate_full(image, 0);
+                    State::Capturing { n: 1, restarts: 0 }
                 } else {
                     State::Contact {
                         start,
@@ -370,6 +588,76 @@ impl ContactDetector {
             quiet,
         }
     }
+}
+
+impl ContactDetector {
+    /// Whether the reference holds clearly more fine detail than `image`
+    /// (see the module docs).
+    fn touched_reference(&self, image: &RgbImage) -> bool {
+        let ratio = self.cfg.touched_reference_ratio;
+        if ratio <= 0.0 || self.full.len() != FULL || image.as_raw().len() != FULL {
+            return false;
+        }
+        let raw = image.as_raw();
+        let now = detail(|i| raw[i] as f32);
+        let refd = detail(|i| self.full[i]);
+        refd > ratio * now + 0.05
+    }
+}
+
+/// Fine detail of a frame: the mean absolute difference between
+/// horizontally and vertically adjacent pixels (green channel, every other
+/// row), in the inner half of the frame where the gel is lit evenly.
+fn detail(px: impl Fn(usize) -> f32) -> f32 {
+    let (w, h) = (FRAME_W as usize, FRAME_H as usize);
+    let (x0, x1, y0, y1) = (w / 4, 3 * w / 4, h / 4, 3 * h / 4);
+    let mut s = 0.0f32;
+    let mut n = 0u32;
+    for y in (y0..y1).step_by(2) {
+        for x in x0..x1 {
+            let i = (y * w + x) * 3 + 1;
+            let c = px(i);
+            s += (c - px(i + 3)).abs() + (c - px(i + w * 3)).abs();
+            n += 2;
+        }
+    }
+    s / n.max(1) as f32
+}
+
+/// Mean of every frame of `frames` as full-resolution RGB values
+/// (240x320x3, interleaved, 0..255): a recording's reference from its quiet
+/// frames. None when `frames` is empty or a frame has another size.
+pub fn mean_pixels(frames: &[RgbImage]) -> Option<Vec<f32>> {
+    if frames.is_empty() || frames.iter().any(|f| f.as_raw().len() != FULL) {
+        return None;
+    }
+    let mut acc = vec![0.0f32; FULL];
+    for f in frames {
+        for (a, &v) in acc.iter_mut().zip(f.as_raw()) {
+            *a += v as f32;
+        }
+    }
+    let inv = 1.0 / frames.len() as f32;
+    acc.iter_mut().for_each(|a| *a *= inv);
+    Some(acc)
+}
+
+/// Block means of full-resolution RGB values (as [`sample`] does for u8).
+fn sample_f32(px: &[f32], out: &mut [f32]) {
+    let w = FRAME_W as usize;
+    out.fill(0.0);
+    for y in 0..SAMPLES_Y * STEP {
+        let base = (y / STEP) * SAMPLES_X * 3;
+        for x in 0..SAMPLES_X * STEP {
+            let o = base + (x / STEP) * 3;
+            let i = (y * w + x) * 3;
+            out[o] += px[i];
+            out[o + 1] += px[i + 1];
+            out[o + 2] += px[i + 2];
+        }
+    }
+    let inv = 1.0 / (STEP * STEP) as f32;
+    out.iter_mut().for_each(|v| *v *= inv);
 }
 
 /// Mean of each 4x4 block (per channel): averaging cuts camera noise by 4

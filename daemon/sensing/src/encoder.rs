@@ -11,10 +11,11 @@
 //!
 //! `telextiles.background = subtract`: the model takes the frame minus the
 //! sensor's no-contact reference, both preprocessed (`normalise(frame) -
-//! normalise(reference)`). The encoder keeps that reference itself: set it
-//! ([`Encoder::set_reference`]) or let it follow the untouched frames the
-//! contact detector reports ([`Encoder::observe_background`]); encoding
-//! before there is one is an error.
+//! normalise(reference)`). The encoder holds the preprocessed reference it
+//! is given ([`Encoder::set_reference`], [`Encoder::set_reference_pixels`]);
+//! where that reference comes from and when it changes is the contact
+//! detector's business (see [`crate::front`]). Encoding before there is one
+//! is an error.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -155,18 +156,7 @@ pub struct Encoder {
     subtract: bool,
     /// The preprocessed no-contact reference (subtracting models).
     reference: Option<Vec<f32>>,
-    /// Scratch for [`Encoder::observe_background`].
-    scratch: Vec<f32>,
-    /// Untouched frames seen since the last reference update.
-    quiet_frames: u32,
 }
-
-/// Weight of an observed untouched frame in the reference (exponential
-/// average), and how often one is taken: every 4th untouched frame, so the
-/// reference follows LED and temperature drift over about 1.3 s at 60 fps
-/// for 1/4 of a preprocessing per idle frame.
-const REFERENCE_ALPHA: f32 = 0.05;
-const REFERENCE_EVERY: u32 = 4;
 
 fn contract(path: &Path, msg: impl Into<String>) -> EncoderError {
     EncoderError::Contract {
@@ -343,7 +333,6 @@ impl Encoder {
             dim,
             preprocess: spec,
         };
-        let n = pre.len();
         let mut enc = Encoder {
             session,
             binding,
@@ -354,8 +343,6 @@ impl Encoder {
             info,
             subtract,
             reference: None,
-            scratch: vec![0.0; n],
-            quiet_frames: 0,
         };
         // Dry run: shape and finiteness of the output, before any frame (a
         // subtracting model sees a blank frame against a blank reference). A
@@ -421,36 +408,32 @@ impl Encoder {
             return Ok(());
         }
         check_size(frame)?;
-        let mut r = vec![0.0; self.pre.len()];
-        self.pre.run(frame, &mut r);
-        self.reference = Some(r);
-        self.quiet_frames = 0;
+        let r = self.reference.get_or_insert_with(Vec::new);
+        r.resize(self.pre.len(), 0.0);
+        self.pre.run(frame, r);
         Ok(())
     }
 
-    /// An untouched frame (the contact detector's `quiet`): the first one
-    /// becomes the reference, then every 4th one is averaged in. No-op for
-    /// models that do not subtract the background.
-    pub fn observe_background(&mut self, frame: &RgbImage) -> Result<(), EncoderError> {
+    /// Take full-resolution RGB values (240x320x3, interleaved, 0..255:
+    /// the contact detector's averaged reference) as the no-contact
+    /// reference. No-op for models that do not subtract it.
+    pub fn set_reference_pixels(&mut self, pixels: &[f32]) -> Result<(), EncoderError> {
         if !self.subtract {
             return Ok(());
         }
-        if self.reference.is_none() {
-            return self.set_reference(frame);
+        if pixels.len() != crate::frame::FRAME_BYTES {
+            return Err(crate::frame::FrameError::BadLength { got: pixels.len() }.into());
         }
-        self.quiet_frames += 1;
-        if self.quiet_frames < REFERENCE_EVERY {
-            return Ok(());
-        }
-        self.quiet_frames = 0;
-        check_size(frame)?;
-        self.pre.run(frame, &mut self.scratch);
-        if let Some(r) = self.reference.as_mut() {
-            for (r, s) in r.iter_mut().zip(&self.scratch) {
-                *r += REFERENCE_ALPHA * (s - *r);
-            }
-        }
+        let r = self.reference.get_or_insert_with(Vec::new);
+        r.resize(self.pre.len(), 0.0);
+        self.pre.run_pixels(pixels, r);
         Ok(())
+    }
+
+    /// Forget the reference (a subtracting model then refuses to encode
+    /// until it gets a new one).
+    pub fn clear_reference(&mut self) {
+        self.reference = None;
     }
 
     /// Preprocess a frame into the bound input tensor (minus the reference

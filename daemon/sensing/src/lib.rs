@@ -6,6 +6,7 @@ pub mod contact;
 pub mod decide;
 pub mod encoder;
 pub mod frame;
+pub mod front;
 pub mod pipeline;
 pub mod preprocess;
 pub mod record;

@@ -1,14 +1,14 @@
-//! The whole per-frame path: contact detection → (only while in contact)
-//! preprocess → encode → index search → decide, with per-stage timings.
+//! The whole per-frame path: the front end ([`crate::front`]: contact
+//! detection and the reference → only while in contact preprocess →
+//! encode) → index search → decide, with per-stage timings.
 
 use std::time::Instant;
 
-use image::RgbImage;
-
-use crate::contact::{ContactConfig, ContactDetector, ContactEvent, EndReason};
+use crate::contact::{ContactConfig, ContactEvent, EndReason};
 use crate::decide::{DecideConfig, DecideStep, Decider, PressOutcome, TextileIndex};
 use crate::encoder::{Encoder, EncoderError};
 use crate::frame::Frame;
+use crate::front::FrontEnd;
 
 /// Stages timed per frame.
 pub const STAGES: [&str; 6] = [
@@ -148,22 +148,23 @@ pub struct FrameOutput {
     pub ended: Option<(PressOutcome, EndReason)>,
 }
 
-/// Contact detector + encoder + decider + index.
+/// Front end (contact detector + encoder) + decider + index.
 pub struct Pipeline<I: TextileIndex> {
-    contact: ContactDetector,
-    encoder: Encoder,
+    front: FrontEnd,
     decider: Decider,
     index: I,
 }
 
 impl<I: TextileIndex> Pipeline<I> {
     /// Assemble; the index must have the encoder's dimension. `reference`:
-    /// a known no-contact frame, else the first frames are captured as one.
+    /// known no-contact pixels (240x320x3 RGB, 0..255; see
+    /// [`crate::front::recording_reference`]), else the first frames are
+    /// captured as one.
     pub fn new(
         encoder: Encoder,
         index: I,
         cfg: PipelineConfig,
-        reference: Option<&RgbImage>,
+        reference: Option<&[f32]>,
     ) -> Result<Pipeline<I>, String> {
         if index.dim() != encoder.dim() {
             return Err(format!(
@@ -176,23 +177,27 @@ impl<I: TextileIndex> Pipeline<I> {
         if index.is_empty() {
             return Err("the index has no textiles".into());
         }
-        let mut encoder = encoder;
-        let contact = match reference {
-            Some(r) => {
-                encoder
-                    .set_reference(r)
-                    .map_err(|e| format!("reference frame: {e}"))?;
-                ContactDetector::with_reference(cfg.contact, r)
-            }
-            None => ContactDetector::new(cfg.contact),
-        };
+        if reference.is_some_and(|r| r.len() != crate::frame::FRAME_BYTES) {
+            return Err(format!(
+                "reference frame: {} values, expected {} (240x320 RGB)",
+                reference.map_or(0, |r| r.len()),
+                crate::frame::FRAME_BYTES
+            ));
+        }
         let decider = Decider::new(cfg.decide, encoder.dim());
         Ok(Pipeline {
-            contact,
-            encoder,
+            front: FrontEnd::new(encoder, cfg.contact, reference),
             decider,
             index,
         })
+    }
+
+    /// Start afresh for a new recording (its own `reference`, or capture
+    /// one): no state of earlier frames remains, so a run over several
+    /// recordings decides exactly as separate runs would.
+    pub fn reset(&mut self, reference: Option<&[f32]>) {
+        self.front.reset(reference);
+        self.decider = Decider::new(self.decider.config().clone(), self.front.encoder().dim());
     }
 
     /// The index.
@@ -201,15 +206,15 @@ impl<I: TextileIndex> Pipeline<I> {
     }
     /// The encoder.
     pub fn encoder(&self) -> &Encoder {
-        &self.encoder
+        self.front.encoder()
     }
     /// Take the encoder back (to reuse its session in another pipeline).
     pub fn into_encoder(self) -> Encoder {
-        self.encoder
+        self.front.into_encoder()
     }
-    /// The contact detector (e.g. to re-capture the reference).
-    pub fn contact_mut(&mut self) -> &mut ContactDetector {
-        &mut self.contact
+    /// The front end (e.g. to re-capture the reference).
+    pub fn front_mut(&mut self) -> &mut FrontEnd {
+        &mut self.front
     }
 
     /// Process one frame; fills the stage times (all but decode).
@@ -218,17 +223,12 @@ impl<I: TextileIndex> Pipeline<I> {
         frame: &Frame,
         times: &mut StageTimes,
     ) -> Result<FrameOutput, EncoderError> {
-        frame.check()?;
         let t = frame.timestamp_us;
-        let t0 = Instant::now();
-        let c = self.contact.update(&frame.image, t);
-        if c.quiet {
-            // Background-subtracting encoders follow the untouched frames.
-            self.encoder.observe_background(&frame.image)?;
-        }
-        times.contact_ns = t0.elapsed().as_nanos() as u64;
-        times.preprocess_ns = 0;
-        times.encode_ns = 0;
+        let out = self.front.process(frame)?;
+        let c = out.contact;
+        times.contact_ns = out.contact_ns;
+        times.preprocess_ns = out.preprocess_ns;
+        times.encode_ns = out.encode_ns;
         times.search_ns = 0;
         times.decide_ns = 0;
         let mut ended = None;
@@ -240,19 +240,13 @@ impl<I: TextileIndex> Pipeline<I> {
             _ => {}
         }
         let mut step = None;
-        if c.in_contact && self.decider.in_press() {
-            let t1 = Instant::now();
-            self.encoder.preprocess(&frame.image)?;
-            let t2 = Instant::now();
-            let emb = self.encoder.infer()?;
+        if let Some(emb) = out.embedding.filter(|_| self.decider.in_press()) {
             let t3 = Instant::now();
             let mean = self.decider.accumulate(emb);
             let nearest = self.index.nearest2(mean);
             let t4 = Instant::now();
             step = Some(self.decider.decide(&self.index, t, nearest));
             let t5 = Instant::now();
-            times.preprocess_ns = (t2 - t1).as_nanos() as u64;
-            times.encode_ns = (t3 - t2).as_nanos() as u64;
             times.search_ns = (t4 - t3).as_nanos() as u64;
             times.decide_ns = (t5 - t4).as_nanos() as u64;
         }
@@ -268,7 +262,7 @@ impl<I: TextileIndex> Pipeline<I> {
     /// End a press in progress (end of a recording); its outcome, if any.
     /// The contact detector keeps its reference but forgets the contact.
     pub fn finish(&mut self, t_us: u64) -> Option<PressOutcome> {
-        self.contact.reset();
+        self.front.end_of_frames();
         self.decider.press_end(t_us)
     }
 }

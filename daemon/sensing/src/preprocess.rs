@@ -150,4 +150,36 @@ impl Preprocessor {
             }
         }
     }
+
+    /// [`Preprocessor::run`] for full-resolution RGB values given as f32
+    /// (240x320x3, interleaved, 0..255, e.g. a mean of frames): the same
+    /// affine map without rounding to u8 first.
+    ///
+    /// # Panics
+    /// If `pixels` or `out` has the wrong length.
+    pub fn run_pixels(&self, pixels: &[f32], out: &mut [f32]) {
+        assert_eq!(pixels.len(), (FRAME_W * FRAME_H * 3) as usize, "frame size");
+        assert_eq!(out.len(), self.len(), "input buffer length");
+        let s = self.spec.size as usize;
+        let plane = s * s;
+        let stride = FRAME_W as usize * 3;
+        let scale: [f32; 3] = std::array::from_fn(|c| 1.0 / (255.0 * self.spec.std[c]));
+        let shift: [f32; 3] = std::array::from_fn(|c| self.spec.mean[c] / self.spec.std[c]);
+        for (oy, ty) in self.taps.iter().enumerate() {
+            let row0 = &pixels[(self.y0 + ty.i0) as usize * stride..][..stride];
+            let row1 = &pixels[(self.y0 + ty.i1) as usize * stride..][..stride];
+            let wy = ty.w;
+            for (ox, tx) in self.taps.iter().enumerate() {
+                let a = (self.x0 + tx.i0) as usize * 3;
+                let b = (self.x0 + tx.i1) as usize * 3;
+                let wx = tx.w;
+                let o = oy * s + ox;
+                for c in 0..3 {
+                    let top = row0[a + c] * (1.0 - wx) + row0[b + c] * wx;
+                    let bot = row1[a + c] * (1.0 - wx) + row1[b + c] * wx;
+                    out[c * plane + o] = (top * (1.0 - wy) + bot * wy) * scale[c] - shift[c];
+                }
+            }
+        }
+    }
 }

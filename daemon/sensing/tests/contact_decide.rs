@@ -134,6 +134,7 @@ fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
                     ContactEvent::ReferenceCaptured { .. } => "ref",
                     ContactEvent::PressStart { .. } => "start",
                     ContactEvent::PressEnd { .. } => "end",
+                    ContactEvent::ReferenceRejected { .. } => "rejected",
                 }
             )
         })

@@ -44,7 +44,7 @@ fn replayed_presses_of_several_textiles_resolve_to_the_right_textile() {
         enc,
         index,
         PipelineConfig::default(),
-        Some(&sim.background(0)),
+        Some(&telextiles_sensing::front::pixels_of(&sim.background(0))),
     )
     .unwrap();
     let mut wrong = Vec::new();
@@ -138,7 +138,7 @@ fn a_live_sim_source_follows_textile_changes_like_the_replayed_presses() {
     run_source(&mut pipeline, &mut src, Some(169), |r| live.push(r)).unwrap();
     assert_eq!(live.len(), 2, "one press per textile: {live:#?}");
     // The same presses replayed from their recordings decide the same.
-    let sim_bg = sim.background(0);
+    let sim_bg = telextiles_sensing::front::pixels_of(&sim.background(0));
     for (spec, l) in specs.iter().zip(&live) {
         let mut enc = common::fixture_encoder();
         let index = build_index(&mut enc);
@@ -161,7 +161,7 @@ fn injected_pixel_noise_does_not_make_the_decision_flip_flop() {
         enc,
         index,
         PipelineConfig::default(),
-        Some(&sim.background(0)),
+        Some(&telextiles_sensing::front::pixels_of(&sim.background(0))),
     )
     .unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
