@@ -282,6 +282,17 @@ pub enum ConfigError {
     Invalid(String),
 }
 
+/// Creates `dir` (and missing parents) with mode 0700 from the start, so a
+/// state directory holding the private key is never readable by others,
+/// whatever the umask. An existing directory is left as it is.
+pub fn create_private_dir(dir: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)
+}
+
 /// Looks up an environment variable (injectable for tests).
 pub type EnvLookup<'a> = &'a dyn Fn(&str) -> Option<OsString>;
 
@@ -503,8 +514,16 @@ impl Config {
         } else {
             Access::User
         };
-        // The runtime dir is ours to manage only when the socket is inside it.
-        let manage_dir = self.socket.parent() == Some(self.runtime_dir.as_path());
+        // The runtime dir is ours to manage (create 0700/0750, check the
+        // owner, tighten its mode) only when the socket is inside it and it
+        // is one of the daemon's own directories (`.../telextilesd`: the
+        // per-user and the system default). A directory the user named, e.g.
+        // `--runtime-dir /tmp`, may be shared and is never chmod-ed.
+        let manage_dir = self.socket.parent() == Some(self.runtime_dir.as_path())
+            && self.runtime_dir.file_name()
+                == Some(std::ffi::OsStr::new(
+                    telextiles_control::socket::USER_DIR_NAME,
+                ));
         Ok(SocketSpec {
             path: self.socket.clone(),
             access,
@@ -715,6 +734,21 @@ mod tests {
     }
 
     #[test]
+    fn private_dirs_are_created_0700_whatever_the_umask() {
+        use std::os::unix::fs::PermissionsExt;
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path().join("a").join("state");
+        create_private_dir(&d).unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o7777;
+        assert_eq!(mode(&d), 0o700);
+        assert_eq!(mode(&tmp.path().join("a")), 0o700);
+        // Existing directories are left alone.
+        std::fs::set_permissions(&d, std::fs::Permissions::from_mode(0o1777)).unwrap();
+        create_private_dir(&d).unwrap();
+        assert_eq!(mode(&d), 0o1777);
+    }
+
+    #[test]
     fn defaults_follow_xdg() {
         let c = resolve(&[], &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/run/user/7")]).unwrap();
         assert_eq!(c.state_dir, PathBuf::from("/h/.local/state/telextiles"));
@@ -749,6 +783,10 @@ mod tests {
 
         let err = resolve(&[], &[("HOME", "/h")]).unwrap_err().to_string();
         assert!(err.contains("XDG_RUNTIME_DIR is not set"), "{err}");
+        // A runtime dir the user names is not the daemon's to chmod.
+        let c = resolve(&["--runtime-dir", "/tmp"], &[("HOME", "/h")]).unwrap();
+        assert_eq!(c.socket, PathBuf::from("/tmp/control.sock"));
+        assert!(!c.socket_spec().unwrap().manage_dir);
         // An explicit socket needs no runtime dir.
         let c = resolve(&["--socket", "/tmp/x/ctl.sock"], &[("HOME", "/h")]).unwrap();
         assert_eq!(c.socket, PathBuf::from("/tmp/x/ctl.sock"));

@@ -189,7 +189,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     let index = Arc::new(index);
     let model = encoder.info().clone();
 
-    std::fs::create_dir_all(&cfg.state_dir)
+    crate::config::create_private_dir(&cfg.state_dir)
         .with_context(|| format!("cannot create {}", cfg.state_dir.display()))?;
     let (identity, created) = Identity::load_or_create(&cfg.state_dir)?;
     if created {

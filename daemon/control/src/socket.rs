@@ -195,26 +195,57 @@ pub fn bind(spec: &SocketSpec) -> Result<(UnixListener, BoundSocket, Previous), 
         Err(e) => return Err(io_err("inspect", path)(e)),
     }
 
-    let listener = UnixListener::bind(path).map_err(io_err("bind control socket", path))?;
+    let listener = bind_with_mode(path, dir, spec.access)?;
     let meta = std::fs::symlink_metadata(path).map_err(io_err("inspect", path))?;
     let bound = BoundSocket {
         path: path.clone(),
         dev: meta.dev(),
         ino: meta.ino(),
     };
-    std::fs::set_permissions(
-        path,
-        std::fs::Permissions::from_mode(spec.access.socket_mode()),
-    )
-    .map_err(io_err("set permissions of", path))?;
-    if let Access::Group { gid } = spec.access {
-        std::os::unix::fs::chown(path, None, Some(gid))
-            .map_err(io_err("chown (group) of", path))?;
-    }
     listener
         .set_nonblocking(true)
         .map_err(io_err("configure", path))?;
     Ok((listener, bound, previous))
+}
+
+/// Binds the socket so that it appears at `path` already with its final
+/// mode (and group): it is bound inside a fresh private (0700) directory
+/// next to `path`, given its mode there, where nobody else can reach it,
+/// and then hard-linked into place (`link` fails instead of replacing a
+/// socket another daemon bound meanwhile). Nothing depends on the umask
+/// and there is no window in which the socket is open to others.
+fn bind_with_mode(path: &Path, dir: &Path, access: Access) -> Result<UnixListener, BindError> {
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let private = dir.join(format!(".{SOCKET_NAME}.{}.{stamp}", std::process::id()));
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&private)
+        .map_err(io_err("create directory", &private))?;
+    let tmp = private.join("s");
+    let result = (|| {
+        let listener = UnixListener::bind(&tmp).map_err(io_err("bind control socket", path))?;
+        std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(access.socket_mode()))
+            .map_err(io_err("set permissions of", &tmp))?;
+        if let Access::Group { gid } = access {
+            std::os::unix::fs::chown(&tmp, None, Some(gid))
+                .map_err(io_err("chown (group) of", &tmp))?;
+        }
+        std::fs::hard_link(&tmp, path).map_err(|e| {
+            if e.kind() == io::ErrorKind::AlreadyExists {
+                BindError::AlreadyRunning {
+                    path: path.to_path_buf(),
+                }
+            } else {
+                io_err("bind control socket", path)(e)
+            }
+        })?;
+        Ok(listener)
+    })();
+    let _ = std::fs::remove_file(&tmp);
+    let _ = std::fs::remove_dir(&private);
+    result
 }
 
 fn prepare_dir(dir: &Path, spec: &SocketSpec) -> Result<(), BindError> {
@@ -255,6 +286,47 @@ fn prepare_dir(dir: &Path, spec: &SocketSpec) -> Result<(), BindError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The socket must appear at its path with its final mode: a watcher
+    /// polling the path from the moment `bind` starts never sees another
+    /// mode (the old bind-then-chmod exposed a umask-dependent mode, 0755
+    /// under umask 022, between the two calls).
+    #[test]
+    fn socket_appears_with_its_final_mode() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::Arc;
+        let tmp = std::env::temp_dir().join(format!("txc-mode-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir(&tmp).unwrap();
+        let spec = SocketSpec {
+            path: tmp.join(SOCKET_NAME),
+            access: Access::User,
+            manage_dir: false,
+        };
+        for round in 0..100 {
+            let done = Arc::new(AtomicBool::new(false));
+            let (d, p) = (done.clone(), spec.path.clone());
+            let watcher = std::thread::spawn(move || loop {
+                let finished = d.load(Ordering::SeqCst);
+                if let Ok(m) = std::fs::symlink_metadata(&p) {
+                    return Some(m.mode() & 0o7777);
+                }
+                if finished {
+                    return None;
+                }
+            });
+            let (listener, bound, _) = bind(&spec).unwrap();
+            done.store(true, Ordering::SeqCst);
+            let first = watcher.join().unwrap();
+            assert_eq!(first, Some(0o600), "round {round}: first mode seen");
+            drop(listener);
+            drop(bound);
+            assert!(!spec.path.exists());
+        }
+        let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+        assert!(left.is_empty(), "no temporaries left: {left:?}");
+        std::fs::remove_dir_all(&tmp).unwrap();
+    }
 
     #[test]
     fn group_file_lookup() {
