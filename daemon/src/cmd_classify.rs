@@ -440,4 +440,114 @@ mod tests {
         .unwrap_err();
         assert!(e.to_string().contains("built for encoder"), "{e}");
     }
+
+    /// `classify --press` over recordings from different sensor units (and
+    /// one with a shifted LED) in one run decides each exactly as a run of
+    /// its own: every recording is replayed against its own reference. (It
+    /// used to keep the first recording's background for all of them.)
+    #[test]
+    fn one_run_over_recordings_with_different_backgrounds_decides_as_separate_runs() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_subtract.onnx");
+        let sim = Simulator::new().unwrap();
+        // An index of three textiles, built through `index build`'s path.
+        let enc = Encoder::open(&model, &EncoderOptions::default()).unwrap();
+        let mut b = IndexBuilder::new(
+            &file_sha256(&model).unwrap(),
+            &enc.info().arch,
+            enc.dim(),
+            0,
+        );
+        b.roller_n = 3;
+        let mut front = telextiles_sensing::front::FrontEnd::new(
+            enc,
+            telextiles_sensing::contact::ContactConfig::default(),
+            None,
+        );
+        for id in ["T010", "T030", "T110"] {
+            let mut embeddings = Vec::new();
+            for (seed, sensor) in [(1, 0), (2, 1), (3, 2)] {
+                let p = sim
+                    .render_press(&PressSpec {
+                        sensor,
+                        ..PressSpec::new(id, seed)
+                    })
+                    .unwrap();
+                embeddings.extend(crate::cmd_index::press_embeddings(&mut front, &p, 2).unwrap());
+            }
+            b.add(TextileRecord {
+                id: id.into(),
+                name: id.into(),
+                seen: true,
+                structure: String::new(),
+                attributes: Vec::new(),
+                embeddings,
+                exemplars: Vec::new(),
+            })
+            .unwrap();
+        }
+        let index = dir.path().join("index.tlxi");
+        b.build().unwrap().write(&index).unwrap();
+        // Four recordings: units 4, 5 and 0, and unit 3 with its LEDs shifted.
+        let root = dir.path().join("presses");
+        for (k, (id, sensor)) in [("T030", 4), ("T110", 5), ("T010", 0), ("T030", 3)]
+            .into_iter()
+            .enumerate()
+        {
+            let mut p = sim
+                .render_press(&PressSpec {
+                    sensor,
+                    ..PressSpec::new(id, 20 + k as u64)
+                })
+                .unwrap();
+            if k == 3 {
+                for f in p.frames.iter_mut() {
+                    for px in f.pixels_mut() {
+                        px.0[0] = (px.0[0] as f32 * 0.9) as u8;
+                        px.0[2] = (px.0[2] as f32 * 1.1).min(255.0) as u8;
+                    }
+                }
+            }
+            telextiles_sim::recording::write_press(&root.join(format!("{k}-{id}")), &p).unwrap();
+        }
+        let decide = |press: Vec<PathBuf>| {
+            let mut out = Vec::new();
+            run_to(
+                Args {
+                    press,
+                    ..args(model.clone(), index.clone())
+                },
+                &mut out,
+            )
+            .unwrap();
+            json_lines(&out)
+                .into_iter()
+                .map(|v| {
+                    (
+                        v["textile"].clone(),
+                        v["distance"].clone(),
+                        v["decision_ms"].clone(),
+                        v["switches"].clone(),
+                        v["frames"].clone(),
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        let together = decide(vec![root.clone()]);
+        let mut dirs: Vec<PathBuf> = std::fs::read_dir(&root)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        dirs.sort();
+        let separate: Vec<_> = dirs.into_iter().flat_map(|d| decide(vec![d])).collect();
+        assert_eq!(together.len(), 4);
+        assert_eq!(together, separate);
+        let right = together
+            .iter()
+            .zip(["T030", "T110", "T010", "T030"])
+            .filter(|(v, id)| v.0 == *id)
+            .count();
+        assert!(right >= 3, "{right} of 4 right: {together:?}");
+    }
 }

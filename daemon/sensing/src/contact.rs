@@ -90,6 +90,10 @@ pub struct ContactConfig {
     /// A press start whose frame has less fine detail than the reference
     /// by this factor means the reference was captured touched (0 = off).
     pub touched_reference_ratio: f32,
+    /// A would-be press that a per-channel gain change of the reference
+    /// explains (residual below `exit`) is a lighting change (LED or
+    /// exposure drift), not contact: the reference is re-captured.
+    pub lighting_check: bool,
 }
 
 impl Default for ContactConfig {
@@ -111,6 +115,7 @@ impl Default for ContactConfig {
             settle_frames: 15,
             full_every: 4,
             touched_reference_ratio: 1.3,
+            lighting_check: true,
         }
     }
 }
@@ -267,6 +272,12 @@ impl ContactDetector {
     /// Whether a press is in progress.
     pub fn in_contact(&self) -> bool {
         matches!(self.state, State::Contact { .. })
+    }
+
+    /// The score below which a frame counts towards release (noise floor +
+    /// `exit`): frames of a press below it are already lifted.
+    pub fn release_threshold(&self) -> f32 {
+        self.floor + self.cfg.exit
     }
 
     /// The current noise floor estimate.
@@ -450,10 +461,18 @@ impl ContactDetector {
                 if score >= enter {
                     let run_start = if run == 0 { t_us } else { run_start };
                     if run + 1 >= cfg.min_enter_frames.max(1) {
-                        if self.touched_reference(image) {
-                            tracing::warn!(
-                                "the no-contact reference shows more detail than the sensor does now: it was captured while touched; re-capturing it"
-                            );
+                        let lighting = cfg.lighting_check
+                            && gain_residual(&self.samples, &self.reference) < exit;
+                        if lighting || self.touched_reference(image) {
+                            if lighting {
+                                tracing::warn!(
+                                    "the sensor's lighting changed (score {score:.2}, but a per-channel gain explains it): re-capturing the reference"
+                                );
+                            } else {
+                                tracing::warn!(
+                                    "the no-contact reference shows more detail than the sensor does now: it was captured while touched; re-capturing it"
+                                );
+                            }
                             event = Some(ContactEvent::ReferenceRejected { t_us });
                             self.first.copy_from_slice(&self.samples);
                             self.acc.copy_from_slice(&self.samples);
@@ -686,6 +705,32 @@ fn sample(image: &RgbImage, out: &mut [f32]) {
     }
     let inv = 1.0 / (STEP * STEP) as f32;
     out.iter_mut().for_each(|v| *v *= inv);
+}
+
+/// Mean absolute difference between `a` and the best per-channel gain of
+/// `b` (least squares): what is left of a difference once a change of LED
+/// intensity or exposure is taken out.
+fn gain_residual(a: &[f32], b: &[f32]) -> f32 {
+    let mut ab = [0.0f64; 3];
+    let mut bb = [0.0f64; 3];
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        ab[i % 3] += (*x as f64) * (*y as f64);
+        bb[i % 3] += (*y as f64) * (*y as f64);
+    }
+    let g: [f32; 3] = std::array::from_fn(|c| {
+        if bb[c] > 0.0 {
+            (ab[c] / bb[c]) as f32
+        } else {
+            1.0
+        }
+    });
+    let s: f32 = a
+        .iter()
+        .zip(b)
+        .enumerate()
+        .map(|(i, (x, y))| (x - g[i % 3] * y).abs())
+        .sum();
+    s / a.len().max(1) as f32
 }
 
 fn mad(a: &[f32], b: &[f32]) -> f32 {

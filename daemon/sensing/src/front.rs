@@ -30,8 +30,8 @@ use crate::frame::Frame;
 pub struct FrontOutput<'a> {
     /// The contact detector's verdict.
     pub contact: ContactUpdate,
-    /// The L2-normalised embedding, for frames in contact once a reference
-    /// exists.
+    /// The L2-normalised embedding, for frames in contact (and not yet
+    /// lifted) once a reference exists.
     pub embedding: Option<&'a [f32]>,
     /// Nanoseconds in contact detection (with reference upkeep).
     pub contact_ns: u64,
@@ -124,7 +124,11 @@ impl FrontEnd {
             preprocess_ns: 0,
             encode_ns: 0,
         };
-        if up.in_contact && self.encoder.has_reference() {
+        // Frames of the release run (already below the release threshold,
+        // not yet enough of them to end the press) show no fabric: they are
+        // not encoded.
+        let touching = up.in_contact && up.score >= self.contact.release_threshold();
+        if touching && self.encoder.has_reference() {
             let t1 = Instant::now();
             self.encoder.preprocess(&frame.image)?;
             let t2 = Instant::now();

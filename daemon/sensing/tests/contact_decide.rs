@@ -104,9 +104,12 @@ fn noise_and_slow_drift_never_start_a_press() {
 fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
     let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
     let touched = RgbImage::from_pixel(240, 320, Rgb([104, 104, 104]));
+    // Uniform frames: a brightness step is what a lighting change looks
+    // like, so the lighting check is off to test the hysteresis alone.
     let cfg = ContactConfig {
         reference_frames: 2,
         stale_after_frames: 0,
+        lighting_check: false,
         ..Default::default()
     };
     let mut det = ContactDetector::new(cfg);
@@ -148,9 +151,12 @@ fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
 fn a_stale_reference_is_recaptured_and_recapture_works_on_command() {
     let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
     let shifted = RgbImage::from_pixel(240, 320, Rgb([110, 110, 110]));
+    // (A uniform step is caught at once by the lighting check; off here to
+    // test the slower stale-score path that catches what it does not.)
     let cfg = ContactConfig {
         reference_frames: 2,
         stale_after_frames: 50,
+        lighting_check: false,
         ..Default::default()
     };
     let mut det = ContactDetector::new(cfg);
@@ -169,6 +175,7 @@ fn a_stale_reference_is_recaptured_and_recapture_works_on_command() {
     // On command, while touching: the press ends, the next frames are the reference.
     let mut det = ContactDetector::new(ContactConfig {
         reference_frames: 2,
+        lighting_check: false,
         ..Default::default()
     });
     for i in 0..2 {
