@@ -8,6 +8,7 @@ mod cmd_index;
 mod cmd_map;
 mod cmd_pair;
 mod cmd_peers;
+mod cmd_record;
 mod cmd_roller;
 mod cmd_sim;
 mod config;
@@ -31,6 +32,8 @@ enum Cmd {
     Classify(cmd_classify::Args),
     /// Control a running daemon over its local socket
     Ctl(cmd_ctl::Args),
+    /// Record labelled presses from the sensor (DIGIT, simulator or replay)
+    Record(cmd_record::Args),
     /// Build or inspect the textile index
     #[command(subcommand)]
     Index(cmd_index::Args),
@@ -65,6 +68,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Classify(a) => cmd_classify::run(a),
         Cmd::Ctl(a) => cmd_ctl::run(a),
         Cmd::Index(a) => cmd_index::run(a),
+        Cmd::Record(a) => cmd_record::run(a),
         Cmd::Sim(a) => cmd_sim::run(a),
         Cmd::Id(a) => cmd_peers::id(a),
         Cmd::Pair(a) => cmd_pair::run(a),

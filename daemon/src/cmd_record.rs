@@ -1,0 +1,860 @@
+//! `telextilesd record`: record labelled presses from the sensor into the
+//! on-disk press format, one directory per press under `<out>/<textile>/`
+//! (`0001`, `0002`, ...: the next free number; a second run adds presses),
+//! each written atomically and never over an existing one.
+//!
+//! Presses are cut out of the frame stream by contact
+//! (`telextiles_sensing::record::Recorder`): every press keeps the quiet
+//! frames before contact as its own no-contact reference
+//! (`meta.reference_frames`), plus margins before and after; the sensor's
+//! serial and measured frame rate go into its metadata. `--name` is stored
+//! in `<out>/<textile>/textile.json` (`{"id": .., "name": ..}`).
+//!
+//! Sources: `digit[:SERIAL]` (a DIGIT over V4L2), `sim` (simulated presses
+//! of the catalogue textile `--textile`, one after another, as fast as they
+//! render: unattended, for tests), `replay:<dir>` (re-record every press
+//! found under `<dir>`, as fast as they read).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
+
+use anyhow::{bail, Context, Result};
+use telextiles_progress::Progress;
+use telextiles_sensing::contact::{ContactConfig, ContactDetector};
+use telextiles_sensing::frame::Frame;
+use telextiles_sensing::record::{
+    PressSummary, RecordEvent, RecordLabel, RecordedPress, Recorder, RecorderConfig,
+};
+use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+use telextiles_sensing::source::sim::SimSource;
+use telextiles_sensing::source::{FrameSource, SourceError};
+use telextiles_sim::{PressSpec, RgbImage, Simulator};
+
+/// Where the frames come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SensorArg {
+    /// A DIGIT (the first found, or this serial).
+    Digit(Option<String>),
+    /// The simulator.
+    Sim,
+    /// Re-record the presses found under a directory.
+    Replay(PathBuf),
+}
+
+impl FromStr for SensorArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "digit" => Ok(SensorArg::Digit(None)),
+            "sim" => Ok(SensorArg::Sim),
+            _ => {
+                if let Some(serial) = s.strip_prefix("digit:") {
+                    if serial.is_empty() {
+                        return Err("digit: needs a serial (digit:D20118), or say digit".into());
+                    }
+                    Ok(SensorArg::Digit(Some(serial.to_string())))
+                } else if let Some(dir) = s.strip_prefix("replay:") {
+                    if dir.is_empty() {
+                        return Err("replay: needs a directory (replay:recordings/T030)".into());
+                    }
+                    Ok(SensorArg::Replay(PathBuf::from(dir)))
+                } else {
+                    Err(format!(
+                        "unknown sensor {s:?}: say digit, digit:SERIAL, sim or replay:<dir>"
+                    ))
+                }
+            }
+        }
+    }
+}
+
+/// Options of `telextilesd record`.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Textile id: the presses go into <out>/<id>/ and are labelled with it.
+    #[arg(long)]
+    pub textile: String,
+    /// Human-readable name of the textile, stored in <out>/<id>/textile.json.
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Presses to record.
+    #[arg(long)]
+    pub presses: u32,
+    /// Directory of recordings (one sub-directory per textile).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// digit, digit:SERIAL, sim (simulated presses of --textile, unattended)
+    /// or replay:<dir> (re-record the presses under <dir>).
+    #[arg(long, default_value = "digit")]
+    pub sensor: SensorArg,
+    /// With --sensor sim: seed of the first simulated press (default: its
+    /// press number, so that a second run into the same directory records
+    /// new presses); the next presses take the following seeds.
+    #[arg(long)]
+    pub sim_seed: Option<u64>,
+    /// Seconds to hold each press before "release" is shown.
+    #[arg(long, default_value_t = 1.5)]
+    pub hold: f64,
+}
+
+/// A source and what its presses are labelled with.
+struct Opened {
+    frames: Frames,
+    serial: Option<String>,
+    sensor_unit: u32,
+    jig: bool,
+    source: &'static str,
+    desc: String,
+}
+
+enum Frames {
+    /// One endless stream (a DIGIT, the simulator), with a frame budget.
+    Live(Box<dyn FrameSource>, Option<u64>),
+    /// Recordings, each replayed with its own reference.
+    Replay(Vec<PathBuf>),
+}
+
+/// Frames between simulated presses: the contact detector's reference
+/// capture, then enough quiet frames for the recorder's reference and ready.
+const SIM_GAP_FRAMES: usize = 48;
+
+fn open(args: &Args, first_seed: u64) -> Result<Opened> {
+    match &args.sensor {
+        SensorArg::Sim => {
+            let sim = Arc::new(Simulator::new()?);
+            if sim.catalogue().get(&args.textile).is_none() {
+                bail!(
+                    "--sensor sim presses textiles of the built-in catalogue (T001..T119, U01..U20), not {:?}",
+                    args.textile
+                );
+            }
+            let spec = PressSpec::new(args.textile.clone(), first_seed);
+            let per_press = (SIM_GAP_FRAMES + spec.frames) as u64;
+            let (src, _handle) = SimSource::new(sim, spec, SIM_GAP_FRAMES, Pace::AsFastAsPossible)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            // Every simulated press is accepted in practice; a few spare
+            // presses, then give up rather than loop for ever.
+            let budget = per_press * (args.presses as u64 * 2 + 2);
+            Ok(Opened {
+                frames: Frames::Live(Box::new(src), Some(budget)),
+                serial: Some("SIM0000".into()),
+                sensor_unit: 0,
+                jig: true,
+                source: "sim",
+                desc: format!("simulated DIGIT pressing {}", args.textile),
+            })
+        }
+        SensorArg::Replay(dir) => {
+            let mut dirs = Vec::new();
+            find_presses(dir, &mut dirs)?;
+            if dirs.is_empty() {
+                bail!(
+                    "no recorded presses (directories with press.json) under {}",
+                    dir.display()
+                );
+            }
+            let desc = format!("replay of {} presses under {}", dirs.len(), dir.display());
+            Ok(Opened {
+                frames: Frames::Replay(dirs),
+                serial: None,
+                sensor_unit: 0,
+                jig: false,
+                source: "replay",
+                desc,
+            })
+        }
+        SensorArg::Digit(serial) => open_digit(serial.clone()),
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_digit(serial: Option<String>) -> Result<Opened> {
+    use telextiles_sensing::source::digit::{DigitOptions, DigitSource};
+    let opts = DigitOptions {
+        serial,
+        ..Default::default()
+    };
+    let src = DigitSource::open(&opts).map_err(|e| {
+        anyhow::anyhow!(
+            "cannot open the DIGIT: {e}\n(plug the DIGIT in over USB, check `ls /dev/video*` and that you may read it (group video), or record without one: --sensor sim)"
+        )
+    })?;
+    let info = src.info();
+    let desc = format!("DIGIT {} on {}", info.serial, info.node.display());
+    let serial = Some(info.serial.clone());
+    Ok(Opened {
+        frames: Frames::Live(Box::new(src), None),
+        serial,
+        sensor_unit: 0,
+        jig: false,
+        source: "digit",
+        desc,
+    })
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_digit(_serial: Option<String>) -> Result<Opened> {
+    bail!("the DIGIT is read over V4L2, which only Linux has; use --sensor sim or replay:<dir>")
+}
+
+/// Press directories (with press.json) under `root`, sorted.
+pub fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    if root.join(telextiles_sim::recording::META_FILE).is_file() {
+        out.push(root.to_path_buf());
+        return Ok(());
+    }
+    let mut entries: Vec<_> = std::fs::read_dir(root)
+        .with_context(|| format!("cannot read {}", root.display()))?
+        .collect::<Result<_, _>>()?;
+    entries.sort_by_key(|e| e.file_name());
+    for e in entries {
+        // Unfinished writes (`0003.tmp-<pid>-<n>`) are not presses.
+        if e.file_type()?.is_dir() && !e.file_name().to_string_lossy().contains(".tmp-") {
+            find_presses(&e.path(), out)?;
+        }
+    }
+    Ok(())
+}
+
+fn check_id(id: &str) -> Result<()> {
+    if id.is_empty()
+        || id == "."
+        || id == ".."
+        || id.contains(['/', '\\'])
+        || id.chars().any(|c| c.is_control())
+    {
+        bail!("textile id {id:?} cannot be a directory name: use letters, digits, - or _");
+    }
+    Ok(())
+}
+
+/// The next free press number in `dir` (1 when empty): one more than the
+/// highest all-digit directory name.
+pub fn next_number(dir: &Path) -> Result<u32> {
+    let mut highest = 0u32;
+    let rd = match std::fs::read_dir(dir) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(1),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", dir.display())),
+    };
+    for e in rd {
+        let name = e?.file_name().to_string_lossy().into_owned();
+        if !name.is_empty() && name.bytes().all(|b| b.is_ascii_digit()) {
+            if let Ok(n) = name.parse::<u32>() {
+                highest = highest.max(n);
+            }
+        }
+    }
+    Ok(highest + 1)
+}
+
+/// Remove the temporaries of writes interrupted by a crash or `kill -9`
+/// (`NNNN.tmp-<pid>-<n>` whose process is gone); returns how many.
+fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut n = 0;
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some((_, rest)) = name.split_once(".tmp-") else {
+            continue;
+        };
+        let pid = rest.split('-').next().unwrap_or("");
+        let alive = pid
+            .parse::<u32>()
+            .is_ok_and(|p| p == std::process::id() || Path::new("/proc").join(pid).exists());
+        if !alive && std::fs::remove_dir_all(e.path()).is_ok() {
+            n += 1;
+        }
+    }
+    n
+}
+
+/// What `textile.json` holds.
+#[derive(serde::Serialize, serde::Deserialize, Debug, PartialEq)]
+pub struct TextileInfo {
+    /// The id (the directory name).
+    pub id: String,
+    /// Its human-readable name.
+    pub name: String,
+}
+
+/// Write `<dir>/textile.json` atomically (temporary file, then rename).
+fn write_textile_info(dir: &Path, info: &TextileInfo) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let path = dir.join("textile.json");
+    let tmp = dir.join(format!(".textile.json.tmp-{}", std::process::id()));
+    let json = serde_json::to_vec_pretty(info)?;
+    std::fs::write(&tmp, json).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// Writes presses on a thread of its own, so that a live sensor keeps
+/// streaming while PNGs are encoded.
+struct Writer {
+    tx: Option<Sender<(u32, Box<RecordedPress>)>>,
+    done: Receiver<Result<(u32, PathBuf, PressSummary)>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Writer {
+    fn new(dir: PathBuf, mut number: u32) -> Writer {
+        let (tx, rx) = channel::<(u32, Box<RecordedPress>)>();
+        let (dtx, done) = channel();
+        let thread = std::thread::spawn(move || {
+            for (k, p) in rx {
+                // Another run writing into the same directory may take a
+                // number first: write_press refuses, take the next one.
+                let result = loop {
+                    let path = dir.join(format!("{number:04}"));
+                    number += 1;
+                    if path.exists() {
+                        continue;
+                    }
+                    match telextiles_sim::recording::write_press(&path, &p.press) {
+                        Ok(()) => break Ok((k, path, p.summary.clone())),
+                        Err(_) if path.exists() => continue,
+                        Err(e) => break Err(anyhow::Error::new(e)),
+                    }
+                };
+                if dtx.send(result).is_err() {
+                    return;
+                }
+            }
+        });
+        Writer {
+            tx: Some(tx),
+            done,
+            thread: Some(thread),
+        }
+    }
+
+    fn submit(&self, k: u32, p: Box<RecordedPress>) {
+        if let Some(tx) = &self.tx {
+            let _ = tx.send((k, p));
+        }
+    }
+
+    /// Results so far, without waiting.
+    fn ready(&self) -> Vec<Result<(u32, PathBuf, PressSummary)>> {
+        self.done.try_iter().collect()
+    }
+
+    /// Wait for every submitted write.
+    fn close(mut self) -> Vec<Result<(u32, PathBuf, PressSummary)>> {
+        drop(self.tx.take());
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        self.done.try_iter().collect()
+    }
+}
+
+/// The guide on the terminal: a bar (presses recorded, ETA, what to do now)
+/// on a terminal, plain lines otherwise.
+struct Guide {
+    progress: Progress,
+    total: u32,
+    hold_ms: f64,
+    said_release: bool,
+    last_hold_line: f64,
+    plain: bool,
+}
+
+impl Guide {
+    fn line(&self, s: &str) {
+        self.progress.println(s);
+    }
+
+    fn say(&mut self, now: &str) {
+        self.progress.set_message(now);
+    }
+
+    /// React to a recorder event; `k` is the number the next press will have.
+    fn event(&mut self, e: &RecordEvent, k: u32, replay: bool) {
+        match e {
+            RecordEvent::WaitingForReference if !replay => {
+                self.line("waiting for a no-contact reference: do not touch the sensor");
+                self.say("waiting: do not touch the sensor");
+            }
+            RecordEvent::Ready if !replay => {
+                self.line(&format!("press now ({k}/{})", self.total));
+                self.say(&format!("press now ({k}/{})", self.total));
+            }
+            RecordEvent::PressStarted { .. } => {
+                self.said_release = false;
+                self.last_hold_line = 0.0;
+                if !replay {
+                    self.line(&format!("contact ({k}/{})", self.total));
+                }
+            }
+            RecordEvent::Holding {
+                held_ms,
+                score,
+                peak,
+            } => {
+                self.say(&format!(
+                    "holding {:.1} s, contact {score:.1} (peak {peak:.1})",
+                    held_ms / 1000.0
+                ));
+                if self.plain && !replay && held_ms - self.last_hold_line >= 500.0 {
+                    self.last_hold_line = *held_ms;
+                    self.line(&format!(
+                        "  holding {:.1} s, contact {score:.1}",
+                        held_ms / 1000.0
+                    ));
+                }
+                if !self.said_release && *held_ms >= self.hold_ms && !replay {
+                    self.said_release = true;
+                    self.line("release");
+                    self.say("release");
+                }
+            }
+            RecordEvent::Released { held_ms, peak } if !replay => {
+                self.line(&format!(
+                    "released after {:.1} s (peak contact {peak:.1})",
+                    held_ms / 1000.0
+                ));
+                self.say(&format!("released press {k}"));
+            }
+            RecordEvent::Rejected(w) => {
+                self.line(&format!("press not kept: {w}"));
+            }
+            RecordEvent::PressComplete(p) => {
+                for w in &p.summary.warnings {
+                    self.line(&format!("warning (press {k} kept): {w}"));
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn saved(&self, k: u32, path: &Path, s: &PressSummary) {
+        self.line(&format!(
+            "saved press {k}/{}: {} frames, {:.1} s, peak contact {:.1} ({}; reference {} frames, {:.1} fps)",
+            self.total,
+            s.frames,
+            s.duration_ms / 1000.0,
+            s.peak,
+            path.display(),
+            s.reference_frames,
+            s.fps
+        ));
+        self.progress.inc(1);
+    }
+}
+
+/// Mean of the first `k` frames (a recording's own no-contact reference).
+fn mean_image(frames: &[RgbImage]) -> Option<RgbImage> {
+    let first = frames.first()?;
+    let mut acc = vec![0u32; first.as_raw().len()];
+    for f in frames {
+        for (a, &v) in acc.iter_mut().zip(f.as_raw()) {
+            *a += v as u32;
+        }
+    }
+    let n = frames.len() as u32;
+    let raw: Vec<u8> = acc.iter().map(|&a| ((a + n / 2) / n) as u8).collect();
+    RgbImage::from_raw(first.width(), first.height(), raw)
+}
+
+struct Session {
+    guide: Guide,
+    writer: Option<Writer>,
+    submitted: u32,
+    saved: u32,
+    first_number: u32,
+    errors: Vec<anyhow::Error>,
+}
+
+impl Session {
+    fn collect(&mut self, results: Vec<Result<(u32, PathBuf, PressSummary)>>) {
+        for r in results {
+            match r {
+                Ok((k, path, s)) => {
+                    self.saved += 1;
+                    self.guide.saved(k, &path, &s);
+                }
+                Err(e) => {
+                    self.guide
+                        .line(&format!("error: cannot save a press: {e:#}"));
+                    self.errors.push(e);
+                }
+            }
+        }
+    }
+
+    fn drain(&mut self, rec: &mut Recorder, replay: bool) {
+        while let Some(e) = rec.poll() {
+            let k = self.submitted + 1;
+            self.guide.event(&e, k, replay);
+            if let RecordEvent::PressComplete(p) = e {
+                if self.submitted < self.guide.total {
+                    self.submitted += 1;
+                    if let Some(w) = &self.writer {
+                        w.submit(self.submitted, p);
+                    }
+                }
+            }
+        }
+        let ready = self.writer.as_ref().map(Writer::ready).unwrap_or_default();
+        self.collect(ready);
+    }
+
+    /// Wait for every write handed to the writer.
+    fn close(&mut self) {
+        if let Some(w) = self.writer.take() {
+            let results = w.close();
+            self.collect(results);
+        }
+    }
+
+    fn done(&self) -> bool {
+        self.submitted >= self.guide.total
+    }
+}
+
+/// Stops the loops on Ctrl-C (the press in progress is dropped; saved presses
+/// are complete, since each is renamed into place only when written).
+fn interrupt_flag() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = flag.clone();
+    let started = Arc::new((std::sync::Mutex::new(false), std::sync::Condvar::new()));
+    let s2 = started.clone();
+    std::thread::spawn(move || {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            return;
+        };
+        rt.block_on(async move {
+            let wait = tokio::signal::ctrl_c();
+            tokio::pin!(wait);
+            // Poll once so the handler is installed before we say so.
+            let _ = futures_poll_once(&mut wait).await;
+            {
+                let (m, c) = &*s2;
+                *m.lock().unwrap_or_else(|e| e.into_inner()) = true;
+                c.notify_all();
+            }
+            if wait.await.is_ok() {
+                f.store(true, Ordering::SeqCst);
+            }
+        });
+    });
+    let (m, c) = &*started;
+    let guard = m.lock().unwrap_or_else(|e| e.into_inner());
+    let _ = c.wait_timeout_while(guard, std::time::Duration::from_secs(2), |s| !*s);
+    flag
+}
+
+/// Poll a future once (returns whether it was ready).
+async fn futures_poll_once<F: std::future::Future + Unpin>(f: &mut F) -> bool {
+    use std::task::Poll;
+    std::future::poll_fn(|cx| {
+        Poll::Ready(matches!(
+            std::pin::Pin::new(&mut *f).poll(cx),
+            Poll::Ready(_)
+        ))
+    })
+    .await
+}
+
+/// Run the command.
+pub fn run(args: Args) -> Result<()> {
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    let stop = interrupt_flag();
+    run_to(args, &mut out, &stop)
+}
+
+/// Run the command; the summary goes to `out`, the guide to standard error.
+pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
+    check_id(&args.textile)?;
+    if args.presses == 0 {
+        bail!("--presses must be at least 1");
+    }
+    let dir = args.out.join(&args.textile);
+    let stale = remove_stale_temporaries(&dir);
+    if stale > 0 {
+        eprintln!(
+            "removed {stale} unfinished press(es) left in {} by an interrupted run",
+            dir.display()
+        );
+    }
+    let first = next_number(&dir)?;
+    if let Some(name) = &args.name {
+        write_textile_info(
+            &dir,
+            &TextileInfo {
+                id: args.textile.clone(),
+                name: name.clone(),
+            },
+        )?;
+    }
+    let opened = open(&args, args.sim_seed.unwrap_or(first as u64))?;
+    let label = RecordLabel {
+        textile: args.textile.clone(),
+        source: opened.source.to_string(),
+        sensor_serial: opened.serial.clone(),
+        sensor: opened.sensor_unit,
+        person: 0,
+        jig: opened.jig,
+    };
+    eprintln!(
+        "recording {} presses of {}{} from {} into {} (from {first:04})",
+        args.presses,
+        args.textile,
+        args.name
+            .as_deref()
+            .map(|n| format!(" \"{n}\""))
+            .unwrap_or_default(),
+        opened.desc,
+        dir.display()
+    );
+    let progress = Progress::new(
+        &format!("record {}", args.textile),
+        args.presses as u64,
+        "presses",
+    );
+    let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let writer = Writer::new(dir.clone(), first);
+    let mut s = Session {
+        guide: Guide {
+            progress,
+            total: args.presses,
+            hold_ms: args.hold * 1000.0,
+            said_release: false,
+            last_hold_line: 0.0,
+            plain,
+        },
+        writer: Some(writer),
+        submitted: 0,
+        saved: 0,
+        first_number: first,
+        errors: Vec::new(),
+    };
+    let started = std::time::Instant::now();
+    let mut frame = Frame::blank();
+    let mut interrupted = false;
+    let mut ran_out = None;
+    match opened.frames {
+        Frames::Live(mut src, budget) => {
+            let mut det = ContactDetector::new(ContactConfig::default());
+            let mut rec = Recorder::new(RecorderConfig::default(), label);
+            let mut n = 0u64;
+            while !s.done() {
+                if stop.load(Ordering::SeqCst) {
+                    interrupted = true;
+                    break;
+                }
+                if budget.is_some_and(|b| n >= b) {
+                    ran_out = Some(format!(
+                        "the simulator's presses were not accepted ({n} frames)"
+                    ));
+                    break;
+                }
+                n += 1;
+                match src.next_frame(&mut frame) {
+                    Ok(()) => {}
+                    Err(SourceError::BadFrame(e)) => {
+                        tracing::warn!("bad frame skipped: {e}");
+                        continue;
+                    }
+                    Err(SourceError::Ended) => {
+                        rec.finish();
+                        s.drain(&mut rec, false);
+                        ran_out = Some("the source ended".into());
+                        break;
+                    }
+                    Err(e) => {
+                        // Presses already handed to the writer are still saved.
+                        s.close();
+                        bail!(
+                            "{e} ({} presses saved; the press in progress, if any, was not)",
+                            s.saved
+                        );
+                    }
+                }
+                let u = det.update(&frame.image, frame.timestamp_us);
+                rec.push(&frame, &u);
+                s.drain(&mut rec, false);
+            }
+        }
+        Frames::Replay(dirs) => {
+            for d in &dirs {
+                if s.done() {
+                    break;
+                }
+                if stop.load(Ordering::SeqCst) {
+                    interrupted = true;
+                    break;
+                }
+                let press = telextiles_sim::recording::read_press(d)
+                    .with_context(|| format!("cannot replay {}", d.display()))?;
+                let meta = press.meta.clone();
+                // Each recording with its own reference: its declared
+                // reference frames, else captured from its first frames.
+                let press_ref = meta.reference_frames.filter(|&k| k > 0).and_then(|k| {
+                    mean_image(&press.frames[..(k as usize).min(press.frames.len())])
+                });
+                let mut src = RecordedSource::from_press(
+                    press,
+                    Pace::AsFastAsPossible,
+                    d.display().to_string(),
+                );
+                let mut det = match &press_ref {
+                    Some(r) => ContactDetector::with_reference(ContactConfig::default(), r),
+                    None => ContactDetector::new(ContactConfig::default()),
+                };
+                let mut rec = Recorder::new(
+                    RecorderConfig {
+                        fps: Some(meta.fps),
+                        ..RecorderConfig::default()
+                    },
+                    RecordLabel {
+                        sensor_serial: meta.sensor_serial.clone(),
+                        sensor: meta.sensor,
+                        person: meta.person,
+                        jig: meta.jig,
+                        ..label.clone()
+                    },
+                );
+                let before = s.submitted;
+                loop {
+                    match src.next_frame(&mut frame) {
+                        Ok(()) => {}
+                        Err(SourceError::Ended) => break,
+                        Err(e) => bail!("{}: {e}", d.display()),
+                    }
+                    let u = det.update(&frame.image, frame.timestamp_us);
+                    rec.push(&frame, &u);
+                    s.drain(&mut rec, true);
+                    if s.done() {
+                        break;
+                    }
+                }
+                rec.finish();
+                s.drain(&mut rec, true);
+                if s.submitted == before {
+                    s.guide.line(&format!(
+                        "{}: no press found in this recording",
+                        d.display()
+                    ));
+                }
+            }
+            if !s.done() && !interrupted {
+                ran_out = Some(format!("the {} recordings are all replayed", dirs.len()));
+            }
+        }
+    }
+    s.close();
+    s.guide.progress.finish();
+    let last = s.first_number + s.saved;
+    writeln!(
+        out,
+        "recorded {} of {} presses of {} into {} in {:.1} s{}",
+        s.saved,
+        args.presses,
+        args.textile,
+        dir.display(),
+        started.elapsed().as_secs_f64(),
+        if s.saved > 0 {
+            format!(" ({:04}..{:04})", s.first_number, last - 1)
+        } else {
+            String::new()
+        }
+    )?;
+    if let Some(e) = s.errors.into_iter().next() {
+        return Err(e.context("a press could not be saved"));
+    }
+    if interrupted {
+        bail!(
+            "interrupted: {} of {} presses saved (the press in progress was dropped)",
+            s.saved,
+            args.presses
+        );
+    }
+    if let Some(why) = ran_out {
+        if s.saved < args.presses {
+            bail!(
+                "only {} of {} presses recorded: {why}",
+                s.saved,
+                args.presses
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sensor_argument_parses() {
+        assert_eq!("digit".parse(), Ok(SensorArg::Digit(None)));
+        assert_eq!(
+            "digit:D20118".parse(),
+            Ok(SensorArg::Digit(Some("D20118".into())))
+        );
+        assert_eq!("sim".parse(), Ok(SensorArg::Sim));
+        assert_eq!(
+            "replay:rec/T030".parse(),
+            Ok(SensorArg::Replay(PathBuf::from("rec/T030")))
+        );
+        assert!("digit:".parse::<SensorArg>().is_err());
+        assert!("replay:".parse::<SensorArg>().is_err());
+        assert!("webcam".parse::<SensorArg>().is_err());
+    }
+
+    #[test]
+    fn next_free_number_skips_temporaries_and_files() {
+        let d = tempfile::tempdir().expect("tempdir");
+        assert_eq!(next_number(&d.path().join("absent")).expect("n"), 1);
+        std::fs::create_dir(d.path().join("0001")).expect("mkdir");
+        std::fs::create_dir(d.path().join("0007")).expect("mkdir");
+        std::fs::create_dir(d.path().join("0009.tmp-1-0")).expect("mkdir");
+        std::fs::write(d.path().join("textile.json"), "{}").expect("write");
+        assert_eq!(next_number(d.path()).expect("n"), 8);
+    }
+
+    #[test]
+    fn textile_ids_must_be_directory_names() {
+        assert!(check_id("T030").is_ok());
+        assert!(check_id("my-denim_2").is_ok());
+        for bad in ["", ".", "..", "a/b", "a\\b", "x\ny"] {
+            assert!(check_id(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn stale_temporaries_of_dead_processes_are_removed() {
+        let d = tempfile::tempdir().expect("tempdir");
+        // pid 0 is never a process of ours; our own pid is alive.
+        std::fs::create_dir(d.path().join("0003.tmp-0-0")).expect("mkdir");
+        let mine = format!("0004.tmp-{}-0", std::process::id());
+        std::fs::create_dir(d.path().join(&mine)).expect("mkdir");
+        std::fs::create_dir(d.path().join("0002")).expect("mkdir");
+        assert_eq!(remove_stale_temporaries(d.path()), 1);
+        assert!(!d.path().join("0003.tmp-0-0").exists());
+        assert!(d.path().join(&mine).exists());
+        assert!(d.path().join("0002").exists());
+    }
+
+    #[test]
+    fn mean_image_rounds() {
+        let a = RgbImage::from_raw(1, 1, vec![10, 20, 30]).expect("image");
+        let b = RgbImage::from_raw(1, 1, vec![11, 20, 31]).expect("image");
+        let m = mean_image(&[a, b]).expect("mean");
+        assert_eq!(m.as_raw(), &[11, 20, 31]);
+        assert!(mean_image(&[]).is_none());
+    }
+}
