@@ -2,11 +2,13 @@
 //!
 //! Within a press the decider keeps the running mean of the L2-normalised
 //! embeddings (re-normalised) and looks it up in the index. The first
-//! decision is made once `min_frames` embeddings are in and the same textile
-//! has been nearest for `confirm_frames` frames in a row. After that the
-//! decision switches only when another textile is nearer than the current one
-//! by at least `switch_margin` for `switch_frames` consecutive frames
-//! (hysteresis: no flip-flop between two close textiles). A textile further
+//! decision is made once embeddings have come in for `min_ms` and the same
+//! textile has been nearest for `confirm_ms` (and at least two frames) in a
+//! row. After that the decision switches only when another textile is nearer
+//! than the current one by at least `switch_margin` for `switch_ms` (and at
+//! least two frames) in a row (hysteresis: no flip-flop between two close
+//! textiles). Durations, not frame counts, so a 25 fps sensor decides as
+//! soon as a 60 fps one; timestamps are the frames' own. A textile further
 //! than `unknown_distance` from everything is reported as its nearest known
 //! textile with `unknown = true`.
 //!
@@ -195,14 +197,16 @@ fn normalise(v: &mut [f32]) {
 /// Decider tuning.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DecideConfig {
-    /// Embeddings needed before the first decision.
-    pub min_frames: u32,
-    /// Frames the same textile must stay nearest for the first decision.
-    pub confirm_frames: u32,
+    /// Milliseconds of embeddings (from the press's first) before the
+    /// first decision.
+    pub min_ms: f32,
+    /// Milliseconds the same textile must stay nearest for the first
+    /// decision.
+    pub confirm_ms: f32,
     /// Distance lead a challenger needs over the current decision.
     pub switch_margin: f32,
-    /// Consecutive frames the challenger must lead by `switch_margin`.
-    pub switch_frames: u32,
+    /// Milliseconds the challenger must lead by `switch_margin`.
+    pub switch_ms: f32,
     /// Beyond this distance the nearest known textile is flagged unknown.
     pub unknown_distance: f32,
 }
@@ -210,10 +214,11 @@ pub struct DecideConfig {
 impl Default for DecideConfig {
     fn default() -> Self {
         DecideConfig {
-            min_frames: 4,
-            confirm_frames: 4,
+            // 4, 4 and 8 frames at 60 fps.
+            min_ms: 50.0,
+            confirm_ms: 50.0,
             switch_margin: 0.02,
-            switch_frames: 8,
+            switch_ms: 117.0,
             unknown_distance: 0.5,
         }
     }
@@ -277,9 +282,12 @@ pub struct Decider {
     mean: Vec<f32>,
     frames: u32,
     start_us: u64,
+    /// Timestamp of the press's first embedding.
+    first_us: Option<u64>,
     in_press: bool,
     current: Option<Decision>,
-    challenger: Option<(usize, u32)>,
+    /// Candidate entry, frames in its run, timestamp of the run's first.
+    challenger: Option<(usize, u32, u64)>,
     first_decision_us: Option<u64>,
     switches: u32,
 }
@@ -293,6 +301,7 @@ impl Decider {
             mean: vec![0.0; dim],
             frames: 0,
             start_us: 0,
+            first_us: None,
             in_press: false,
             current: None,
             challenger: None,
@@ -311,6 +320,7 @@ impl Decider {
         self.sum.iter_mut().for_each(|x| *x = 0.0);
         self.frames = 0;
         self.start_us = t_us;
+        self.first_us = None;
         self.in_press = true;
         self.current = None;
         self.challenger = None;
@@ -381,11 +391,13 @@ impl Decider {
     ) -> DecideStep {
         assert_eq!(index.dim(), self.sum.len(), "index dimension");
         let mut changed = false;
-        if self.in_press && self.frames >= self.cfg.min_frames {
+        let first = *self.first_us.get_or_insert(t_us);
+        let ms = |a: u64, b: u64| a.saturating_sub(b) as f32 / 1000.0;
+        if self.in_press && self.frames > 0 && ms(t_us, first) >= self.cfg.min_ms {
             match self.current {
                 None => {
-                    let run = self.bump(nearest.best, true);
-                    if run >= self.cfg.confirm_frames.max(1) {
+                    let (run, since) = self.bump(nearest.best, true, t_us);
+                    if run >= 2 && ms(t_us, since) >= self.cfg.confirm_ms {
                         self.current = Some(self.make(index, nearest.best, t_us, &nearest));
                         self.first_decision_us = Some(t_us);
                         self.challenger = None;
@@ -396,8 +408,8 @@ impl Decider {
                 Some(cur) => {
                     let d_cur = index.distance(cur.entry, &self.mean);
                     let leads = d_cur - nearest.best_dist >= self.cfg.switch_margin;
-                    let run = self.bump(nearest.best, leads);
-                    if run >= self.cfg.switch_frames.max(1) {
+                    let (run, since) = self.bump(nearest.best, leads, t_us);
+                    if run >= 2 && ms(t_us, since) >= self.cfg.switch_ms {
                         self.current = Some(self.make(index, nearest.best, t_us, &nearest));
                         self.challenger = None;
                         self.switches += 1;
@@ -419,19 +431,20 @@ impl Decider {
         }
     }
 
-    /// Count consecutive frames for a challenger (reset when `counts` is false
-    /// or the challenger changes). Returns the run length.
-    fn bump(&mut self, entry: usize, counts: bool) -> u32 {
+    /// Count a run of frames for a challenger (reset when `counts` is false
+    /// or the challenger changes). Returns the run's length in frames and
+    /// the timestamp of its first frame.
+    fn bump(&mut self, entry: usize, counts: bool, t_us: u64) -> (u32, u64) {
         if !counts {
             self.challenger = None;
-            return 0;
+            return (0, t_us);
         }
-        let run = match self.challenger {
-            Some((e, r)) if e == entry => r + 1,
-            _ => 1,
+        let (run, since) = match self.challenger {
+            Some((e, r, since)) if e == entry => (r + 1, since),
+            _ => (1, t_us),
         };
-        self.challenger = Some((entry, run));
-        run
+        self.challenger = Some((entry, run, since));
+        (run, since)
     }
 
     fn make<I: TextileIndex + ?Sized>(

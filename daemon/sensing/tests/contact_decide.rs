@@ -225,26 +225,38 @@ fn no_decision_outside_a_press() {
     let idx = toy_index();
     let mut d = Decider::new(DecideConfig::default(), 8);
     let a = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
-    for t in 0..50 {
-        assert_eq!(d.on_embedding(&idx, t, &a).decision, None);
+    const P: u64 = 16_667; // 60 fps
+    for k in 0..50 {
+        assert_eq!(d.on_embedding(&idx, k * P, &a).decision, None);
     }
-    assert_eq!(d.press_end(60), None);
-    d.press_start(100);
+    assert_eq!(d.press_end(60 * P), None);
+    d.press_start(100 * P);
     let mut first = None;
-    for t in 101..120 {
-        if let Some(dec) = d.on_embedding(&idx, t, &a).decision {
-            first.get_or_insert(t);
+    for k in 100..130 {
+        if let Some(dec) = d.on_embedding(&idx, k * P, &a).decision {
+            first.get_or_insert(k);
             assert_eq!((idx.id(dec.entry), dec.slot, dec.unknown), ("A", 3, false));
         }
     }
-    let cfg = DecideConfig::default();
-    // Counting starts at the min_frames-th embedding; confirm_frames in a row.
+    // Counting starts min_ms after the first embedding (frame 103 at 60
+    // fps), and the textile must stay nearest for confirm_ms (to 106).
+    assert_eq!(first, Some(106));
+    let out = d.press_end(130 * P).unwrap();
     assert_eq!(
-        first,
-        Some(100 + (cfg.min_frames + cfg.confirm_frames - 1) as u64)
+        (out.first_decision_us, out.switches),
+        (first.map(|k| k * P), 0)
     );
-    let out = d.press_end(130).unwrap();
-    assert_eq!((out.first_decision_us, out.switches), (first, 0));
+    // At 25 fps the same durations take fewer frames: decided at frame 4
+    // (160 ms), not after a fixed 8 frames (320 ms).
+    const P25: u64 = 40_000;
+    d.press_start(0);
+    let mut first = None;
+    for k in 0..20 {
+        if d.on_embedding(&idx, k * P25, &a).decision.is_some() {
+            first.get_or_insert(k);
+        }
+    }
+    assert_eq!(first, Some(4));
 }
 
 #[test]
@@ -259,7 +271,7 @@ fn no_flip_flop_between_close_textiles_under_noise() {
         let mut v: Vec<f32> = (0..8).map(|_| rng.gen_range(-0.6f32..0.6)).collect();
         v[0] += 1.0;
         v[1] += 0.97;
-        if d.on_embedding(&idx, t, &unit(&v)).changed {
+        if d.on_embedding(&idx, t * 16_667, &unit(&v)).changed {
             changes += 1;
         }
     }
@@ -271,8 +283,9 @@ fn no_flip_flop_between_close_textiles_under_noise() {
 #[test]
 fn a_real_change_of_textile_switches_after_k_frames() {
     let idx = toy_index();
+    // 5 frames at 60 fps.
     let cfg = DecideConfig {
-        switch_frames: 5,
+        switch_ms: 67.0,
         ..Default::default()
     };
     let mut d = Decider::new(cfg, 8);
@@ -280,11 +293,11 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     let a = unit(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
     let c = unit(&[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
     for t in 1..=20 {
-        d.on_embedding(&idx, t, &a);
+        d.on_embedding(&idx, t * 16_667, &a);
     }
     let mut switched_at = None;
     for t in 21..=200 {
-        let s = d.on_embedding(&idx, t, &c);
+        let s = d.on_embedding(&idx, t * 16_667, &c);
         if s.changed {
             switched_at = Some(t);
             assert_eq!(idx.id(s.decision.unwrap().entry), "C");
@@ -305,7 +318,7 @@ fn far_textiles_get_the_nearest_known_flagged_unknown() {
     let far = unit(&[0.3, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
     let mut last = None;
     for t in 1..20 {
-        last = d.on_embedding(&idx, t, &far).decision.or(last);
+        last = d.on_embedding(&idx, t * 16_667, &far).decision.or(last);
     }
     let dec = last.unwrap();
     assert_eq!(idx.id(dec.entry), "A");
