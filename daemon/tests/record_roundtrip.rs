@@ -1,0 +1,317 @@
+//! The round trip a user runs with their own fabrics (docs/recording.md),
+//! through the real binary: `record --sensor sim` -> `index build --presses`
+//! -> `classify`, plus `record --sensor replay:` and the errors a user meets.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
+
+fn model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("sensing/tests/fixtures/fixture_encoder.onnx")
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    let out = Command::new(BIN)
+        .current_dir(dir)
+        .env("RUST_BACKTRACE", "0")
+        .args(args)
+        .output()
+        .expect("run telextilesd");
+    eprintln!(
+        "$ telextilesd {}\n{}{}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn ok(dir: &Path, args: &[&str]) -> String {
+    let out = run(dir, args);
+    assert!(out.status.success(), "telextilesd {args:?} failed");
+    String::from_utf8(out.stdout).expect("utf-8")
+}
+
+fn meta(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("press.json")).expect("press.json");
+    serde_json::from_str(&text).expect("json")
+}
+
+#[test]
+fn record_index_classify_round_trip_as_a_user_runs_it() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let model = model();
+    let model = model.to_str().expect("utf-8 path");
+    let t0 = std::time::Instant::now();
+
+    // Record two textiles (the simulated DIGIT presses unattended).
+    let out = ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T030",
+            "--name",
+            "my twill",
+            "--presses",
+            "2",
+            "--out",
+            "recordings",
+            "--sensor",
+            "sim",
+        ],
+    );
+    assert!(
+        out.contains("recorded 2 of 2 presses of T030"),
+        "stdout: {out}"
+    );
+    // A second run adds presses after the first ones.
+    ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "recordings",
+            "--sensor",
+            "sim",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T080",
+            "--presses",
+            "3",
+            "--out",
+            "recordings",
+            "--sensor",
+            "sim",
+        ],
+    );
+    for t in ["T030", "T080"] {
+        for n in ["0001", "0002", "0003"] {
+            let p = d.join("recordings").join(t).join(n);
+            let m = meta(&p);
+            assert_eq!(m["textile"], t);
+            assert_eq!(m["source"], "sim");
+            assert_eq!(m["sensor_serial"], "SIM0000");
+            assert!((m["fps"].as_f64().expect("fps") - 60.0).abs() < 0.1, "{m}");
+            let k = m["reference_frames"].as_u64().expect("reference_frames");
+            assert!(k >= 8, "{k} reference frames");
+            let frames = m["frames"].as_array().expect("frames").len();
+            assert!(frames > k as usize + 60, "{frames} frames");
+            assert_eq!(m["timestamps_us"][0], 0);
+        }
+        assert!(!d.join("recordings").join(t).join("0004").exists());
+    }
+    // Different seeds: the second run's press is not a copy of the first.
+    let a = std::fs::read(d.join("recordings/T030/0001/000060.png")).expect("png");
+    let c = std::fs::read(d.join("recordings/T030/0003/000060.png")).expect("png");
+    assert_ne!(a, c);
+    let info = std::fs::read_to_string(d.join("recordings/T030/textile.json")).expect("json");
+    let info: serde_json::Value = serde_json::from_str(&info).expect("json");
+    assert_eq!(info["id"], "T030");
+    assert_eq!(info["name"], "my twill");
+
+    // Query presses the index has not seen (other seeds).
+    for t in ["T030", "T080"] {
+        ok(
+            d,
+            &[
+                "record",
+                "--textile",
+                t,
+                "--presses",
+                "1",
+                "--out",
+                "queries",
+                "--sensor",
+                "sim",
+                "--sim-seed",
+                "100",
+            ],
+        );
+    }
+
+    // The index from the recordings; two textiles, two roller slots.
+    let out = ok(
+        d,
+        &[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "recordings",
+            "--slots",
+            "2",
+            "-o",
+            "my.tlxi",
+        ],
+    );
+    assert!(
+        out.contains("2 textiles from 6 presses"),
+        "index build: {out}"
+    );
+
+    // Classify the queries: each decided as the textile it is.
+    let out = ok(
+        d,
+        &[
+            "classify", "--model", model, "--index", "my.tlxi", "--press", "queries", "--json",
+        ],
+    );
+    let reports: Vec<serde_json::Value> = out
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).expect("json line"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{out}");
+    for r in &reports {
+        let source = r["source"].as_str().expect("source");
+        let truth = if source.contains("T030") {
+            "T030"
+        } else {
+            "T080"
+        };
+        assert_eq!(r["textile"], truth, "{r}");
+        assert_eq!(r["unknown"], false, "{r}");
+    }
+    eprintln!("round trip took {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+#[test]
+fn record_replay_re_records_presses_with_their_own_reference() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T050",
+            "--presses",
+            "2",
+            "--out",
+            "orig",
+            "--sensor",
+            "sim",
+        ],
+    );
+    let out = ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "wool",
+            "--presses",
+            "2",
+            "--out",
+            "again",
+            "--sensor",
+            "replay:orig",
+        ],
+    );
+    assert!(out.contains("recorded 2 of 2 presses of wool"), "{out}");
+    for n in ["0001", "0002"] {
+        let m = meta(&d.join("again/wool").join(n));
+        assert_eq!(m["textile"], "wool");
+        assert_eq!(m["source"], "replay");
+        assert_eq!(m["sensor_serial"], "SIM0000");
+        let k = m["reference_frames"].as_u64().expect("reference");
+        assert!(k >= 8, "{k}");
+    }
+    // Asking for more presses than the recordings hold: the ones found are
+    // saved, and the command says it fell short.
+    let out = run(
+        d,
+        &[
+            "record",
+            "--textile",
+            "wool",
+            "--presses",
+            "5",
+            "--out",
+            "again",
+            "--sensor",
+            "replay:orig",
+        ],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("only 2 of 5 presses recorded"), "{err}");
+    assert!(d.join("again/wool/0004").is_dir());
+    assert!(!d.join("again/wool/0005").exists());
+}
+
+#[test]
+fn record_errors_say_what_to_do() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    // No DIGIT with this serial on this machine.
+    let out = run(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "rec",
+            "--sensor",
+            "digit:NO-SUCH-SERIAL",
+        ],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("cannot open the DIGIT"), "{err}");
+    assert!(err.contains("--sensor sim"), "{err}");
+    assert!(!d
+        .join("rec/T030")
+        .read_dir()
+        .is_ok_and(|mut r| r.next().is_some()));
+    // The simulator only presses catalogue textiles.
+    let out = run(
+        d,
+        &[
+            "record",
+            "--textile",
+            "my-denim",
+            "--presses",
+            "1",
+            "--out",
+            "rec",
+            "--sensor",
+            "sim",
+        ],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("built-in catalogue"), "{err}");
+    // Not a directory name.
+    let out = run(
+        d,
+        &[
+            "record",
+            "--textile",
+            "../x",
+            "--presses",
+            "1",
+            "--out",
+            "rec",
+            "--sensor",
+            "sim",
+        ],
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be a directory name"));
+}
