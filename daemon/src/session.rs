@@ -749,9 +749,10 @@ fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
                     // The press's own running mean decides the final answer, so
                     // lost datagrams never change it.
                     let p = rx.as_mut().expect("press started above");
-                    let n = state.index.nearest2(&v);
-                    let latency = now_us().saturating_sub(l.capture_us.min(now_us()));
-                    decide(state, p, n.best, n.best_dist, latency, l.capture_us, true);
+                    if let Some(n) = state.index.nearest2(&v) {
+                        let latency = now_us().saturating_sub(l.capture_us.min(now_us()));
+                        decide(state, p, n.best, n.best_dist, latency, l.capture_us, true);
+                    }
                 }
                 *rx = None;
             }
@@ -779,8 +780,8 @@ fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
                 }
             }
             let step = p.decider.on_embedding(&*state.index, l.capture_us, &v);
-            let commanded = match (step.changed, step.decision) {
-                (true, Some(d)) => {
+            let commanded = match step.map(|s| (s.changed, s.decision)) {
+                Some((true, Some(d))) => {
                     let latency = l.one_way_latency_us.unwrap_or(0).max(0) as u64;
                     decide(state, p, d.entry, d.distance, latency, l.capture_us, false)
                 }

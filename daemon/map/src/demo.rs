@@ -90,7 +90,9 @@ impl Demo {
             l2_normalise(&mut q);
             if !decided && k >= TOUCH_HZ * 6 / 10 {
                 decided = true;
-                let near = idx.nearest(&q);
+                let Some(near) = idx.nearest(&q) else {
+                    continue;
+                };
                 let slot = idx.slot_of_entry(near.best);
                 let e = &idx.entries[near.best];
                 out.push(Timed {
@@ -330,7 +332,7 @@ mod tests {
             assert_eq!(touches.len(), 75);
             // The last touches sit on the pressed textile.
             let last = touches.last().unwrap();
-            assert_eq!(index.nearest(last).best, target);
+            assert_eq!(index.nearest(last).unwrap().best, target);
             let decided: Vec<(String, u32)> = evs
                 .iter()
                 .filter_map(|t| match &t.event {

@@ -123,13 +123,13 @@ async fn send_press(
         tokio::time::sleep(Duration::from_millis(25)).await;
     }
     let last = touches.last().unwrap();
-    let best = index.nearest(last).best;
+    let best = index.nearest(last).unwrap().best;
     let slot = index.slot_of_entry(best) as u32;
     let _ = events.send(MapEvent::Decision {
         textile: index.entries[best].id.clone(),
         name: None,
         slot,
-        distance: index.nearest(last).best_dist,
+        distance: index.nearest(last).unwrap().best_dist,
         latency_ms: 30.0,
         peer,
     });
@@ -166,7 +166,7 @@ async fn map_page_in_headless_chromium() {
     let (a, b) = (index.roller.slots[0], index.roller.slots[3]);
     let touches = press(&index, a, b, 20);
     let end = index.place_on_map(touches.last().unwrap());
-    let nearest_name = index.entries[index.nearest(touches.last().unwrap()).best]
+    let nearest_name = index.entries[index.nearest(touches.last().unwrap()).unwrap().best]
         .name
         .clone();
     let touches2 = press(&index2, 0, 5, 20);
@@ -184,7 +184,7 @@ async fn map_page_in_headless_chromium() {
         "press_touches": touches.len(),
         "press_end": end,
         "press_nearest_name": nearest_name,
-        "press_slot": index.slot_of_entry(index.nearest(touches.last().unwrap()).best),
+        "press_slot": index.slot_of_entry(index.nearest(touches.last().unwrap()).unwrap().best),
         "screenshot": screenshot,
         "step_ms": 30000,
     });

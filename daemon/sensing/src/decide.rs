@@ -49,8 +49,12 @@ pub trait TextileIndex {
     fn distance(&self, entry: usize, q: &[f32]) -> f32;
     /// Nearest roller slot for an entry.
     fn slot_of(&self, entry: usize) -> usize;
-    /// Nearest and second-nearest entries.
-    fn nearest2(&self, q: &[f32]) -> Nearest2 {
+    /// Nearest and second-nearest entries; None for a query of another
+    /// dimension, a non-finite one, or an empty index.
+    fn nearest2(&self, q: &[f32]) -> Option<Nearest2> {
+        if q.len() != self.dim() || q.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
         let mut best = (usize::MAX, f32::INFINITY);
         let mut second = (usize::MAX, f32::INFINITY);
         for i in 0..self.len() {
@@ -62,12 +66,12 @@ pub trait TextileIndex {
                 second = (i, d);
             }
         }
-        Nearest2 {
+        (best.0 != usize::MAX).then_some(Nearest2 {
             best: best.0,
             best_dist: best.1,
             second: (second.0 != usize::MAX).then_some(second.0),
             second_dist: second.1,
-        }
+        })
     }
 }
 
@@ -87,14 +91,13 @@ impl TextileIndex for telextiles_index::Index {
     fn slot_of(&self, entry: usize) -> usize {
         self.slot_of_entry(entry)
     }
-    fn nearest2(&self, q: &[f32]) -> Nearest2 {
-        let n = self.nearest(q);
-        Nearest2 {
+    fn nearest2(&self, q: &[f32]) -> Option<Nearest2> {
+        self.nearest(q).map(|n| Nearest2 {
             best: n.best,
             best_dist: n.best_dist,
             second: n.second,
             second_dist: n.second_dist,
-        }
+        })
     }
 }
 
@@ -345,32 +348,41 @@ impl Decider {
 
     /// Feed one L2-normalised embedding taken at `t_us`: [`Decider::accumulate`],
     /// the index search, then [`Decider::decide`]. Outside a press (before
-    /// [`Decider::press_start`]) nothing is decided.
+    /// [`Decider::press_start`]) nothing is decided. None for an embedding
+    /// of the wrong dimension or with non-finite values: it is refused and
+    /// changes nothing.
     pub fn on_embedding<I: TextileIndex + ?Sized>(
         &mut self,
         index: &I,
         t_us: u64,
         emb: &[f32],
-    ) -> DecideStep {
+    ) -> Option<DecideStep> {
         if !self.in_press {
-            let nearest = index.nearest2(emb);
-            return DecideStep {
+            let nearest = index.nearest2(emb)?;
+            return Some(DecideStep {
                 nearest,
                 decision: None,
                 changed: false,
-            };
+            });
         }
-        self.accumulate(emb);
-        let nearest = index.nearest2(&self.mean);
-        self.decide(index, t_us, nearest)
+        self.accumulate(emb)?;
+        let nearest = index.nearest2(&self.mean)?;
+        Some(self.decide(index, t_us, nearest))
     }
 
     /// Add an embedding to the press's running mean; returns the mean
-    /// (L2-normalised). Ignored outside a press.
-    pub fn accumulate(&mut self, emb: &[f32]) -> &[f32] {
-        assert_eq!(emb.len(), self.sum.len(), "embedding dimension");
+    /// (L2-normalised). Outside a press the mean is returned unchanged.
+    /// None (and nothing changes) for an embedding of the wrong dimension,
+    /// with non-finite values, or of zero length.
+    pub fn accumulate(&mut self, emb: &[f32]) -> Option<&[f32]> {
+        if emb.len() != self.sum.len() || emb.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let n = norm(emb);
+        if !(n > 0.0 && n.is_finite()) {
+            return None;
+        }
         if self.in_press {
-            let n = norm(emb).max(1e-12);
             for (s, v) in self.sum.iter_mut().zip(emb) {
                 *s += v / n;
             }
@@ -378,7 +390,7 @@ impl Decider {
             self.mean.copy_from_slice(&self.sum);
             normalise(&mut self.mean);
         }
-        &self.mean
+        Some(&self.mean)
     }
 
     /// Apply the hysteresis rules given the index's answer for the current

@@ -242,10 +242,14 @@ impl<I: TextileIndex> Pipeline<I> {
         let mut step = None;
         if let Some(emb) = out.embedding.filter(|_| self.decider.in_press()) {
             let t3 = Instant::now();
-            let mean = self.decider.accumulate(emb);
-            let nearest = self.index.nearest2(mean);
+            // The encoder's embeddings are finite and of its dimension (it
+            // checks), which the index shares (checked in `new`).
+            let nearest = self
+                .decider
+                .accumulate(emb)
+                .and_then(|mean| self.index.nearest2(mean));
             let t4 = Instant::now();
-            step = Some(self.decider.decide(&self.index, t, nearest));
+            step = nearest.map(|n| self.decider.decide(&self.index, t, n));
             let t5 = Instant::now();
             times.search_ns = (t4 - t3).as_nanos() as u64;
             times.decide_ns = (t5 - t4).as_nanos() as u64;

@@ -113,13 +113,13 @@ impl Index {
         d
     }
 
-    /// Nearest and second-nearest textile to an L2-normalised query.
-    ///
-    /// # Panics
-    /// If `q.len() != self.dim` or the index is empty (an index is never
-    /// built or read empty).
-    pub fn nearest(&self, q: &[f32]) -> Nearest {
-        assert_eq!(q.len(), self.dim, "query dimension differs from the index");
+    /// Nearest and second-nearest textile to an L2-normalised query; None
+    /// for a query that is not of the index's dimension or not finite
+    /// (whatever a peer sends, no answer rather than a panic).
+    pub fn nearest(&self, q: &[f32]) -> Option<Nearest> {
+        if q.len() != self.dim || self.entries.is_empty() || q.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
         let mut best = (usize::MAX, f32::INFINITY);
         let mut second = (usize::MAX, f32::INFINITY);
         for i in 0..self.entries.len() {
@@ -131,12 +131,12 @@ impl Index {
                 second = (i, d);
             }
         }
-        Nearest {
+        (best.0 != usize::MAX).then_some(Nearest {
             best: best.0,
             best_dist: best.1,
             second: (second.0 != usize::MAX).then_some(second.0),
             second_dist: second.1,
-        }
+        })
     }
 
     /// The `k` nearest entries to a query, nearest first, with distances.

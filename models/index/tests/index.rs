@@ -117,7 +117,7 @@ fn nearest_finds_the_textile_a_noisy_query_came_from() {
             .map(|x| x + rng.gen_range(-0.05..0.05))
             .collect();
         l2_normalise(&mut q);
-        let n = index.nearest(&q);
+        let n = index.nearest(&q).unwrap();
         assert!(n.margin() >= 0.0);
         assert!(n.second.is_some());
         if index.entries[n.best].id == r.id {
