@@ -227,13 +227,13 @@ fn no_decision_outside_a_press() {
     let a = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
     const P: u64 = 16_667; // 60 fps
     for k in 0..50 {
-        assert_eq!(d.on_embedding(&idx, k * P, &a).decision, None);
+        assert_eq!(d.on_embedding(&idx, k * P, &a).unwrap().decision, None);
     }
     assert_eq!(d.press_end(60 * P), None);
     d.press_start(100 * P);
     let mut first = None;
     for k in 100..130 {
-        if let Some(dec) = d.on_embedding(&idx, k * P, &a).decision {
+        if let Some(dec) = d.on_embedding(&idx, k * P, &a).unwrap().decision {
             first.get_or_insert(k);
             assert_eq!((idx.id(dec.entry), dec.slot, dec.unknown), ("A", 3, false));
         }
@@ -252,7 +252,11 @@ fn no_decision_outside_a_press() {
     d.press_start(0);
     let mut first = None;
     for k in 0..20 {
-        if d.on_embedding(&idx, k * P25, &a).decision.is_some() {
+        if d.on_embedding(&idx, k * P25, &a)
+            .unwrap()
+            .decision
+            .is_some()
+        {
             first.get_or_insert(k);
         }
     }
@@ -271,7 +275,7 @@ fn no_flip_flop_between_close_textiles_under_noise() {
         let mut v: Vec<f32> = (0..8).map(|_| rng.gen_range(-0.6f32..0.6)).collect();
         v[0] += 1.0;
         v[1] += 0.97;
-        if d.on_embedding(&idx, t * 16_667, &unit(&v)).changed {
+        if d.on_embedding(&idx, t * 16_667, &unit(&v)).unwrap().changed {
             changes += 1;
         }
     }
@@ -297,7 +301,7 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     }
     let mut switched_at = None;
     for t in 21..=200 {
-        let s = d.on_embedding(&idx, t * 16_667, &c);
+        let s = d.on_embedding(&idx, t * 16_667, &c).unwrap();
         if s.changed {
             switched_at = Some(t);
             assert_eq!(idx.id(s.decision.unwrap().entry), "C");
@@ -318,10 +322,53 @@ fn far_textiles_get_the_nearest_known_flagged_unknown() {
     let far = unit(&[0.3, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
     let mut last = None;
     for t in 1..20 {
-        last = d.on_embedding(&idx, t * 16_667, &far).decision.or(last);
+        last = d
+            .on_embedding(&idx, t * 16_667, &far)
+            .unwrap()
+            .decision
+            .or(last);
     }
     let dec = last.unwrap();
     assert_eq!(idx.id(dec.entry), "A");
     assert!(dec.unknown && dec.distance > 0.5, "{dec:?}");
     assert!(dec.confidence >= 0.0 && dec.confidence <= 1.0);
+}
+
+/// Whatever a peer sends: an embedding of another dimension, with NaN or
+/// infinity, or all zeros is refused (None) and leaves the press as it was;
+/// decisions go on with the next good one.
+#[test]
+fn malformed_embeddings_are_refused_without_a_panic_and_change_nothing() {
+    let idx = toy_index();
+    let mut d = Decider::new(DecideConfig::default(), 8);
+    d.press_start(0);
+    let a = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    d.on_embedding(&idx, 16_667, &a).unwrap();
+    let mean = d.mean().to_vec();
+    let mut nan = a.clone();
+    nan[3] = f32::NAN;
+    let mut inf = a.clone();
+    inf[0] = f32::INFINITY;
+    for bad in [
+        vec![1.0; 7],
+        vec![1.0; 9],
+        Vec::new(),
+        nan,
+        inf,
+        vec![0.0; 8],
+    ] {
+        assert!(d.on_embedding(&idx, 33_333, &bad).is_none(), "{bad:?}");
+        assert!(d.accumulate(&bad).is_none());
+        assert_eq!(d.mean(), &mean[..]);
+        assert!(idx.nearest2(&bad).is_none() || bad.len() == 8 && bad.iter().all(|v| *v == 0.0));
+    }
+    let mut decided = false;
+    for k in 2..20 {
+        decided |= d
+            .on_embedding(&idx, k * 16_667, &a)
+            .unwrap()
+            .decision
+            .is_some();
+    }
+    assert!(decided);
 }

@@ -495,3 +495,42 @@ fn recorded_replay_fast_real_time_and_errors() {
         Ok(_) => panic!("opened a missing recording"),
     }
 }
+
+/// A recording whose timestamps go backwards is refused with a clear error,
+/// on disk and in memory, instead of panicking the sensing thread.
+#[test]
+fn a_recording_whose_timestamps_go_backwards_is_refused_not_a_panic() {
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let spec = telextiles_sim::PressSpec {
+        frames: 6,
+        ..telextiles_sim::PressSpec::new("T030", 3)
+    };
+    let mut press = sim.render_press(&spec).unwrap();
+    press.meta.timestamps_us[3] = 0;
+    // In memory (a replay built by a program): frames up to the bad one,
+    // then a fatal error naming it.
+    let mut src = RecordedSource::from_press(press.clone(), Pace::AsFastAsPossible, "backwards");
+    let mut f = Frame::blank();
+    for _ in 0..3 {
+        src.next_frame(&mut f).unwrap();
+    }
+    match src.next_frame(&mut f) {
+        Err(SourceError::Fatal(m)) => assert!(m.contains("backwards at frame 3"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    // The first timestamp after later ones (no underflow either).
+    let mut first = press.clone();
+    first.meta.timestamps_us = vec![500_000, 1, 2, 3, 4, 5];
+    let mut src = RecordedSource::from_press(first, Pace::AsFastAsPossible, "first");
+    src.next_frame(&mut f).unwrap();
+    assert!(matches!(src.next_frame(&mut f), Err(SourceError::Fatal(_))));
+    // On disk: refused when read.
+    let dir = tempfile::tempdir().unwrap();
+    let pdir = dir.path().join("p");
+    telextiles_sim::recording::write_press(&pdir, &press).unwrap();
+    match RecordedSource::open(&pdir, Pace::AsFastAsPossible) {
+        Err(SourceError::Fatal(m)) => assert!(m.contains("timestamps go backwards"), "{m}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("opened a recording whose timestamps go backwards"),
+    }
+}

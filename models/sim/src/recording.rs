@@ -197,6 +197,17 @@ fn read_file(dir: &Path) -> Result<PressFile, RecordingError> {
             format!("fps {} is not positive", file.meta.fps),
         ));
     }
+    if let Some(i) = file.meta.timestamps_us.windows(2).position(|w| w[1] < w[0]) {
+        return Err(invalid(
+            &p,
+            format!(
+                "timestamps go backwards at frame {} ({} us after {} us)",
+                i + 1,
+                file.meta.timestamps_us[i + 1],
+                file.meta.timestamps_us[i]
+            ),
+        ));
+    }
     if let Some(k) = file.meta.reference_frames {
         if k as usize > file.frames.len() {
             return Err(invalid(

@@ -31,6 +31,8 @@ pub struct RecordedSource {
     pace: Pace,
     started: Option<Instant>,
     seq: u64,
+    /// First frame whose timestamp is before its predecessor's, if any.
+    backwards: Option<usize>,
 }
 
 impl RecordedSource {
@@ -59,7 +61,12 @@ impl RecordedSource {
         } else {
             (0..n as u64).map(|i| i * period_us).collect()
         };
+        let backwards = timestamps
+            .windows(2)
+            .position(|w| w[1] < w[0])
+            .map(|i| i + 1);
         RecordedSource {
+            backwards,
             name: name.into(),
             meta: press.meta,
             frames: press.frames,
@@ -106,9 +113,24 @@ impl FrameSource for RecordedSource {
             self.loops += 1;
         }
         let i = self.next;
+        if self.backwards == Some(i) {
+            return Err(SourceError::Fatal(format!(
+                "cannot replay {}: its timestamps go backwards at frame {i} ({} us after {} us)",
+                self.name,
+                self.timestamps[i],
+                self.timestamps[i - 1]
+            )));
+        }
         self.next += 1;
-        let span = self.timestamps.last().copied().unwrap_or(0) + self.period_us;
-        let t = self.timestamps[i] - self.timestamps[0] + self.loops * span;
+        let first = self.timestamps[0];
+        let span = self
+            .timestamps
+            .last()
+            .copied()
+            .unwrap_or(0)
+            .saturating_sub(first)
+            + self.period_us;
+        let t = (self.timestamps[i] - first).saturating_add(self.loops.saturating_mul(span));
         if self.pace == Pace::RealTime {
             let start = *self.started.get_or_insert_with(Instant::now);
             let due = start + Duration::from_micros(t);
