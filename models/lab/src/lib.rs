@@ -16,6 +16,7 @@ pub mod onnx;
 pub mod preprocess;
 pub mod protocol;
 pub mod quantize;
+pub mod recorded;
 pub mod report;
 pub mod simsource;
 pub mod stability;

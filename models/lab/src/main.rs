@@ -11,6 +11,7 @@ use telextiles_lab::data::{write_atomic, ImageSet};
 use telextiles_lab::model::ArchConfig;
 use telextiles_lab::onnx::{export_encoder, EncoderMeta, OrtEncoder};
 use telextiles_lab::protocol::{self, Protocol, SourceKind};
+use telextiles_lab::recorded::{self, Source, Split, StudyConfig};
 use telextiles_lab::train::{embed_set, train_loop, LoopOptions, RunDir, TrainConfig, Trainer};
 
 #[derive(Parser)]
@@ -48,6 +49,44 @@ enum Cmd {
     /// int8 version of an ONNX model: ONNX Runtime static quantisation
     /// calibrated on the training people's DIGIT frames.
     Quantize(QuantizeArgs),
+    /// Write simulated presses in the on-disk press format, laid out as
+    /// `telextilesd record` lays out recordings (`<out>/<textile>/<press>/`):
+    /// a stand-in for your own recordings to try `--source presses:<dir>`.
+    SimPresses(SimPressesArgs),
+}
+
+#[derive(Args)]
+struct SimPressesArgs {
+    /// Where the presses go (`<out>/<textile>/p<person>-s<sensor>-<n>/`;
+    /// existing presses are kept).
+    #[arg(long)]
+    out: PathBuf,
+    /// Textile ids, comma-separated (default: --first of the training
+    /// book).
+    #[arg(long, value_delimiter = ',')]
+    textiles: Vec<String>,
+    /// The first N training textiles when --textiles is not given.
+    #[arg(long, default_value_t = 12)]
+    first: usize,
+    /// Presses per textile.
+    #[arg(long, default_value_t = 6)]
+    presses: usize,
+    /// Sensor units, cycled over the presses of a textile (each unit has
+    /// its own background).
+    #[arg(long, value_delimiter = ',', default_value = "0,4,5")]
+    sensors: Vec<u32>,
+    /// Simulated people, cycled over the presses of a textile.
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    people: Vec<u32>,
+    /// Hand-held presses (tilt, wobble, slip) instead of the jig.
+    #[arg(long)]
+    hand: bool,
+    /// Frames per press (60 fps).
+    #[arg(long, default_value_t = 150)]
+    frames: usize,
+    /// Base seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 #[derive(Args)]
@@ -106,9 +145,12 @@ struct BenchArgs {
     /// file whose roller layout to use.
     #[arg(long, default_value = "models/index.tlxi")]
     roller: String,
-    /// Where the results go.
-    #[arg(long, default_value = "docs/bench")]
-    out: PathBuf,
+    #[command(flatten)]
+    recorded: SplitArgs,
+    /// Where the results go [default: docs/bench for the simulator;
+    /// required for presses:<dir>].
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -133,9 +175,12 @@ struct ExportDescriptorArgs {
 
 #[derive(Args, Clone)]
 struct DataArgs {
-    /// Frame source: `sim` (telextiles-sim), `synth` (procedural, for tests).
+    /// Frame source: `sim` (telextiles-sim), `synth` (procedural, for
+    /// tests), or `presses:<dir>`: your own recordings (`eval` and `bench`
+    /// only; the press format of `telextilesd record`, found recursively,
+    /// else the PyTouch layout <dir>/<class>/<serial>/*.png).
     #[arg(long, default_value = "sim")]
-    source: SourceKind,
+    source: Source,
     /// Network input size the caches are made for.
     #[arg(long, default_value_t = 64)]
     input: u32,
@@ -157,11 +202,58 @@ struct DataArgs {
 }
 
 impl DataArgs {
+    /// The built-in source (recordings are for `eval` and `bench` only).
+    fn kind(&self) -> Result<SourceKind> {
+        match &self.source {
+            Source::Builtin(k) => Ok(*k),
+            Source::Presses(d) => bail!(
+                "--source presses:{} works with `eval` and `bench` (the study on recorded presses); this command needs sim or synth",
+                d.display()
+            ),
+        }
+    }
+
     fn protocol(&self) -> Protocol {
         let mut p = Protocol::paper(self.input, self.crop);
         p.train_frames = self.train_frames;
         p.max_textiles = self.textiles;
         p
+    }
+}
+
+/// How recorded presses are split (`--source presses:<dir>` only).
+#[derive(Args, Clone)]
+struct SplitArgs {
+    /// K recordings of each textile build the index (the first K in sorted
+    /// path order), the others are queries [default: 3].
+    #[arg(long)]
+    index_presses: Option<usize>,
+    /// `index-presses` (see --index-presses) or `lopo` (leave one press
+    /// out: each recording against an index of all the others).
+    #[arg(long, value_parser = ["index-presses", "lopo"])]
+    split: Option<String>,
+    /// Frames in contact per recording used as index frames and as
+    /// per-frame queries, spread over the contact (0: all); the per-press
+    /// decision always uses every frame in contact.
+    #[arg(long, default_value_t = 30)]
+    frames_per_press: usize,
+}
+
+impl SplitArgs {
+    fn split(&self) -> Result<Split> {
+        match (self.split.as_deref(), self.index_presses) {
+            (Some("lopo"), Some(_)) => bail!("--split lopo and --index-presses exclude each other"),
+            (Some("lopo"), None) => Ok(Split::Lopo),
+            (_, k) => {
+                let k = k.unwrap_or(3);
+                ensure!(k > 0, "--index-presses must be at least 1");
+                Ok(Split::IndexPresses(k))
+            }
+        }
+    }
+
+    fn given(&self) -> bool {
+        self.split.is_some() || self.index_presses.is_some()
     }
 }
 
@@ -235,6 +327,8 @@ struct EvalArgs {
     /// Write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
+    #[command(flatten)]
+    recorded: SplitArgs,
 }
 
 #[derive(Args)]
@@ -271,13 +365,14 @@ fn main() -> Result<()> {
     match cli.cmd {
         Cmd::Cache(a) => {
             let p = a.data.protocol();
-            protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+            protocol::load_or_build(&p, a.data.kind()?, &a.data.cache_dir, a.data.threads)?;
             Ok(())
         }
         Cmd::Train(a) => train(a),
         Cmd::Bench(a) => bench_cmd(a),
         Cmd::ExportDescriptor(a) => export_descriptor(a),
         Cmd::Quantize(a) => quantize_cmd(a),
+        Cmd::SimPresses(a) => sim_presses(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
         Cmd::BenchLatency(a) => {
@@ -341,7 +436,7 @@ fn train(a: TrainArgs) -> Result<()> {
         a.data.input
     );
     let p = a.data.protocol();
-    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+    let sets = protocol::load_or_build(&p, a.data.kind()?, &a.data.cache_dir, a.data.threads)?;
     let run = RunDir(a.run.clone());
     let mut trainer = if a.resume {
         let latest = run
@@ -460,7 +555,7 @@ fn export(a: ExportArgs) -> Result<()> {
     // Verify against burn on real held-out frames (batch of 16 and of 1).
     let sets = protocol::load_or_build(
         &a.data.protocol(),
-        a.data.source,
+        a.data.kind()?,
         &a.data.cache_dir,
         a.data.threads,
     )?;
@@ -521,13 +616,29 @@ fn eval(a: EvalArgs) -> Result<()> {
     let bytes =
         std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
     let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes)?;
+    if let Source::Presses(dir) = &a.data.source {
+        let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
+        cfg.frames_per_press = a.recorded.frames_per_press;
+        cfg.threads = a.ort_threads;
+        cfg.runs = 0;
+        let r = recorded::run(&cfg, std::slice::from_ref(&m), None)?;
+        println!("{}", recorded::markdown(&r));
+        if let Some(j) = a.json {
+            write_atomic(&j, serde_json::to_string_pretty(&r)?.as_bytes())?;
+        }
+        return Ok(());
+    }
+    ensure!(
+        !a.recorded.given(),
+        "--index-presses/--split are for --source presses:<dir>"
+    );
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
     let (crop, input) = m.view();
     let mut p = a.data.protocol();
     p.crop = crop;
     p.input = input;
-    let sets = protocol::load_or_build(&p, a.data.source, &a.data.cache_dir, a.data.threads)?;
+    let sets = protocol::load_or_build(&p, a.data.kind()?, &a.data.cache_dir, a.data.threads)?;
     let report = protocol::evaluate(&m, &sets, &p, a.ort_threads)?;
     println!("{}", report.markdown(&a.model));
     if let Some(j) = a.json {
@@ -563,6 +674,29 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         list.push(Method::onnx(name.clone(), bytes)?);
         models.push((name, path));
     }
+    if let Source::Presses(dir) = &a.data.source {
+        let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
+        cfg.frames_per_press = a.recorded.frames_per_press;
+        cfg.threads = a.data.threads;
+        cfg.time_threads = a.time_threads.clone();
+        cfg.runs = a.runs;
+        let out = a
+            .out
+            .clone()
+            .context("--out <dir> is required with --source presses:<dir>")?;
+        let r = recorded::run(&cfg, &list, Some(&out))?;
+        println!("{}", recorded::markdown(&r));
+        eprintln!(
+            "wrote bench.json, report.md and the charts in {}",
+            out.display()
+        );
+        return Ok(());
+    }
+    let out = a.out.clone().unwrap_or_else(|| PathBuf::from("docs/bench"));
+    ensure!(
+        !a.recorded.given(),
+        "--index-presses/--split are for --source presses:<dir>"
+    );
     let roller: Vec<String> = if a.roller.is_empty() {
         Vec::new()
     } else if a.roller.ends_with(".tlxi") || Path::new(&a.roller).exists() {
@@ -578,7 +712,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         a.roller.split(',').map(|s| s.trim().to_string()).collect()
     };
     let cfg = BenchConfig {
-        source: a.data.source,
+        source: a.data.kind()?,
         protocol: a.data.protocol(),
         cache_dir: a.data.cache_dir.clone(),
         threads: a.data.threads,
@@ -606,13 +740,13 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         },
         decision_frames: a.decision_frames,
         roller,
-        out: a.out.clone(),
+        out: out.clone(),
     };
     let r = report::run(&cfg, &list)?;
     println!("{}", report::markdown(&r));
     eprintln!(
         "wrote bench.json, report.md and the charts in {}",
-        a.out.display()
+        out.display()
     );
     Ok(())
 }
@@ -624,7 +758,7 @@ fn quantize_cmd(a: QuantizeArgs) -> Result<()> {
     let (crop, input) = m.view();
     let sets = protocol::load_base(
         &a.data.protocol(),
-        a.data.source,
+        a.data.kind()?,
         &a.data.cache_dir,
         a.data.threads,
     )?;
@@ -657,6 +791,59 @@ fn quantize_cmd(a: QuantizeArgs) -> Result<()> {
         } else {
             String::new()
         }
+    );
+    Ok(())
+}
+
+fn sim_presses(a: SimPressesArgs) -> Result<()> {
+    use telextiles_sim::{PressSpec, Simulator};
+    ensure!(
+        !a.sensors.is_empty() && !a.people.is_empty(),
+        "--sensors and --people need at least one value"
+    );
+    let sim = Simulator::new().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let textiles: Vec<String> = if a.textiles.is_empty() {
+        sim.catalogue()
+            .training()
+            .take(a.first)
+            .map(|t| t.id.clone())
+            .collect()
+    } else {
+        a.textiles.clone()
+    };
+    let progress = telextiles_progress::Progress::new(
+        "rendering presses",
+        (textiles.len() * a.presses) as u64,
+        "presses",
+    );
+    let mut written = 0;
+    for (ti, t) in textiles.iter().enumerate() {
+        for k in 0..a.presses {
+            let (person, sensor) = (a.people[k % a.people.len()], a.sensors[k % a.sensors.len()]);
+            let dir = a.out.join(t).join(format!("p{person}-s{sensor}-{k:03}"));
+            if !dir.exists() {
+                let seed = a.seed + 1000 * ti as u64 + k as u64;
+                let press = sim
+                    .render_press(&PressSpec {
+                        person,
+                        sensor,
+                        jig: !a.hand,
+                        frames: a.frames,
+                        ..PressSpec::new(t.clone(), seed)
+                    })
+                    .map_err(|e| anyhow::anyhow!("{t}: {e}"))?;
+                telextiles_sim::recording::write_press(&dir, &press)?;
+                written += 1;
+            }
+            progress.inc(1);
+        }
+    }
+    progress.finish();
+    println!(
+        "wrote {written} simulated presses under {} ({} textiles x {} presses; existing ones kept)",
+        a.out.display(),
+        textiles.len(),
+        a.presses
     );
     Ok(())
 }

@@ -482,21 +482,40 @@ pub fn pareto(results: &[MethodResult]) -> Vec<usize> {
 /// less. The two axes the chart is judged by, accuracy (0-100 %) and the
 /// frame budget (0-16.7 ms), are weighed one for one.
 pub fn knee(results: &[MethodResult]) -> Option<usize> {
+    knee_within(results, FRAME_BUDGET_MS)
+}
+
+/// [`knee`] with another frame budget (one frame at the recordings' own
+/// rate, e.g. 40 ms at 25 fps).
+pub fn knee_within(results: &[MethodResult], budget_ms: f64) -> Option<usize> {
     pareto(results)
         .into_iter()
-        .filter(|&i| results[i].ms() <= FRAME_BUDGET_MS && results[i].press_top1.is_finite())
-        .max_by(|&a, &b| knee_score(&results[a]).total_cmp(&knee_score(&results[b])))
+        .filter(|&i| results[i].ms() <= budget_ms && results[i].press_top1.is_finite())
+        .max_by(|&a, &b| {
+            knee_score_within(&results[a], budget_ms)
+                .total_cmp(&knee_score_within(&results[b], budget_ms))
+        })
 }
 
 /// Accuracy minus the share of the frame budget ([`knee`]).
 pub fn knee_score(r: &MethodResult) -> f64 {
-    r.press_top1 - r.ms() / FRAME_BUDGET_MS
+    knee_score_within(r, FRAME_BUDGET_MS)
+}
+
+/// Accuracy minus the share of a frame budget of `budget_ms`.
+pub fn knee_score_within(r: &MethodResult, budget_ms: f64) -> f64 {
+    r.press_top1 - r.ms() / budget_ms
 }
 
 /// The markdown table.
 pub fn markdown(results: &[MethodResult]) -> String {
+    markdown_within(results, FRAME_BUDGET_MS)
+}
+
+/// [`markdown`] with the knee judged by another frame budget.
+pub fn markdown_within(results: &[MethodResult], budget_ms: f64) -> String {
     let front = pareto(results);
-    let k = knee(results);
+    let k = knee_within(results, budget_ms);
     let mut s = String::from(
         "| method | runtime | crop → input | dim | ms/frame p50 (1 thread) | p95 | ms p50 (2 threads) | p95 | top-1 per frame | top-1 per press | Pareto |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
@@ -554,18 +573,35 @@ fn chart_err<E: std::fmt::Display>(x: E) -> anyhow::Error {
 /// Accuracy (per press) against per-frame latency, log-x, the Pareto
 /// frontier joined, the knee ringed, the 60 fps budget marked (SVG).
 pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()> {
+    chart_with(
+        results,
+        speed_svg,
+        "Accuracy against speed (held-out people, kNN top-1 per press)",
+        FRAME_BUDGET_MS,
+    )
+}
+
+/// [`chart`] with another caption and frame budget (one frame at the
+/// recordings' rate).
+pub fn chart_with(
+    results: &[MethodResult],
+    speed_svg: &std::path::Path,
+    caption: &str,
+    budget_ms: f64,
+) -> Result<()> {
     use plotters::prelude::*;
     let e = chart_err;
     {
         let root = SVGBackend::new(speed_svg, (1000, 620)).into_drawing_area();
         root.fill(&WHITE).map_err(e)?;
-        let xmax = results.iter().map(|r| r.ms()).fold(20.0, f64::max) * 2.0;
+        let xmax = results
+            .iter()
+            .map(|r| r.ms())
+            .fold(budget_ms * 1.2, f64::max)
+            * 2.0;
         let xmin = results.iter().map(|r| r.ms()).fold(1.0, f64::min).max(1e-4) / 2.0;
         let mut c = ChartBuilder::on(&root)
-            .caption(
-                "Accuracy against speed (held-out people, kNN top-1 per press)",
-                ("sans-serif", 18),
-            )
+            .caption(caption, ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(55)
@@ -577,11 +613,14 @@ pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()
             .draw()
             .map_err(e)?;
         c.draw_series(LineSeries::new(
-            [(FRAME_BUDGET_MS, 0.0), (FRAME_BUDGET_MS, 100.0)],
+            [(budget_ms, 0.0), (budget_ms, 100.0)],
             RED.mix(0.6).stroke_width(2),
         ))
         .map_err(e)?
-        .label("16.7 ms: one frame at 60 fps")
+        .label(format!(
+            "{budget_ms:.1} ms: one frame at {:.0} fps",
+            1000.0 / budget_ms
+        ))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.mix(0.6).stroke_width(2)));
         let mut front: Vec<(f64, f64)> = pareto(results)
             .into_iter()
@@ -592,14 +631,14 @@ pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()
             .map_err(e)?
             .label("Pareto frontier")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
-        if let Some(k) = knee(results) {
+        if let Some(k) = knee_within(results, budget_ms) {
             // Methods on this curve are worth as much as the knee: one
             // percentage point of accuracy per 1 % of the frame budget.
-            let v = knee_score(&results[k]);
+            let v = knee_score_within(&results[k], budget_ms);
             let steps = 200;
             let curve: Vec<(f64, f64)> = (0..=steps)
                 .map(|i| xmin * (xmax / xmin).powf(i as f64 / steps as f64))
-                .map(|x| (x, 100.0 * (v + x / FRAME_BUDGET_MS)))
+                .map(|x| (x, 100.0 * (v + x / budget_ms)))
                 .filter(|p| p.1 <= 100.0)
                 .collect();
             c.draw_series(LineSeries::new(curve, GREEN.mix(0.5).stroke_width(1)))

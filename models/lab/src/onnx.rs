@@ -9,7 +9,6 @@ use burn_onnx::export::{AxisSpec, InputSpec, OnnxExporter};
 use onnx_ir::{Message, ModelProto};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use crate::model::{ArchConfig, Encoder};
 use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
@@ -160,23 +159,14 @@ pub fn ort_dylib_path() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("/usr/local/lib/libonnxruntime.so.1.31.1"))
 }
 
-static ORT_ENV: OnceLock<std::result::Result<ort::environment::Environment, String>> =
-    OnceLock::new();
-
-/// Load ONNX Runtime once per process and return its environment.
+/// Load ONNX Runtime once per process and return its environment: the
+/// sensing crate's (ONNX Runtime allows one environment per process, and
+/// the study on recorded presses runs the daemon's encoder beside the
+/// lab's sessions).
 pub fn init_ort() -> Result<&'static ort::environment::Environment> {
-    ORT_ENV
-        .get_or_init(|| {
-            let path = ort_dylib_path();
-            let builder = ort::init_from(&path)
-                .map_err(|e| format!("cannot load ONNX Runtime from {}: {e}", path.display()))?;
-            builder
-                .with_name("telextiles-lab")
-                .build()
-                .map_err(|e| format!("ONNX Runtime environment: {e}"))
-        })
-        .as_ref()
-        .map_err(|e| anyhow!("{e}"))
+    let path = ort_dylib_path();
+    telextiles_sensing::encoder::runtime(Some(&path))
+        .map_err(|e| anyhow!("cannot load ONNX Runtime from {}: {e}", path.display()))
 }
 
 /// An encoder loaded in ONNX Runtime.

@@ -124,7 +124,8 @@ pub fn machine() -> String {
     format!("{cpu}, {n} cores, ONNX Runtime 1.31.1")
 }
 
-fn today() -> String {
+/// The date and time now, UTC.
+pub fn today() -> String {
     std::process::Command::new("date")
         .args(["-u", "+%Y-%m-%d %H:%M UTC"])
         .output()
@@ -303,7 +304,8 @@ pub fn charted(report: &BenchReport) -> Vec<String> {
     names
 }
 
-fn is_descriptor(name: &str) -> bool {
+/// Whether a method is one of the classical descriptors.
+pub fn is_descriptor(name: &str) -> bool {
     ["fft-radial", "pixels16", "lbp-riu2"]
         .iter()
         .any(|p| name.starts_with(p))

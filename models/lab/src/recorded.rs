@@ -1,0 +1,1525 @@
+//! The study on recorded presses (`--source presses:<dir>`): the methods of
+//! the simulator bench ([`crate::methods::Method`]) on a user's own
+//! recordings, with splits that fit such data.
+//!
+//! **Input.** A directory of recordings in the on-disk press format
+//! (`telextiles_sim::recording`: one directory with `press.json` and PNG
+//! frames per press, found recursively, as `telextilesd record` writes
+//! them; the textile is `press.json`'s `textile`), or, when no `press.json`
+//! is found, the PyTouch layout `root/<class>/<serial>/*.png` (one
+//! recording per `<class>/<serial>` directory, 60 fps assumed as the reader
+//! does). Recordings are taken in sorted path order.
+//!
+//! **One reference per recording.** Every recording is processed alone,
+//! from a clean state, with its own no-contact reference and never with
+//! anything left from another recording: ONNX models run the daemon's
+//! per-frame path itself ([`telextiles_sensing::front::FrontEnd`], reset
+//! to the recording's reference from
+//! [`telextiles_sensing::front::recording_reference`]), and the Rust
+//! descriptors get the frames in contact and the reference from
+//! [`telextiles_sensing::front::segment`] (the same contact detector).
+//! The embeddings of a recording therefore do not depend on which other
+//! recordings are in the run, nor on their order; every split below is
+//! scored from the same per-recording embeddings.
+//!
+//! **Splits.** `IndexPresses(K)`: for each textile the first K recordings
+//! in sorted path order build the index, the rest are queries (a textile
+//! with K or fewer recordings has no queries; it stays in the index).
+//! `Lopo` (leave one press out): every recording is a query against an
+//! index of all the other recordings.
+//!
+//! **Scores.** Index: up to `frames_per_press` frames in contact of each
+//! index recording, spread evenly over its contact. Per frame: each of
+//! those frames of a query recording, nearest index frame (kNN, k = 1).
+//! Per press: the mean of *all* the query's frames in contact (L2-normalised
+//! embeddings, mean direction), nearest index frame, as the simulator
+//! bench scores a press; also against the textiles' centroids (the
+//! normalised mean of the index frames of each textile), as `index build`
+//! and the daemon's decider do. Per-class accuracy and the confusion matrix
+//! are per press (kNN). Against time: the running mean of the frames whose
+//! timestamp is at most T after the press started (the contact detector's
+//! first frame over threshold), from each recording's own timestamps; a
+//! press with no frame in contact by T counts as wrong.
+
+use anyhow::{bail, ensure, Context, Result};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use telextiles_sensing::contact::{ContactConfig, ContactEvent};
+use telextiles_sensing::encoder::{Encoder, EncoderOptions};
+use telextiles_sensing::frame::Frame;
+use telextiles_sensing::front::{self, FrontEnd};
+use telextiles_sim::recording::{self, PytouchEntry};
+use telextiles_sim::{Press, PressMeta};
+
+use crate::baselines::Baseline;
+use crate::data::{ImageKind, ImageSet};
+use crate::methods::{self, Method, MethodResult};
+use crate::preprocess::centre_crop_resize;
+
+/// Where a `--source` takes its frames from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Source {
+    /// A built-in source (simulator, synthetic gratings).
+    Builtin(crate::protocol::SourceKind),
+    /// Recorded presses (press format, else PyTouch layout) under a directory.
+    Presses(PathBuf),
+}
+
+impl std::str::FromStr for Source {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Source, String> {
+        if let Some(dir) = s.strip_prefix("presses:") {
+            if dir.is_empty() {
+                return Err("presses: needs a directory, e.g. presses:recordings/".into());
+            }
+            return Ok(Source::Presses(PathBuf::from(dir)));
+        }
+        match s {
+            "sim" => Ok(Source::Builtin(crate::protocol::SourceKind::Sim)),
+            "synth" => Ok(Source::Builtin(crate::protocol::SourceKind::Synth)),
+            _ => Err(format!(
+                "unknown source {s:?}: expected sim, synth or presses:<dir>"
+            )),
+        }
+    }
+}
+
+/// How recordings are split into index and queries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Split {
+    /// The first K recordings of each textile (sorted path order) build the
+    /// index, the rest are queries.
+    IndexPresses(usize),
+    /// Leave one press out: each recording against all the others.
+    Lopo,
+}
+
+impl Split {
+    /// Text for reports.
+    pub fn describe(&self) -> String {
+        match self {
+            Split::IndexPresses(k) => format!(
+                "the first {k} recordings of each textile (sorted path order) build the index, the others are queries"
+            ),
+            Split::Lopo => {
+                "leave one press out: each recording is a query against an index of all the other recordings".into()
+            }
+        }
+    }
+}
+
+/// On-disk layout of a recording.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum Layout {
+    /// `telextiles_sim::recording` press directory.
+    Press,
+    /// PyTouch `<class>/<serial>/*.png`.
+    Pytouch,
+}
+
+/// A recording found on disk (not loaded yet).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordingRef {
+    /// Its directory.
+    pub path: PathBuf,
+    /// Textile id (press.json `textile`, or the PyTouch class).
+    pub textile: String,
+    /// Layout.
+    pub layout: Layout,
+    /// PyTouch: the frame files; PyTouch serial.
+    pytouch: Option<(PytouchEntry, u32)>,
+}
+
+fn press_dirs(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    if dir.join(recording::META_FILE).is_file() {
+        out.push(dir.to_path_buf());
+        return Ok(());
+    }
+    let rd = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+    for e in rd {
+        let e = e.with_context(|| format!("cannot read {}", dir.display()))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        // Half-written presses (`<dir>.tmp-<pid>-<n>`) and hidden entries.
+        if name.starts_with('.') || name.contains(".tmp-") {
+            continue;
+        }
+        if e.file_type()?.is_dir() {
+            press_dirs(&e.path(), out)?;
+        }
+    }
+    Ok(())
+}
+
+/// The recordings under `dir`, in sorted path order: press directories
+/// found recursively, else the PyTouch layout.
+pub fn list_recordings(dir: &Path) -> Result<Vec<RecordingRef>> {
+    ensure!(dir.is_dir(), "{} is not a directory", dir.display());
+    let mut dirs = Vec::new();
+    press_dirs(dir, &mut dirs)?;
+    dirs.sort();
+    if !dirs.is_empty() {
+        return dirs
+            .into_iter()
+            .map(|p| {
+                let meta = recording::read_meta(&p)?;
+                Ok(RecordingRef {
+                    path: p,
+                    textile: meta.textile,
+                    layout: Layout::Press,
+                    pytouch: None,
+                })
+            })
+            .collect();
+    }
+    let entries = recording::pytouch_index(dir).with_context(|| {
+        format!(
+            "{}: no press.json found below it, and not a PyTouch layout either",
+            dir.display()
+        )
+    })?;
+    let mut serials: Vec<String> = entries.iter().map(|e| e.serial.clone()).collect();
+    serials.sort();
+    serials.dedup();
+    Ok(entries
+        .into_iter()
+        .map(|e| {
+            let unit = serials.iter().position(|s| *s == e.serial).unwrap_or(0) as u32;
+            RecordingRef {
+                path: e
+                    .files
+                    .first()
+                    .and_then(|f| f.parent())
+                    .map(Path::to_path_buf)
+                    .unwrap_or_default(),
+                textile: e.class.clone(),
+                layout: Layout::Pytouch,
+                pytouch: Some((e, unit)),
+            }
+        })
+        .collect())
+}
+
+impl RecordingRef {
+    /// Load the recording's frames.
+    pub fn load(&self) -> Result<Press> {
+        match &self.pytouch {
+            None => Ok(recording::read_press(&self.path)?),
+            Some((e, unit)) => {
+                // As `telextiles_sim::recording::read_pytouch` reads one
+                // entry (that reader loads the whole tree at once).
+                let frames = e
+                    .files
+                    .iter()
+                    .map(|f| recording::read_frame(f))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let n = frames.len() as u64;
+                Ok(Press {
+                    meta: PressMeta {
+                        textile: e.class.clone(),
+                        person: 0,
+                        sensor: *unit,
+                        jig: false,
+                        fps: telextiles_sim::FPS,
+                        timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
+                        seed: None,
+                        source: "pytouch".into(),
+                        sensor_serial: Some(e.serial.clone()),
+                        params: None,
+                        reference_frames: None,
+                    },
+                    frames,
+                })
+            }
+        }
+    }
+}
+
+/// One method's embeddings of one recording's frames in contact.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PressEmbedding {
+    /// Embedding length.
+    pub dim: usize,
+    /// L2-normalised rows, one per frame in contact, in order.
+    pub rows: Vec<f32>,
+    /// Index of each row's frame in the recording.
+    pub frames: Vec<usize>,
+    /// Milliseconds from the press start (first frame over the contact
+    /// threshold) to each row's frame, from the recording's timestamps.
+    pub t_ms: Vec<f64>,
+}
+
+impl PressEmbedding {
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// No rows.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    fn row(&self, i: usize) -> &[f32] {
+        &self.rows[i * self.dim..(i + 1) * self.dim]
+    }
+}
+
+/// One recording processed by every method.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Processed {
+    /// The recording's directory.
+    pub path: String,
+    /// Textile id.
+    pub textile: String,
+    /// Sensor serial (or unit number).
+    pub sensor: String,
+    /// Frames in the recording.
+    pub frames: usize,
+    /// Frame rate from its timestamps (median interval).
+    pub fps: f64,
+    /// Frames in contact (the contact detector's view).
+    pub contact_frames: usize,
+    /// The recording carries its own reference (`reference_frames`); else
+    /// one was captured from its first steady frames.
+    pub own_reference: bool,
+    /// Why it cannot be used (no reference, no contact); then `methods` is
+    /// empty.
+    pub skipped: Option<String>,
+    /// Per method, in the order of the method list.
+    pub methods: Vec<PressEmbedding>,
+}
+
+/// Frame rate from timestamps: 1 / median interval.
+pub fn fps_of(timestamps_us: &[u64]) -> f64 {
+    let d: Vec<f64> = timestamps_us
+        .windows(2)
+        .map(|w| w[1].saturating_sub(w[0]) as f64)
+        .filter(|&x| x > 0.0)
+        .collect();
+    let m = crate::bench::median(&d);
+    if m.is_finite() && m > 0.0 {
+        1e6 / m
+    } else {
+        f64::NAN
+    }
+}
+
+enum Runner {
+    Rust { base: Baseline, crop: u32 },
+    Front(Box<FrontEnd>),
+}
+
+/// Embeds recordings, one at a time, with every method (see the module
+/// docs: nothing but the method's weights carries over between
+/// recordings).
+pub struct Processor {
+    runners: Vec<Runner>,
+    contact: ContactConfig,
+    /// Model files for [`Encoder::open`].
+    _dir: tempfile::TempDir,
+}
+
+/// Reference pixels (f32, 0..255) as an image.
+fn reference_image(px: &[f32]) -> Result<image::RgbImage> {
+    let bytes: Vec<u8> = px
+        .iter()
+        .map(|v| v.round().clamp(0.0, 255.0) as u8)
+        .collect();
+    image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
+        .context("reference of the wrong size")
+}
+
+impl Processor {
+    /// Sessions for `methods`, `threads` ONNX Runtime threads each.
+    pub fn new(methods: &[Method], threads: usize, contact: ContactConfig) -> Result<Processor> {
+        let dir = tempfile::tempdir()?;
+        let mut runners = Vec::new();
+        for (i, m) in methods.iter().enumerate() {
+            runners.push(match m {
+                Method::Rust { base, crop } => Runner::Rust {
+                    base: *base,
+                    crop: *crop,
+                },
+                Method::Onnx { bytes, name, .. } => {
+                    let path = dir.path().join(format!("model-{i}.onnx"));
+                    std::fs::write(&path, bytes)?;
+                    let enc = Encoder::open(
+                        &path,
+                        &EncoderOptions {
+                            threads: threads.max(1),
+                            ort_library: Some(crate::onnx::ort_dylib_path()),
+                        },
+                    )
+                    .with_context(|| format!("model {name}"))?;
+                    Runner::Front(Box::new(FrontEnd::new(enc, contact.clone(), None)))
+                }
+            });
+        }
+        Ok(Processor {
+            runners,
+            contact,
+            _dir: dir,
+        })
+    }
+
+    /// Process one loaded recording with every method.
+    pub fn process(&mut self, path: &str, press: Press) -> Result<Processed> {
+        let meta = &press.meta;
+        ensure!(
+            meta.timestamps_us.len() == press.frames.len(),
+            "{path}: {} timestamps for {} frames",
+            meta.timestamps_us.len(),
+            press.frames.len()
+        );
+        let mut out = Processed {
+            path: path.to_string(),
+            textile: meta.textile.clone(),
+            sensor: meta
+                .sensor_serial
+                .clone()
+                .unwrap_or_else(|| format!("unit {}", meta.sensor)),
+            frames: press.frames.len(),
+            fps: fps_of(&meta.timestamps_us),
+            contact_frames: 0,
+            own_reference: meta.reference_frames.is_some_and(|k| k > 0),
+            skipped: None,
+            methods: Vec::new(),
+        };
+        let Some(seg) = front::segment(&press, &self.contact) else {
+            out.skipped = Some("no no-contact reference could be formed".into());
+            return Ok(out);
+        };
+        if seg.contact.is_empty() {
+            out.skipped = Some("no frame in contact".into());
+            return Ok(out);
+        }
+        out.contact_frames = seg.contact.len();
+        let start = seg.contact[0].press_start_us;
+        let reference = front::recording_reference(&press);
+        let ref_img = reference_image(&seg.reference)?;
+        let mut views: std::collections::HashMap<u32, (image::RgbImage, Vec<image::RgbImage>)> =
+            Default::default();
+        // The frames as the front end takes them.
+        let frames: Vec<Frame> = press
+            .frames
+            .into_iter()
+            .zip(&meta.timestamps_us)
+            .enumerate()
+            .map(|(i, (image, &t))| Frame {
+                image,
+                timestamp_us: t,
+                seq: i as u64,
+            })
+            .collect();
+        for r in &mut self.runners {
+            let mut e = PressEmbedding::default();
+            match r {
+                Runner::Rust { base, crop } => {
+                    if !views.contains_key(crop) {
+                        let rv = centre_crop_resize(&ref_img, *crop, *crop)?;
+                        let fv = seg
+                            .contact
+                            .iter()
+                            .map(|c| centre_crop_resize(&frames[c.index].image, *crop, *crop))
+                            .collect::<Result<Vec<_>>>()?;
+                        views.insert(*crop, (rv, fv));
+                    }
+                    let (rv, fv) = &views[crop];
+                    let side = *crop as usize;
+                    for (c, v) in seg.contact.iter().zip(fv) {
+                        let f = base.features(v.as_raw(), side, side, Some(rv.as_raw()));
+                        e.dim = f.len();
+                        e.rows.extend(f);
+                        e.frames.push(c.index);
+                        e.t_ms.push(c.t_us.saturating_sub(start) as f64 / 1e3);
+                    }
+                }
+                Runner::Front(fe) => {
+                    fe.reset(reference.as_deref());
+                    let mut press_start = None;
+                    for (i, f) in frames.iter().enumerate() {
+                        let o = fe
+                            .process(f)
+                            .with_context(|| format!("{path}: frame {i}"))?;
+                        if let Some(ContactEvent::PressStart { t_us }) = o.contact.event {
+                            press_start.get_or_insert(t_us);
+                        }
+                        if let Some(emb) = o.embedding {
+                            e.dim = emb.len();
+                            e.rows.extend_from_slice(emb);
+                            e.frames.push(i);
+                            let s = press_start.unwrap_or(f.timestamp_us);
+                            e.t_ms.push(f.timestamp_us.saturating_sub(s) as f64 / 1e3);
+                        }
+                    }
+                }
+            }
+            out.methods.push(e);
+        }
+        Ok(out)
+    }
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct StudyConfig {
+    /// The recordings.
+    pub dir: PathBuf,
+    /// Index/query split.
+    pub split: Split,
+    /// Frames in contact per recording used as index frames and as
+    /// per-frame queries (spread evenly; 0: all).
+    pub frames_per_press: usize,
+    /// ONNX Runtime threads while embedding.
+    pub threads: usize,
+    /// Thread counts to time ONNX models with.
+    pub time_threads: Vec<usize>,
+    /// Timed frames per method and thread count (0: no timing).
+    pub runs: usize,
+    /// Decision times reported (ms since the press started).
+    pub times_ms: Vec<f64>,
+    /// The contact detector's tuning (the daemon's default).
+    pub contact: ContactConfig,
+}
+
+impl StudyConfig {
+    /// Defaults for `dir` and `split`.
+    pub fn new(dir: impl Into<PathBuf>, split: Split) -> StudyConfig {
+        StudyConfig {
+            dir: dir.into(),
+            split,
+            frames_per_press: 30,
+            threads: 1,
+            time_threads: vec![1],
+            runs: 200,
+            times_ms: vec![
+                50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 400.0, 500.0, 750.0, 1000.0, 1500.0,
+                2000.0, 3000.0,
+            ],
+            contact: ContactConfig::default(),
+        }
+    }
+}
+
+/// One recording in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingRow {
+    pub path: String,
+    pub textile: String,
+    pub sensor: String,
+    pub frames: usize,
+    pub fps: f64,
+    pub contact_frames: usize,
+    pub own_reference: bool,
+    /// "index", "query" (index-presses split) or "both" (leave one out);
+    /// "skipped" when unusable.
+    pub role: String,
+    pub skipped: Option<String>,
+}
+
+/// Per textile, per press and per frame (one method).
+#[derive(Clone, Debug, Serialize)]
+pub struct ClassScore {
+    pub textile: String,
+    pub query_presses: usize,
+    pub presses_correct: usize,
+    pub query_frames: usize,
+    pub frames_correct: usize,
+}
+
+/// One query recording's decision (one method).
+#[derive(Clone, Debug, Serialize)]
+pub struct PressDecision {
+    /// Index into [`StudyReport::recordings`].
+    pub recording: usize,
+    pub truth: String,
+    /// Nearest index frame to the press's mean embedding.
+    pub knn: String,
+    /// Nearest textile centroid.
+    pub centroid: String,
+    /// Per-frame top-1 within this press.
+    pub frame_top1: f64,
+}
+
+/// One method on recorded presses.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordedMethod {
+    /// Name, view, timing and the headline accuracies (the simulator
+    /// bench's record; `by_frames` is empty, see `by_time`).
+    pub summary: MethodResult,
+    /// Per press, nearest textile centroid.
+    pub press_top1_centroid: f64,
+    /// (ms since the press started, top-1 per press of the running mean).
+    pub by_time: Vec<(f64, f64)>,
+    /// Median over query presses of the time of their first embedded frame
+    /// (ms since the press started): the earliest possible decision.
+    pub first_frame_ms: f64,
+    pub per_class: Vec<ClassScore>,
+    /// Per press (kNN): `confusion[truth][predicted]`, in `textiles` order.
+    pub confusion: Vec<Vec<usize>>,
+    pub decisions: Vec<PressDecision>,
+}
+
+/// Everything the study measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct StudyReport {
+    pub machine: String,
+    pub date: String,
+    pub command: String,
+    pub source: String,
+    pub layout: String,
+    pub split: Split,
+    pub split_text: String,
+    pub frames_per_press: usize,
+    /// Textiles (class order of the confusion matrices).
+    pub textiles: Vec<String>,
+    pub recordings: Vec<RecordingRow>,
+    /// (fps rounded to 0.1, recordings).
+    pub fps: Vec<(f64, usize)>,
+    /// The frame budget the knee is judged by: one frame at the median
+    /// recording frame rate.
+    pub frame_budget_ms: f64,
+    pub methods: Vec<RecordedMethod>,
+    pub pareto: Vec<String>,
+    pub knee: Option<String>,
+    /// Methods given in detail in the markdown (models passed in, the
+    /// best, the knee).
+    pub featured: Vec<String>,
+    pub seconds: Vec<(String, f64)>,
+}
+
+/// Loads and embeds every recording under `cfg.dir` (each alone, see the
+/// module docs), reporting progress.
+pub fn embed_all(
+    cfg: &StudyConfig,
+    methods: &[Method],
+) -> Result<(Vec<RecordingRef>, Vec<Processed>)> {
+    let refs = list_recordings(&cfg.dir)?;
+    let mut proc = Processor::new(methods, cfg.threads, cfg.contact.clone())?;
+    let progress = telextiles_progress::Progress::new(
+        &format!("embedding with {} methods", methods.len()),
+        refs.len() as u64,
+        "recordings",
+    );
+    let mut out = Vec::with_capacity(refs.len());
+    for r in &refs {
+        progress.set_message(&r.path.display().to_string());
+        let press = r
+            .load()
+            .with_context(|| format!("cannot read {}", r.path.display()))?;
+        let p = proc.process(&r.path.display().to_string(), press)?;
+        if let Some(why) = &p.skipped {
+            progress.println(&format!("skipping {}: {why}", r.path.display()));
+        }
+        out.push(p);
+        progress.inc(1);
+    }
+    progress.finish();
+    Ok((refs, out))
+}
+
+/// Index rows of spread frames: (row data, press, class).
+struct Bank {
+    rows: Vec<f32>,
+    press: Vec<usize>,
+    class: Vec<u32>,
+    dim: usize,
+}
+
+fn sample(n: usize, k: usize) -> Vec<usize> {
+    if k == 0 || n <= k {
+        (0..n).collect()
+    } else {
+        crate::protocol::spread(0, n, k)
+    }
+}
+
+fn unit_mean<'a>(rows: impl Iterator<Item = &'a [f32]>, dim: usize) -> Option<Vec<f32>> {
+    let mut m = vec![0f32; dim];
+    let mut any = false;
+    for r in rows {
+        any = true;
+        for (s, v) in m.iter_mut().zip(r) {
+            *s += v;
+        }
+    }
+    if !any {
+        return None;
+    }
+    crate::knn::normalize_rows(&mut m, dim.max(1));
+    Some(m)
+}
+
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+impl Bank {
+    /// Class of the nearest row whose press is allowed.
+    fn nearest(&self, q: &[f32], allowed: &dyn Fn(usize) -> bool) -> Option<u32> {
+        let mut best: Option<(f32, u32)> = None;
+        for (i, r) in self.rows.chunks_exact(self.dim.max(1)).enumerate() {
+            if !allowed(self.press[i]) {
+                continue;
+            }
+            let s = dot(q, r);
+            // NaN (non-finite embeddings) never wins.
+            if s.is_finite() && best.is_none_or(|b| s > b.0) {
+                best = Some((s, self.class[i]));
+            }
+        }
+        best.map(|b| b.1)
+    }
+}
+
+/// Score one method's embeddings under a split.
+fn score(
+    m: usize,
+    processed: &[Processed],
+    class_of: &[u32],
+    roles: &[Role],
+    ntex: usize,
+    cfg: &StudyConfig,
+    textiles: &[String],
+) -> Score {
+    let usable: Vec<usize> = (0..processed.len())
+        .filter(|&i| roles[i] != Role::Skipped && !processed[i].methods[m].is_empty())
+        .collect();
+    let dim = usable
+        .first()
+        .map_or(0, |&i| processed[i].methods[m].dim)
+        .max(1);
+    let mut bank = Bank {
+        rows: Vec::new(),
+        press: Vec::new(),
+        class: Vec::new(),
+        dim,
+    };
+    // Per press: sum of all rows (centroids) and the sampled rows (bank).
+    let mut press_sum: Vec<Option<Vec<f32>>> = vec![None; processed.len()];
+    for &i in &usable {
+        let e = &processed[i].methods[m];
+        if roles[i] == Role::Query {
+            continue;
+        }
+        for k in sample(e.len(), cfg.frames_per_press) {
+            bank.rows.extend_from_slice(e.row(k));
+            bank.press.push(i);
+            bank.class.push(class_of[i]);
+        }
+        let mut s = vec![0f32; dim];
+        for k in 0..e.len() {
+            for (a, v) in s.iter_mut().zip(e.row(k)) {
+                *a += v;
+            }
+        }
+        press_sum[i] = Some(s);
+    }
+    let centroids = |except: Option<usize>| -> Vec<Option<Vec<f32>>> {
+        let mut c: Vec<Option<Vec<f32>>> = vec![None; ntex];
+        for (i, s) in press_sum.iter().enumerate() {
+            let Some(s) = s else { continue };
+            if Some(i) == except {
+                continue;
+            }
+            let acc = c[class_of[i] as usize].get_or_insert_with(|| vec![0f32; dim]);
+            for (a, v) in acc.iter_mut().zip(s) {
+                *a += v;
+            }
+        }
+        for v in c.iter_mut().flatten() {
+            crate::knn::normalize_rows(v, dim);
+        }
+        c
+    };
+    let fixed = centroids(None);
+    let mut sc = Score {
+        per_class: textiles
+            .iter()
+            .map(|t| ClassScore {
+                textile: t.clone(),
+                query_presses: 0,
+                presses_correct: 0,
+                query_frames: 0,
+                frames_correct: 0,
+            })
+            .collect(),
+        confusion: vec![vec![0; ntex]; ntex],
+        by_time: cfg.times_ms.iter().map(|&t| (t, 0usize)).collect(),
+        ..Score::default()
+    };
+    let mut first_ms = Vec::new();
+    for &q in &usable {
+        if roles[q] == Role::Index {
+            continue;
+        }
+        let e = &processed[q].methods[m];
+        let lopo = roles[q] == Role::Both;
+        let allowed = |p: usize| !lopo || p != q;
+        let truth = class_of[q];
+        // Per frame.
+        let fr = sample(e.len(), cfg.frames_per_press);
+        let mut fc = 0;
+        for &k in &fr {
+            if bank.nearest(e.row(k), &allowed) == Some(truth) {
+                fc += 1;
+            }
+        }
+        // Per press.
+        let mean = unit_mean((0..e.len()).map(|k| e.row(k)), dim).unwrap_or_default();
+        let knn = bank.nearest(&mean, &allowed);
+        let cents = if lopo {
+            centroids(Some(q))
+        } else {
+            fixed.clone()
+        };
+        let cent = cents
+            .iter()
+            .enumerate()
+            .filter_map(|(c, v)| v.as_ref().map(|v| (c, dot(&mean, v))))
+            .filter(|x| x.1.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|x| x.0 as u32);
+        // Against time.
+        for (t, correct) in sc.by_time.iter_mut() {
+            let upto: Vec<usize> = (0..e.len()).filter(|&k| e.t_ms[k] <= *t).collect();
+            if let Some(mt) = unit_mean(upto.iter().map(|&k| e.row(k)), dim) {
+                if bank.nearest(&mt, &allowed) == Some(truth) {
+                    *correct += 1;
+                }
+            }
+        }
+        first_ms.push(e.t_ms.first().copied().unwrap_or(f64::NAN));
+        let pc = &mut sc.per_class[truth as usize];
+        pc.query_presses += 1;
+        pc.query_frames += fr.len();
+        pc.frames_correct += fc;
+        sc.frames += fr.len();
+        sc.frames_correct += fc;
+        sc.presses += 1;
+        if knn == Some(truth) {
+            pc.presses_correct += 1;
+            sc.knn_correct += 1;
+        }
+        if cent == Some(truth) {
+            sc.centroid_correct += 1;
+        }
+        if let Some(p) = knn {
+            sc.confusion[truth as usize][p as usize] += 1;
+        }
+        let name = |c: Option<u32>| c.map_or("-".to_string(), |c| textiles[c as usize].clone());
+        sc.decisions.push(PressDecision {
+            recording: q,
+            truth: textiles[truth as usize].clone(),
+            knn: name(knn),
+            centroid: name(cent),
+            frame_top1: fc as f64 / fr.len().max(1) as f64,
+        });
+        sc.nonfinite += crate::methods::nonfinite_rows(&e.rows, dim);
+    }
+    sc.first_frame_ms = crate::bench::median(&first_ms);
+    sc.dim = dim;
+    sc
+}
+
+#[derive(Default)]
+struct Score {
+    dim: usize,
+    presses: usize,
+    knn_correct: usize,
+    centroid_correct: usize,
+    frames: usize,
+    frames_correct: usize,
+    by_time: Vec<(f64, usize)>,
+    first_frame_ms: f64,
+    per_class: Vec<ClassScore>,
+    confusion: Vec<Vec<usize>>,
+    decisions: Vec<PressDecision>,
+    nonfinite: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    Index,
+    Query,
+    /// Leave one out: query against the others, index for them.
+    Both,
+    Skipped,
+}
+
+fn roles(processed: &[Processed], class_of: &[u32], split: Split) -> Vec<Role> {
+    let mut seen: std::collections::HashMap<u32, usize> = Default::default();
+    processed
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            if p.skipped.is_some() {
+                return Role::Skipped;
+            }
+            match split {
+                Split::Lopo => Role::Both,
+                Split::IndexPresses(k) => {
+                    let n = seen.entry(class_of[i]).or_default();
+                    *n += 1;
+                    if *n <= k {
+                        Role::Index
+                    } else {
+                        Role::Query
+                    }
+                }
+            }
+        })
+        .collect()
+}
+
+fn ratio(a: usize, b: usize) -> f64 {
+    if b == 0 {
+        f64::NAN
+    } else {
+        a as f64 / b as f64
+    }
+}
+
+/// Scores already embedded recordings (`processed[i].methods[j]` is
+/// `methods[j]`'s embedding of recording i) under `cfg.split`; times the
+/// methods on one frame in contact with its recording's reference unless
+/// `cfg.runs` is 0.
+pub fn score_all(
+    cfg: &StudyConfig,
+    methods: &[Method],
+    refs: &[RecordingRef],
+    processed: &[Processed],
+) -> Result<StudyReport> {
+    ensure!(
+        processed
+            .iter()
+            .all(|p| p.skipped.is_some() || p.methods.len() == methods.len()),
+        "embeddings do not match the method list"
+    );
+    let mut textiles: Vec<String> = processed.iter().map(|p| p.textile.clone()).collect();
+    textiles.sort();
+    textiles.dedup();
+    let class_of: Vec<u32> = processed
+        .iter()
+        .map(|p| textiles.iter().position(|t| *t == p.textile).unwrap_or(0) as u32)
+        .collect();
+    let roles = roles(processed, &class_of, cfg.split);
+    let queries = roles
+        .iter()
+        .filter(|r| matches!(r, Role::Query | Role::Both))
+        .count();
+    if queries == 0 {
+        bail!(
+            "no query recordings: {} usable recordings of {} textiles; with --index-presses K each textile needs more than K recordings",
+            roles.iter().filter(|r| **r != Role::Skipped).count(),
+            textiles.len()
+        );
+    }
+    let mut fps: Vec<(f64, usize)> = Vec::new();
+    for p in processed {
+        let f = (p.fps * 10.0).round() / 10.0;
+        match fps.iter_mut().find(|x| x.0 == f) {
+            Some(x) => x.1 += 1,
+            None => fps.push((f, 1)),
+        }
+    }
+    fps.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let rates: Vec<f64> = processed
+        .iter()
+        .map(|p| p.fps)
+        .filter(|f| f.is_finite())
+        .collect();
+    let frame_budget_ms = 1000.0 / crate::bench::median(&rates);
+    let frame_budget_ms = if frame_budget_ms.is_finite() {
+        frame_budget_ms
+    } else {
+        methods::FRAME_BUDGET_MS
+    };
+    // One frame in contact (and its recording's reference) to time on.
+    let probe = processed
+        .iter()
+        .enumerate()
+        .find(|(i, p)| roles[*i] != Role::Skipped && p.contact_frames > 0)
+        .map(|(i, _)| i);
+    let probe = match (probe, cfg.runs) {
+        (Some(i), r) if r > 0 => {
+            let press = refs[i].load()?;
+            let seg = front::segment(&press, &cfg.contact).context("probe recording")?;
+            let mid = seg.contact[seg.contact.len() / 2].index;
+            Some((press.frames[mid].clone(), reference_image(&seg.reference)?))
+        }
+        _ => None,
+    };
+    let t = Instant::now();
+    let mut out = Vec::new();
+    for (j, m) in methods.iter().enumerate() {
+        let s = score(
+            j,
+            processed,
+            &class_of,
+            &roles,
+            textiles.len(),
+            cfg,
+            &textiles,
+        );
+        let (crop, input) = m.view();
+        let latency = match &probe {
+            Some((frame, reference)) => {
+                let img = centre_crop_resize(frame, crop, input)?;
+                let rv = centre_crop_resize(reference, crop, input)?;
+                let set = ImageSet {
+                    kind: ImageKind::Input,
+                    side: input as usize,
+                    crop,
+                    classes: vec![],
+                    items: vec![crate::data::FrameMeta {
+                        class: 0,
+                        press: 0,
+                        person: 0,
+                        sensor: 0,
+                        jig: false,
+                        frame: 0,
+                    }],
+                    pixels: img.into_raw(),
+                    source: "recorded".into(),
+                };
+                methods::time_method(m, &set, Some(rv.as_raw()), &cfg.time_threads, cfg.runs)?
+            }
+            None => Vec::new(),
+        };
+        let by_time: Vec<(f64, f64)> = s
+            .by_time
+            .iter()
+            .map(|&(t, c)| (t, ratio(c, s.presses)))
+            .collect();
+        out.push(RecordedMethod {
+            summary: MethodResult {
+                name: m.name(),
+                runtime: m.runtime().into(),
+                crop,
+                input,
+                dim: s.dim,
+                model_bytes: match m {
+                    Method::Onnx { bytes, .. } => Some(bytes.len()),
+                    Method::Rust { .. } => None,
+                },
+                latency,
+                frame_top1: ratio(s.frames_correct, s.frames),
+                press_top1: ratio(s.knn_correct, s.presses),
+                by_frames: Vec::new(),
+                queries: s.frames,
+                presses: s.presses,
+                nonfinite_frames: s.nonfinite,
+            },
+            press_top1_centroid: ratio(s.centroid_correct, s.presses),
+            by_time,
+            first_frame_ms: s.first_frame_ms,
+            per_class: s.per_class,
+            confusion: s.confusion,
+            decisions: s.decisions,
+        });
+    }
+    let scoring_s = t.elapsed().as_secs_f64();
+    let summaries: Vec<MethodResult> = out.iter().map(|m| m.summary.clone()).collect();
+    let pareto: Vec<String> = methods::pareto(&summaries)
+        .into_iter()
+        .map(|i| summaries[i].name.clone())
+        .collect();
+    let knee = if summaries.iter().all(|s| s.latency.is_empty()) {
+        None
+    } else {
+        methods::knee_within(&summaries, frame_budget_ms).map(|i| summaries[i].name.clone())
+    };
+    let mut featured: Vec<String> = methods
+        .iter()
+        .filter(|m| matches!(m, Method::Onnx { .. }) && !crate::report::is_descriptor(&m.name()))
+        .map(|m| m.name())
+        .collect();
+    if let Some(best) = summaries
+        .iter()
+        .filter(|s| s.press_top1.is_finite())
+        .max_by(|a, b| {
+            a.press_top1
+                .total_cmp(&b.press_top1)
+                .then(b.ms().total_cmp(&a.ms()))
+        })
+    {
+        featured.push(best.name.clone());
+    }
+    featured.extend(knee.clone());
+    let mut seen = std::collections::HashSet::new();
+    featured.retain(|n| seen.insert(n.clone()));
+    let recordings = processed
+        .iter()
+        .zip(&roles)
+        .map(|(p, r)| RecordingRow {
+            path: p.path.clone(),
+            textile: p.textile.clone(),
+            sensor: p.sensor.clone(),
+            frames: p.frames,
+            fps: p.fps,
+            contact_frames: p.contact_frames,
+            own_reference: p.own_reference,
+            role: match r {
+                Role::Index => "index",
+                Role::Query => "query",
+                Role::Both => "both",
+                Role::Skipped => "skipped",
+            }
+            .into(),
+            skipped: p.skipped.clone(),
+        })
+        .collect();
+    Ok(StudyReport {
+        machine: crate::report::machine(),
+        date: crate::report::today(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        source: format!("presses:{}", cfg.dir.display()),
+        layout: match refs.first().map(|r| &r.layout) {
+            Some(Layout::Pytouch) => "pytouch".into(),
+            _ => "press".into(),
+        },
+        split: cfg.split,
+        split_text: cfg.split.describe(),
+        frames_per_press: cfg.frames_per_press,
+        textiles,
+        recordings,
+        fps,
+        frame_budget_ms,
+        methods: out,
+        pareto,
+        knee,
+        featured,
+        seconds: vec![("scoring and timing".into(), scoring_s)],
+    })
+}
+
+/// The whole study: embed every recording, score, and (with `out`) write
+/// `bench.json`, `report.md` and the charts there.
+pub fn run(cfg: &StudyConfig, methods: &[Method], out: Option<&Path>) -> Result<StudyReport> {
+    ensure!(!methods.is_empty(), "no methods to measure");
+    let t = Instant::now();
+    let (refs, processed) = embed_all(cfg, methods)?;
+    let embed_s = t.elapsed().as_secs_f64();
+    let mut r = score_all(cfg, methods, &refs, &processed)?;
+    r.seconds
+        .insert(0, ("reading and embedding".into(), embed_s));
+    if let Some(out) = out {
+        write(&r, out)?;
+    }
+    Ok(r)
+}
+
+fn pct(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:.1}%", 100.0 * x)
+    } else {
+        "-".into()
+    }
+}
+
+/// Writes `bench.json`, `report.md`, `speed-accuracy.svg`,
+/// `decision-time.svg` and `confusion-<method>.svg` (featured methods) into
+/// `out`.
+pub fn write(r: &StudyReport, out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    crate::data::write_atomic(
+        &out.join("bench.json"),
+        serde_json::to_string_pretty(r)?.as_bytes(),
+    )?;
+    let summaries: Vec<MethodResult> = r.methods.iter().map(|m| m.summary.clone()).collect();
+    if summaries.iter().any(|s| !s.latency.is_empty()) {
+        methods::chart_with(
+            &summaries,
+            &out.join("speed-accuracy.svg"),
+            "Accuracy against speed (recorded presses, kNN top-1 per press)",
+            r.frame_budget_ms,
+        )?;
+    }
+    time_chart(r, &out.join("decision-time.svg"))?;
+    for m in r
+        .methods
+        .iter()
+        .filter(|m| r.featured.contains(&m.summary.name))
+    {
+        confusion_chart(
+            r,
+            m,
+            &out.join(format!("confusion-{}.svg", file_name(&m.summary.name))),
+        )?;
+    }
+    crate::data::write_atomic(&out.join("report.md"), markdown(r).as_bytes())?;
+    Ok(())
+}
+
+/// A method name as a file name.
+pub fn file_name(name: &str) -> String {
+    name.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// The report's tables.
+pub fn markdown(r: &StudyReport) -> String {
+    let mut s = String::new();
+    let used = r.recordings.iter().filter(|x| x.skipped.is_none()).count();
+    let idx = r.recordings.iter().filter(|x| x.role == "index").count();
+    let q = r
+        .recordings
+        .iter()
+        .filter(|x| x.role == "query" || x.role == "both")
+        .count();
+    s.push_str(&format!(
+        "# The study on recorded presses\n\nGenerated by `{}` on {} ({}).\n\nRecordings: `{}` ({} layout): {} recordings of {} textiles, {} used ({} index, {} queries). Split: {}. Frame rates (from the recordings' timestamps): {}. Index: up to {} frames in contact per recording; per-frame queries: the same number per query recording. Every recording is processed alone with its own no-contact reference.\n\n",
+        r.command,
+        r.date,
+        r.machine,
+        r.source,
+        r.layout,
+        r.recordings.len(),
+        r.textiles.len(),
+        used,
+        idx,
+        q,
+        r.split_text,
+        r.fps
+            .iter()
+            .map(|(f, n)| format!("{f} fps ({n})"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if r.frames_per_press == 0 {
+            "all".to_string()
+        } else {
+            r.frames_per_press.to_string()
+        },
+    ));
+    let skipped: Vec<&RecordingRow> = r
+        .recordings
+        .iter()
+        .filter(|x| x.skipped.is_some())
+        .collect();
+    if !skipped.is_empty() {
+        s.push_str("Skipped recordings:\n\n");
+        for x in skipped {
+            s.push_str(&format!(
+                "* `{}`: {}\n",
+                x.path,
+                x.skipped.as_deref().unwrap_or("")
+            ));
+        }
+        s.push('\n');
+    }
+    s.push_str("## Methods\n\n");
+    let summaries: Vec<MethodResult> = r.methods.iter().map(|m| m.summary.clone()).collect();
+    s.push_str(&methods::markdown_within(&summaries, r.frame_budget_ms));
+    s.push_str(&format!(
+        "\nPareto frontier: {}. Knee (one frame at {:.0} fps = {:.1} ms as the budget): **{}**. Timing: one frame in contact of the first recording, batch 1.\n\n",
+        r.pareto.join(", "),
+        1000.0 / r.frame_budget_ms,
+        r.frame_budget_ms,
+        r.knee.as_deref().unwrap_or("-")
+    ));
+    s.push_str("Per press, by decision rule (query presses: ");
+    s.push_str(
+        &r.methods
+            .first()
+            .map_or(0, |m| m.summary.presses)
+            .to_string(),
+    );
+    s.push_str(").\n\n| method | top-1 per frame | per press, nearest index frame | per press, nearest textile centroid |\n|---|---:|---:|---:|\n");
+    for m in &r.methods {
+        s.push_str(&format!(
+            "| {} | {} | {} | {} |\n",
+            m.summary.name,
+            pct(m.summary.frame_top1),
+            pct(m.summary.press_top1),
+            pct(m.press_top1_centroid)
+        ));
+    }
+    // Against time.
+    let cols: Vec<f64> = [50.0, 100.0, 250.0, 500.0, 1000.0]
+        .into_iter()
+        .filter(|t| {
+            r.methods
+                .first()
+                .is_some_and(|m| m.by_time.iter().any(|x| x.0 == *t))
+        })
+        .collect();
+    s.push_str("\n## Accuracy against time since first contact\n\nRunning mean of the frames in contact up to T ms after the press started (the recording's own timestamps), nearest index frame; a press without a frame in contact by T counts as wrong. \"first frame\": median time of the first frame in contact (the contact detector needs a few frames over threshold).\n\n| method | first frame |");
+    for t in &cols {
+        s.push_str(&format!(" {t:.0} ms |"));
+    }
+    s.push_str(" whole press |\n|---|---:|");
+    for _ in &cols {
+        s.push_str("---:|");
+    }
+    s.push_str("---:|\n");
+    for m in &r.methods {
+        s.push_str(&format!(
+            "| {} | {} |",
+            m.summary.name,
+            if m.first_frame_ms.is_finite() {
+                format!("{:.0} ms", m.first_frame_ms)
+            } else {
+                "-".into()
+            }
+        ));
+        for t in &cols {
+            let v = m
+                .by_time
+                .iter()
+                .find(|x| x.0 == *t)
+                .map_or(f64::NAN, |x| x.1);
+            s.push_str(&format!(" {} |", pct(v)));
+        }
+        s.push_str(&format!(" {} |\n", pct(m.summary.press_top1)));
+    }
+    // Featured methods in detail.
+    let featured: Vec<&RecordedMethod> = r
+        .methods
+        .iter()
+        .filter(|m| r.featured.contains(&m.summary.name))
+        .collect();
+    if !featured.is_empty() {
+        s.push_str("\n## Per textile\n\nQuery presses right (per press, nearest index frame) and frames right, for ");
+        s.push_str(
+            &featured
+                .iter()
+                .map(|m| format!("`{}`", m.summary.name))
+                .collect::<Vec<_>>()
+                .join(", "),
+        );
+        s.push_str(" (the models given, the most accurate method and the knee).\n\n| textile | query presses |");
+        for m in &featured {
+            s.push_str(&format!(" {} presses | frames |", m.summary.name));
+        }
+        s.push_str("\n|---|---:|");
+        for _ in &featured {
+            s.push_str("---:|---:|");
+        }
+        s.push('\n');
+        for (c, t) in r.textiles.iter().enumerate() {
+            let n = featured[0].per_class[c].query_presses;
+            s.push_str(&format!("| {t} | {n} |"));
+            for m in &featured {
+                let pc = &m.per_class[c];
+                s.push_str(&format!(
+                    " {}/{} | {} |",
+                    pc.presses_correct,
+                    pc.query_presses,
+                    pct(ratio(pc.frames_correct, pc.query_frames))
+                ));
+            }
+            s.push('\n');
+        }
+        for m in &featured {
+            s.push_str(&format!(
+                "\n### Confusion, {} (per press; rows: true textile, columns: decided)\n\n",
+                m.summary.name
+            ));
+            s.push_str(&confusion_markdown(&r.textiles, &m.confusion));
+        }
+        s.push_str("\n## Per recording\n\n| recording | textile | sensor | fps | frames | in contact | role |");
+        for m in &featured {
+            s.push_str(&format!(" {} |", m.summary.name));
+        }
+        s.push_str("\n|---|---|---|---:|---:|---:|---|");
+        for _ in &featured {
+            s.push_str("---|");
+        }
+        s.push('\n');
+        for (i, x) in r.recordings.iter().enumerate() {
+            s.push_str(&format!(
+                "| {} | {} | {} | {:.1} | {} | {} | {} |",
+                x.path, x.textile, x.sensor, x.fps, x.frames, x.contact_frames, x.role
+            ));
+            for m in &featured {
+                let cell =
+                    m.decisions
+                        .iter()
+                        .find(|d| d.recording == i)
+                        .map_or(String::new(), |d| {
+                            format!(
+                                "{} {} ({} of frames)",
+                                if d.knn == d.truth { "✓" } else { "✗" },
+                                d.knn,
+                                pct(d.frame_top1)
+                            )
+                        });
+                s.push_str(&format!(" {cell} |"));
+            }
+            s.push('\n');
+        }
+    }
+    s.push_str("\n## Run time\n\n| part | s |\n|---|---:|\n");
+    for (p, t) in &r.seconds {
+        s.push_str(&format!("| {p} | {t:.1} |\n"));
+    }
+    s
+}
+
+/// A confusion matrix as a markdown table (up to 20 textiles), else the
+/// most frequent confusions.
+pub fn confusion_markdown(textiles: &[String], m: &[Vec<usize>]) -> String {
+    let mut s = String::new();
+    if textiles.len() <= 20 {
+        s.push_str("| true \\ decided |");
+        for t in textiles {
+            s.push_str(&format!(" {t} |"));
+        }
+        s.push_str(" queries |\n|---|");
+        for _ in textiles {
+            s.push_str("---:|");
+        }
+        s.push_str("---:|\n");
+        for (t, row) in textiles.iter().zip(m) {
+            s.push_str(&format!("| {t} |"));
+            for (j, v) in row.iter().enumerate() {
+                if *v > 0 && textiles[j] == *t {
+                    s.push_str(&format!(" **{v}** |"));
+                } else if *v > 0 {
+                    s.push_str(&format!(" {v} |"));
+                } else {
+                    s.push_str(" · |");
+                }
+            }
+            s.push_str(&format!(" {} |\n", row.iter().sum::<usize>()));
+        }
+    } else {
+        let mut pairs: Vec<(usize, usize, usize)> = Vec::new();
+        for (i, row) in m.iter().enumerate() {
+            for (j, &v) in row.iter().enumerate() {
+                if i != j && v > 0 {
+                    pairs.push((v, i, j));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        s.push_str(&format!(
+            "{} textiles (too many for a table; the full matrix is in bench.json). Most frequent confusions:\n\n| true | decided | presses |\n|---|---|---:|\n",
+            textiles.len()
+        ));
+        for (v, i, j) in pairs.into_iter().take(30) {
+            s.push_str(&format!("| {} | {} | {v} |\n", textiles[i], textiles[j]));
+        }
+    }
+    s
+}
+
+fn chart_err<E: std::fmt::Display>(x: E) -> anyhow::Error {
+    anyhow::anyhow!("chart: {x}")
+}
+
+/// Top-1 per press against ms since the press started.
+fn time_chart(r: &StudyReport, svg: &Path) -> Result<()> {
+    use plotters::prelude::*;
+    let e = chart_err;
+    let root = SVGBackend::new(svg, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(e)?;
+    let xmax = r
+        .methods
+        .iter()
+        .flat_map(|m| m.by_time.iter().map(|x| x.0))
+        .fold(100.0, f64::max);
+    let mut c = ChartBuilder::on(&root)
+        .caption(
+            "Accuracy against time since first contact (recorded presses, running mean)",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..xmax, 0.0..100.0)
+        .map_err(e)?;
+    c.configure_mesh()
+        .x_desc("ms since the press started (recordings' own timestamps)")
+        .y_desc("top-1 per press, %")
+        .draw()
+        .map_err(e)?;
+    let shown: Vec<&RecordedMethod> = r
+        .methods
+        .iter()
+        .filter(|m| r.featured.contains(&m.summary.name) || r.pareto.contains(&m.summary.name))
+        .collect();
+    for (i, m) in shown.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        c.draw_series(LineSeries::new(
+            m.by_time
+                .iter()
+                .filter(|x| x.1.is_finite())
+                .map(|&(t, a)| (t, 100.0 * a)),
+            color.stroke_width(2),
+        ))
+        .map_err(e)?
+        .label(m.summary.name.clone())
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+    }
+    c.configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::LowerRight)
+        .draw()
+        .map_err(e)?;
+    root.present().map_err(e)?;
+    Ok(())
+}
+
+/// The confusion matrix as a heat map (row-normalised).
+fn confusion_chart(r: &StudyReport, m: &RecordedMethod, svg: &Path) -> Result<()> {
+    use plotters::prelude::*;
+    let e = chart_err;
+    let n = r.textiles.len().max(1);
+    let side = (60 + 28 * n as u32).clamp(400, 1400);
+    let root = SVGBackend::new(svg, (side + 120, side + 60)).into_drawing_area();
+    root.fill(&WHITE).map_err(e)?;
+    let mut c = ChartBuilder::on(&root)
+        .caption(
+            format!("Confusion per press, {} (row share)", m.summary.name),
+            ("sans-serif", 16),
+        )
+        .margin(10)
+        .x_label_area_size(70)
+        .y_label_area_size(90)
+        .build_cartesian_2d(0..n, 0..n)
+        .map_err(e)?;
+    let names = r.textiles.clone();
+    let names2 = r.textiles.clone();
+    c.configure_mesh()
+        .disable_mesh()
+        .x_labels(n)
+        .y_labels(n)
+        .x_label_formatter(&|i| names.get(*i).cloned().unwrap_or_default())
+        .y_label_formatter(&|i| {
+            (n - 1)
+                .checked_sub(*i)
+                .and_then(|k| names2.get(k))
+                .cloned()
+                .unwrap_or_default()
+        })
+        .x_desc("decided")
+        .y_desc("true")
+        .draw()
+        .map_err(e)?;
+    for (i, row) in m.confusion.iter().enumerate() {
+        let total = row.iter().sum::<usize>().max(1) as f64;
+        for (j, &v) in row.iter().enumerate() {
+            let share = v as f64 / total;
+            let y = n - 1 - i;
+            c.draw_series(std::iter::once(Rectangle::new(
+                [(j, y), (j + 1, y + 1)],
+                BLUE.mix(share.max(0.02)).filled(),
+            )))
+            .map_err(e)?;
+        }
+    }
+    root.present().map_err(e)?;
+    Ok(())
+}

@@ -1,0 +1,205 @@
+//! The study on recorded presses (`--source presses:<dir>`), end to end on
+//! a handful of simulated recordings written in the on-disk press format:
+//! three textiles, four presses each, by different people on different
+//! sensor units (different no-contact backgrounds), one textile recorded
+//! at 25 fps.
+
+use std::path::Path;
+
+use telextiles_lab::methods::Method;
+use telextiles_lab::recorded::{self, Split, StudyConfig, StudyReport};
+use telextiles_sim::recording::write_press;
+use telextiles_sim::{PressSpec, Simulator};
+
+const TEXTILES: [&str; 3] = ["T001", "T040", "T090"];
+/// Sensor unit of press k of every textile: four different backgrounds.
+const SENSORS: [u32; 4] = [0, 4, 5, 2];
+const FRAMES: usize = 72;
+
+/// Writes the recordings to `<dir>/<textile>/press-<k>`; T090's are
+/// relabelled as 25 fps captures (40 ms between frames).
+fn write_set(dir: &Path) {
+    let sim = Simulator::new().unwrap();
+    for (ti, t) in TEXTILES.iter().enumerate() {
+        for (k, &sensor) in SENSORS.iter().enumerate() {
+            let mut p = sim
+                .render_press(&PressSpec {
+                    person: k as u32 + 1,
+                    sensor,
+                    frames: FRAMES,
+                    ..PressSpec::new(*t, 100 * ti as u64 + k as u64)
+                })
+                .unwrap();
+            if *t == "T090" {
+                p.meta.fps = 25.0;
+                p.meta.timestamps_us = (0..p.frames.len() as u64).map(|i| i * 40_000).collect();
+            }
+            write_press(&dir.join(t).join(format!("press-{k}")), &p).unwrap();
+        }
+    }
+}
+
+fn methods() -> Vec<Method> {
+    let wanted = ["fft-radial-c64", "fft-radial-c64-bg", "lbp-riu2-c64 -bg"];
+    let mut v: Vec<Method> = telextiles_lab::report::descriptor_methods()
+        .unwrap()
+        .into_iter()
+        .filter(|m| wanted.contains(&m.name().as_str()))
+        .collect();
+    assert_eq!(v.len(), wanted.len());
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../encoder.onnx");
+    v.push(Method::onnx("shipped", std::fs::read(shipped).unwrap()).unwrap());
+    v
+}
+
+/// Structure and consistency of a report; `min_press`: the least top-1
+/// per press of the shipped model and the power spectrum (chance: 1/3).
+fn check(r: &StudyReport, queries: usize, min_press: f64) {
+    for m in &r.methods {
+        let s = &m.summary;
+        assert_eq!(s.presses, queries, "{}", s.name);
+        // Per class: the query counts add up, and so do the confusion rows.
+        assert_eq!(m.per_class.len(), 3);
+        assert_eq!(
+            m.per_class.iter().map(|c| c.query_presses).sum::<usize>(),
+            queries
+        );
+        for (c, row) in m.per_class.iter().zip(&m.confusion) {
+            assert_eq!(row.iter().sum::<usize>(), c.query_presses, "{}", s.name);
+        }
+        let diag: usize = (0..3).map(|i| m.confusion[i][i]).sum();
+        let right: usize = m.per_class.iter().map(|c| c.presses_correct).sum();
+        assert_eq!(diag, right);
+        assert!((s.press_top1 - right as f64 / queries as f64).abs() < 1e-12);
+        assert_eq!(m.decisions.len(), queries);
+        assert_eq!(
+            m.decisions.iter().filter(|d| d.knn == d.truth).count(),
+            right
+        );
+        let frames: usize = m.per_class.iter().map(|c| c.query_frames).sum();
+        assert_eq!(frames, s.queries);
+        // Accuracy against time: the running mean never has more than
+        // every frame, so the last point is the whole press.
+        let last = m.by_time.last().unwrap();
+        assert!(last.0 * 1e-3 > (FRAMES as f64) / 25.0);
+        assert!((last.1 - s.press_top1).abs() < 1e-12, "{}", s.name);
+        assert!(m.first_frame_ms > 0.0 && m.first_frame_ms < 500.0);
+    }
+    // The power spectrum and the shipped model tell three textiles apart
+    // well above chance (1/3) on presses by other people on other units.
+    for name in ["fft-radial-c64", "shipped"] {
+        let m = r.methods.iter().find(|m| m.summary.name == name).unwrap();
+        assert!(m.summary.press_top1 >= min_press, "{name}: {:?}", m.summary);
+        assert!(m.summary.frame_top1 >= 0.8, "{name}: {:?}", m.summary);
+    }
+    for m in &r.methods {
+        assert!(m.summary.frame_top1 > 0.5, "{:?}", m.summary);
+    }
+}
+
+#[test]
+fn presses_study_index_split_and_leave_one_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("recordings");
+    write_set(&rec);
+    let methods = methods();
+    let out = dir.path().join("out");
+    let mut cfg = StudyConfig::new(&rec, Split::IndexPresses(3));
+    cfg.runs = 5;
+    let r = recorded::run(&cfg, &methods, Some(&out)).unwrap();
+    // Three queries: at least two right.
+    check(&r, 3, 0.66);
+    // The index: the first three recordings of each textile by path.
+    for x in &r.recordings {
+        let want = if x.path.ends_with("press-3") {
+            "query"
+        } else {
+            "index"
+        };
+        assert_eq!(x.role, want, "{x:?}");
+    }
+    for f in [
+        "bench.json",
+        "report.md",
+        "speed-accuracy.svg",
+        "decision-time.svg",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for h in [
+        "## Methods",
+        "## Accuracy against time since first contact",
+        "## Per textile",
+        "### Confusion, shipped",
+        "## Per recording",
+        "25 fps (4), 60 fps (8)",
+    ] {
+        assert!(md.contains(h), "{h} missing from\n{md}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(json["methods"].as_array().unwrap().len(), methods.len());
+
+    // Leave one press out, from the same recordings.
+    let cfg = StudyConfig {
+        split: Split::Lopo,
+        runs: 0,
+        ..cfg
+    };
+    let r = recorded::run(&cfg, &methods, None).unwrap();
+    check(&r, 12, 0.75);
+    assert!(r.recordings.iter().all(|x| x.role == "both"));
+}
+
+#[test]
+fn presses_one_run_equals_each_recording_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("recordings");
+    write_set(&rec);
+    let methods = methods();
+    let cfg = StudyConfig::new(&rec, Split::IndexPresses(3));
+    let (refs, together) = recorded::embed_all(&cfg, &methods).unwrap();
+    assert_eq!(refs.len(), 12);
+    // The recordings really differ in background: the references of the
+    // first recording (unit 0) and the second (unit 4) are far apart.
+    let r0 = telextiles_sensing::front::recording_reference(&refs[0].load().unwrap()).unwrap();
+    let r1 = telextiles_sensing::front::recording_reference(&refs[1].load().unwrap()).unwrap();
+    let mad = r0.iter().zip(&r1).map(|(a, b)| (a - b).abs()).sum::<f32>() / r0.len() as f32;
+    assert!(mad > 2.0, "backgrounds differ by only {mad}");
+    // Each recording alone, in a fresh processor, in reverse order.
+    let mut alone = Vec::new();
+    for (r, t) in refs.iter().zip(&together).rev() {
+        let mut p = recorded::Processor::new(&methods, 1, Default::default()).unwrap();
+        let a = p
+            .process(&r.path.display().to_string(), r.load().unwrap())
+            .unwrap();
+        assert_eq!(&a, t, "{}", r.path.display());
+        assert!(a.methods.iter().all(|m| !m.is_empty()));
+        alone.push(a);
+    }
+    alone.reverse();
+    // Times come from the recording's own timestamps: 40 ms apart at 25 fps.
+    for (r, p) in refs.iter().zip(&together) {
+        let step = if r.textile == "T090" {
+            40.0
+        } else {
+            1000.0 / 60.0
+        };
+        for m in &p.methods {
+            for w in m.t_ms.windows(2).zip(m.frames.windows(2)) {
+                let want = (w.1[1] - w.1[0]) as f64 * step;
+                assert!((w.0[1] - w.0[0] - want).abs() < 0.01, "{w:?}");
+            }
+        }
+    }
+    // And so are the per-press decisions scored from them.
+    let cfg = StudyConfig { runs: 0, ..cfg };
+    let a = recorded::score_all(&cfg, &methods, &refs, &together).unwrap();
+    let b = recorded::score_all(&cfg, &methods, &refs, &alone).unwrap();
+    for (x, y) in a.methods.iter().zip(&b.methods) {
+        let dx: Vec<_> = x.decisions.iter().map(|d| (&d.knn, &d.centroid)).collect();
+        let dy: Vec<_> = y.decisions.iter().map(|d| (&d.knn, &d.centroid)).collect();
+        assert_eq!(dx, dy);
+    }
+}
