@@ -10,8 +10,9 @@ use std::time::Duration;
 use telextiles_control::client::{Client, EventLine};
 use telextiles_control::format::{human_error, human_event, human_value};
 use telextiles_control::protocol::{
-    parse_server_line, Command, EventKind, GotoTarget, JogArgs, LedArgs, PairArgs, Reply,
-    RequestId, ServerLine, SimPressArgs, SubscribeArgs, UnpairArgs, LED_MAX,
+    parse_server_line, Command, EventKind, GotoTarget, JogArgs, LedArgs, PairArgs, RecordPhase,
+    RecordStartArgs, Reply, RequestId, ServerLine, SimPressArgs, SubscribeArgs, UnpairArgs,
+    LED_MAX,
 };
 
 #[derive(clap::Args, Debug, Clone)]
@@ -69,9 +70,12 @@ pub enum CtlCmd {
         #[command(subcommand)]
         cmd: Option<IndexCmd>,
     },
+    /// Record labelled presses from the daemon's sensor (as `telextilesd record`)
+    #[command(subcommand)]
+    Record(RecordCmd),
     /// Stream events until interrupted (all kinds, or those named)
     Subscribe {
-        /// Event kinds: contact, decision, peer_up, peer_down, roller_position, roller_arrived, error
+        /// Event kinds: contact, decision, peer_up, peer_down, roller_position, roller_arrived, error, record
         #[arg(value_parser = parse_kind)]
         events: Vec<EventKind>,
     },
@@ -128,6 +132,30 @@ pub enum RollerCmd {
         #[arg(allow_hyphen_values = true)]
         degrees: f64,
     },
+}
+
+#[derive(clap::Subcommand, Debug, Clone, PartialEq)]
+pub enum RecordCmd {
+    /// Start recording presses into <out>/<textile>/NNNN (next free numbers)
+    Start {
+        /// Textile id (a directory name)
+        #[arg(long)]
+        textile: String,
+        /// Human-readable name, stored in <out>/<textile>/textile.json
+        #[arg(long)]
+        name: Option<String>,
+        /// Presses to record
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+        presses: u32,
+        /// Directory of recordings (made absolute here: the daemon runs elsewhere)
+        #[arg(long)]
+        out: PathBuf,
+        /// Stay and print the recording's events until it is done or stopped
+        #[arg(long)]
+        follow: bool,
+    },
+    /// Stop recording (the press in progress is dropped; saved presses stay)
+    Stop,
 }
 
 #[derive(clap::Subcommand, Debug, Clone, PartialEq)]
@@ -196,6 +224,26 @@ pub fn to_command(cmd: &CtlCmd) -> anyhow::Result<Option<Command>> {
             Command::RollerJog(JogArgs { degrees: *degrees })
         }
         CtlCmd::Index { .. } => Command::IndexInfo,
+        CtlCmd::Record(RecordCmd::Start {
+            textile,
+            name,
+            presses,
+            out,
+            ..
+        }) => {
+            let out = std::path::absolute(out)
+                .with_context(|| format!("cannot make {} absolute", out.display()))?;
+            let Some(out) = out.to_str() else {
+                bail!("the output directory {} is not UTF-8", out.display());
+            };
+            Command::RecordStart(RecordStartArgs {
+                textile: textile.clone(),
+                name: name.clone(),
+                presses: *presses,
+                out: out.to_string(),
+            })
+        }
+        CtlCmd::Record(RecordCmd::Stop) => Command::RecordStop,
         CtlCmd::Subscribe { events } => Command::Subscribe(SubscribeArgs {
             events: (!events.is_empty()).then(|| events.clone()),
         }),
@@ -259,6 +307,19 @@ pub async fn execute(
         }
     };
     let subscribe = matches!(command, Command::Subscribe(_));
+    let follow = matches!(
+        args.cmd,
+        CtlCmd::Record(RecordCmd::Start { follow: true, .. })
+    );
+    if follow {
+        // Subscribe first, so that no event of this recording is missed.
+        let sub = Command::Subscribe(SubscribeArgs {
+            events: Some(vec![EventKind::Record]),
+        });
+        if let Err(e) = with_limit(limit, client.call(&sub)).await?? {
+            bail!("{}", human_error(&e));
+        }
+    }
     let result = with_limit(limit, client.call(&command)).await??;
     match result {
         Ok(data) => {
@@ -283,6 +344,36 @@ pub async fn execute(
         }
     }
     out.flush()?;
+    if follow {
+        while let Some(ev) = client.next_event().await? {
+            let EventLine::Known(e) = ev else { continue };
+            if args.json {
+                write!(out, "{}", e.to_line())?;
+            } else {
+                writeln!(out, "{}", human_event(&e))?;
+            }
+            out.flush()?;
+            match e {
+                telextiles_control::Event::Record {
+                    state: RecordPhase::Done,
+                    ..
+                } => return Ok(()),
+                telextiles_control::Event::Record {
+                    state: RecordPhase::Stopped,
+                    reason,
+                    ..
+                } => bail!(
+                    "the recording stopped: {}",
+                    reason.as_deref().unwrap_or("record.stop")
+                ),
+                telextiles_control::Event::Dropped { reason } => {
+                    bail!("the daemon dropped this subscription: {reason}")
+                }
+                _ => {}
+            }
+        }
+        bail!("the daemon closed the connection");
+    }
     if subscribe {
         while let Some(ev) = client.next_event().await? {
             match (&ev, args.json) {
@@ -337,6 +428,7 @@ mod tests {
     use super::*;
     use clap::Parser;
     use serde_json::json;
+    use std::path::Path;
     use std::sync::Arc;
     use telextiles_control::{
         Access, CtlError, Event, Handler, HandlerFuture, Server, ServerConfig, SocketSpec,
@@ -394,6 +486,45 @@ mod tests {
             Command::SensorLed(LedArgs { r: 1, g: 2, b: 3 })
         );
         assert_eq!(c(&["index"]), Command::IndexInfo);
+        assert_eq!(
+            c(&[
+                "record",
+                "start",
+                "--textile",
+                "T030",
+                "--name",
+                "twill",
+                "--presses",
+                "3",
+                "--out",
+                "/data/rec"
+            ]),
+            Command::RecordStart(RecordStartArgs {
+                textile: "T030".into(),
+                name: Some("twill".into()),
+                presses: 3,
+                out: "/data/rec".into(),
+            })
+        );
+        // A relative directory is sent as the absolute path it means here.
+        let Command::RecordStart(r) = c(&[
+            "record",
+            "start",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "rec",
+        ]) else {
+            panic!("not record.start")
+        };
+        assert!(
+            Path::new(&r.out).is_absolute() && r.out.ends_with("/rec"),
+            "{}",
+            r.out
+        );
+        assert_eq!(c(&["record", "stop"]), Command::RecordStop);
         assert_eq!(c(&["index", "info"]), Command::IndexInfo);
         assert_eq!(
             c(&["--json", "subscribe", "decision", "roller_arrived"]),

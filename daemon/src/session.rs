@@ -1114,6 +1114,9 @@ impl Handler for Daemon {
                 Command::Subscribe(_) => {
                     Err(CtlError::internal("subscribe is handled by the server"))
                 }
+                Command::RecordStart(_) | Command::RecordStop => Err(CtlError::unavailable(
+                    "recording over the control socket is not wired into this daemon yet; use `telextilesd record`",
+                )),
             }
         })
     }

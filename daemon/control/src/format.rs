@@ -1,7 +1,7 @@
 //! Human-friendly rendering of replies and events for `telextilesd ctl`
 //! (pure functions; `--json` prints the raw lines instead).
 
-use crate::protocol::{ContactPhase, CtlError, Event};
+use crate::protocol::{ContactPhase, CtlError, Event, RecordPhase};
 use serde_json::Value;
 use std::fmt::Write;
 
@@ -151,6 +151,75 @@ pub fn human_event(e: &Event) -> String {
         Event::RollerArrived { slot, angle_deg } => {
             format!("roller    arrived at slot {slot} ({angle_deg:.1} deg)")
         }
+        Event::Record {
+            state,
+            textile,
+            press,
+            presses,
+            held_ms,
+            score,
+            reason,
+        } => {
+            let at = format!("record    {textile} {press}/{presses}:");
+            let held = held_ms.map(|t| t / 1000.0).unwrap_or(0.0);
+            match state {
+                RecordPhase::Waiting => {
+                    format!("{at} waiting for a no-contact reference: do not touch the sensor")
+                }
+                RecordPhase::Ready => format!("{at} press now"),
+                RecordPhase::Contact => format!("{at} contact"),
+                RecordPhase::Holding => match score {
+                    Some(s) => format!("{at} holding {held:.1} s, contact {s:.1}"),
+                    None => format!("{at} holding {held:.1} s"),
+                },
+                RecordPhase::Release => format!("{at} release"),
+                RecordPhase::Released => match score {
+                    Some(s) => format!("{at} released after {held:.1} s (peak contact {s:.1})"),
+                    None => format!("{at} released after {held:.1} s"),
+                },
+                RecordPhase::Done => format!("record    {textile}: done, {presses} presses"),
+                RecordPhase::Stopped => match reason {
+                    Some(r) => {
+                        format!("record    {textile}: stopped before press {press}/{presses}: {r}")
+                    }
+                    None => format!("record    {textile}: stopped before press {press}/{presses}"),
+                },
+            }
+        }
+        Event::RecordSaved {
+            textile,
+            press,
+            presses,
+            path,
+            frames,
+            duration_ms,
+            peak,
+            reference_frames,
+            fps,
+            warnings,
+        } => {
+            let mut s = format!(
+                "record    {textile} saved press {press}/{presses}: {frames} frames, {:.1} s, peak contact {peak:.1} ({path}; reference {reference_frames} frames, {fps:.1} fps)",
+                duration_ms / 1000.0
+            );
+            if !warnings.is_empty() {
+                let _ = write!(s, " warnings: {}", warnings.join(", "));
+            }
+            s
+        }
+        Event::RecordWarning {
+            textile,
+            press,
+            code: _,
+            message,
+            rejected,
+        } => {
+            if *rejected {
+                format!("record    {textile} {press}: press not kept: {message}")
+            } else {
+                format!("record    {textile} {press}: warning: {message}")
+            }
+        }
         Event::Error { source, message } => format!("error     [{source}] {message}"),
         Event::Dropped { reason } => format!("dropped   by the daemon: {reason}"),
     }
@@ -232,6 +301,43 @@ empty: (none)
                 reason: "slow".into()
             }),
             "dropped   by the daemon: slow"
+        );
+        assert_eq!(
+            human_event(&Event::RecordSaved {
+                textile: "T030".into(),
+                press: 3,
+                presses: 5,
+                path: "rec/T030/0003".into(),
+                frames: 142,
+                duration_ms: 2366.7,
+                peak: 5.06,
+                reference_frames: 30,
+                fps: 60.0,
+                warnings: vec!["too_weak".into()],
+            }),
+            "record    T030 saved press 3/5: 142 frames, 2.4 s, peak contact 5.1 (rec/T030/0003; reference 30 frames, 60.0 fps) warnings: too_weak"
+        );
+        assert_eq!(
+            human_event(&Event::Record {
+                state: RecordPhase::Holding,
+                textile: "T030".into(),
+                press: 2,
+                presses: 5,
+                held_ms: Some(1234.0),
+                score: Some(4.44),
+                reason: None,
+            }),
+            "record    T030 2/5: holding 1.2 s, contact 4.4"
+        );
+        assert_eq!(
+            human_event(&Event::RecordWarning {
+                textile: "T030".into(),
+                press: 2,
+                code: "too_short".into(),
+                message: "press too short".into(),
+                rejected: true,
+            }),
+            "record    T030 2: press not kept: press too short"
         );
         assert_eq!(
             human_error(&CtlError::invalid_args("`roller.goto`: bad")),

@@ -23,7 +23,8 @@ pub mod socket;
 
 pub use protocol::{
     Command, ContactPhase, CtlError, ErrorCode, Event, EventFilter, EventKind, GotoTarget, JogArgs,
-    LedArgs, PairArgs, Reply, Request, RequestId, SimPressArgs, SubscribeArgs, UnpairArgs,
+    LedArgs, PairArgs, RecordPhase, RecordStartArgs, Reply, Request, RequestId, SimPressArgs,
+    SubscribeArgs, UnpairArgs,
 };
 
 #[cfg(feature = "server")]

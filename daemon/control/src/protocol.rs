@@ -56,6 +56,11 @@ pub const COMMANDS: &[(&str, &str)] = &[
         "the loaded textile index: size, fingerprint, roller layout",
     ),
     (
+        "record.start",
+        "record labelled presses from the sensor into a directory (args: textile, presses, out, name?)",
+    ),
+    ("record.stop", "stop recording (the press in progress is dropped)"),
+    (
         "subscribe",
         "stream events on this connection (args: events?)",
     ),
@@ -212,6 +217,37 @@ pub struct SimPressArgs {
     pub force: Option<f64>,
 }
 
+/// Longest `record.start` output directory accepted (bytes).
+pub const MAX_PATH_LEN: usize = 4096;
+
+/// Most presses one `record.start` may ask for.
+pub const MAX_RECORD_PRESSES: u32 = 10_000;
+
+/// Arguments of `record.start`: record `presses` presses of `textile` into
+/// `<out>/<textile>/NNNN` (the next free numbers), as `telextilesd record`
+/// does.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecordStartArgs {
+    /// Textile id: a plain directory name (no `/`, not `.` or `..`).
+    pub textile: String,
+    /// Human-readable name, stored in `<out>/<textile>/textile.json`.
+    pub name: Option<String>,
+    /// Presses to record, 1..=[`MAX_RECORD_PRESSES`].
+    pub presses: u32,
+    /// Directory of recordings, as the daemon sees it (absolute paths
+    /// recommended: the daemon's working directory is not the client's).
+    pub out: String,
+}
+
+/// Whether `id` can be a textile directory name.
+pub fn valid_textile_dir(id: &str) -> bool {
+    !id.is_empty()
+        && id != "."
+        && id != ".."
+        && !id.contains(['/', '\\'])
+        && !id.chars().any(char::is_control)
+}
+
 /// Where `roller.goto` turns the roller.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum GotoTarget {
@@ -258,6 +294,8 @@ pub enum Command {
     RollerHome,
     RollerJog(JogArgs),
     IndexInfo,
+    RecordStart(RecordStartArgs),
+    RecordStop,
     Subscribe(SubscribeArgs),
     Shutdown,
 }
@@ -277,6 +315,8 @@ impl Command {
             Command::RollerHome => "roller.home",
             Command::RollerJog(_) => "roller.jog",
             Command::IndexInfo => "index.info",
+            Command::RecordStart(_) => "record.start",
+            Command::RecordStop => "record.stop",
             Command::Subscribe(_) => "subscribe",
             Command::Shutdown => "shutdown",
         }
@@ -332,6 +372,14 @@ impl Command {
             Command::RollerJog(j) => {
                 m.insert("degrees".into(), j.degrees.into());
             }
+            Command::RecordStart(r) => {
+                m.insert("textile".into(), r.textile.clone().into());
+                if let Some(n) = &r.name {
+                    m.insert("name".into(), n.clone().into());
+                }
+                m.insert("presses".into(), r.presses.into());
+                m.insert("out".into(), r.out.clone().into());
+            }
             Command::Subscribe(s) => {
                 if let Some(ev) = &s.events {
                     m.insert(
@@ -345,6 +393,7 @@ impl Command {
             | Command::SensorRecalibrate
             | Command::RollerHome
             | Command::IndexInfo
+            | Command::RecordStop
             | Command::Shutdown => {}
         }
         Value::Object(m)
@@ -550,6 +599,34 @@ pub fn parse_command(cmd: &str, args: Map<String, Value>) -> Result<Command, Ctl
             Command::RollerJog(JogArgs { degrees })
         }
         "index.info" => Command::IndexInfo,
+        "record.start" => {
+            let textile = a.req_string("textile", 1, 64)?;
+            if !valid_textile_dir(&textile) {
+                return Err(a.err(format!(
+                    "argument `textile` must be a plain directory name (no `/`, not `.` or `..`), got {:?}",
+                    truncate(&textile, 64)
+                )));
+            }
+            let name = a.opt_string("name", 1, 256)?;
+            let presses = a
+                .opt_uint("presses", 1, u64::from(MAX_RECORD_PRESSES))?
+                .ok_or_else(|| {
+                    a.err(format!(
+                        "missing argument `presses` (an integer in 1..={MAX_RECORD_PRESSES})"
+                    ))
+                })? as u32;
+            let out = a.req_string("out", 1, MAX_PATH_LEN)?;
+            if out.contains('\0') {
+                return Err(a.err("argument `out` must not contain NUL"));
+            }
+            Command::RecordStart(RecordStartArgs {
+                textile,
+                name,
+                presses,
+                out,
+            })
+        }
+        "record.stop" => Command::RecordStop,
         "subscribe" => {
             let events = match a.take("events") {
                 None => None,
@@ -808,6 +885,29 @@ pub enum ContactPhase {
     End,
 }
 
+/// What a recording (`record.start`) is doing, in `record` events.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RecordPhase {
+    /// Waiting for the sensor to be seen untouched (the no-contact reference).
+    Waiting,
+    /// Ready: press now.
+    Ready,
+    /// Contact: a press started.
+    Contact,
+    /// Hold progress (rate-limited).
+    Holding,
+    /// Held long enough: release.
+    Release,
+    /// The press ended.
+    Released,
+    /// All presses recorded.
+    Done,
+    /// Stopped (`record.stop`, a new `record.start`, the sensor lost, a
+    /// write failed) before all presses were recorded.
+    Stopped,
+}
+
 /// An event streamed to subscribers, tagged by `"event"`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
@@ -864,6 +964,54 @@ pub enum Event {
         slot: u32,
         angle_deg: f64,
     },
+    /// A recording's state (`record.start`).
+    Record {
+        state: RecordPhase,
+        textile: String,
+        /// The press this is about (1-based within this recording).
+        press: u32,
+        /// Presses asked for.
+        presses: u32,
+        /// Time since contact (holding, release, released).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        held_ms: Option<f64>,
+        /// Contact score now (holding), or the peak (released).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        score: Option<f32>,
+        /// Why it stopped (stopped).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        reason: Option<String>,
+    },
+    /// A recorded press was written.
+    RecordSaved {
+        textile: String,
+        /// 1-based within this recording.
+        press: u32,
+        presses: u32,
+        /// The press directory.
+        path: String,
+        frames: u32,
+        duration_ms: f64,
+        /// Peak contact score.
+        peak: f32,
+        /// Leading quiet frames (the recording's own reference).
+        reference_frames: u32,
+        fps: f32,
+        /// Codes of warnings on this kept press (e.g. "too_weak").
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        warnings: Vec<String>,
+    },
+    /// A press was rejected, or kept with a warning.
+    RecordWarning {
+        textile: String,
+        press: u32,
+        /// "too_short", "too_weak", "no_quiet_before", "too_long",
+        /// "interrupted", "not_released".
+        code: String,
+        message: String,
+        /// The press was not kept.
+        rejected: bool,
+    },
     /// A subsystem error worth showing to a watcher.
     Error {
         source: String,
@@ -887,6 +1035,9 @@ impl Event {
             Event::RollerPosition { .. } => EventKind::RollerPosition,
             Event::RollerArrived { .. } => EventKind::RollerArrived,
             Event::Error { .. } => EventKind::Error,
+            Event::Record { .. } | Event::RecordSaved { .. } | Event::RecordWarning { .. } => {
+                EventKind::Record
+            }
             Event::Dropped { .. } => return None,
         })
     }
@@ -915,10 +1066,12 @@ pub enum EventKind {
     RollerPosition,
     RollerArrived,
     Error,
+    /// `record`, `record_saved` and `record_warning` events.
+    Record,
 }
 
 impl EventKind {
-    pub const ALL: [EventKind; 7] = [
+    pub const ALL: [EventKind; 8] = [
         EventKind::Contact,
         EventKind::Decision,
         EventKind::PeerUp,
@@ -926,6 +1079,7 @@ impl EventKind {
         EventKind::RollerPosition,
         EventKind::RollerArrived,
         EventKind::Error,
+        EventKind::Record,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -937,6 +1091,7 @@ impl EventKind {
             EventKind::RollerPosition => "roller_position",
             EventKind::RollerArrived => "roller_arrived",
             EventKind::Error => "error",
+            EventKind::Record => "record",
         }
     }
 
@@ -1169,6 +1324,25 @@ mod tests {
                 }),
             ),
             (r#"{"cmd":"shutdown","args":null}"#, Command::Shutdown),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"T030","presses":5,"out":"/data/rec"}}"#,
+                Command::RecordStart(RecordStartArgs {
+                    textile: "T030".into(),
+                    name: None,
+                    presses: 5,
+                    out: "/data/rec".into(),
+                }),
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"denim-1","name":"blue denim","presses":1,"out":"rec"}}"#,
+                Command::RecordStart(RecordStartArgs {
+                    textile: "denim-1".into(),
+                    name: Some("blue denim".into()),
+                    presses: 1,
+                    out: "rec".into(),
+                }),
+            ),
+            (r#"{"cmd":"record.stop"}"#, Command::RecordStop),
         ];
         for (line, want) in cases {
             let got = parse_request(line.as_bytes()).unwrap_or_else(|e| panic!("{line}: {e:?}"));
@@ -1178,7 +1352,7 @@ mod tests {
                 parse_request(got.command.to_request_line(&got.id).trim_end().as_bytes()).unwrap();
             assert_eq!(again, got);
         }
-        assert_eq!(COMMANDS.len(), 13);
+        assert_eq!(COMMANDS.len(), 15);
     }
 
     #[test]
@@ -1300,6 +1474,38 @@ mod tests {
                 r#"{"cmd":"status","args":{"verbose":true}}"#,
                 "`status`: unknown argument `verbose`",
             ),
+            (
+                r#"{"cmd":"record.start","args":{"presses":1,"out":"r"}}"#,
+                "missing argument `textile`",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"../x","presses":1,"out":"r"}}"#,
+                "plain directory name",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"..","presses":1,"out":"r"}}"#,
+                "plain directory name",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"T1","presses":0,"out":"r"}}"#,
+                "argument `presses`",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"T1","out":"r"}}"#,
+                "missing argument `presses`",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"T1","presses":2}}"#,
+                "missing argument `out`",
+            ),
+            (
+                r#"{"cmd":"record.start","args":{"textile":"T1","presses":2,"out":"a\u0000b"}}"#,
+                "NUL",
+            ),
+            (
+                r#"{"cmd":"record.stop","args":{"now":true}}"#,
+                "unknown argument `now`",
+            ),
         ];
         for (line, want) in cases {
             let e = err_of(line);
@@ -1350,6 +1556,45 @@ mod tests {
             parse_server_line(ev.to_line().trim_end().as_bytes()).unwrap(),
             ServerLine::Event(ev)
         );
+        let saved = Event::RecordSaved {
+            textile: "T030".into(),
+            press: 3,
+            presses: 5,
+            path: "/rec/T030/0003".into(),
+            frames: 142,
+            duration_ms: 2350.0,
+            peak: 5.25,
+            reference_frames: 30,
+            fps: 60.0,
+            warnings: vec![],
+        };
+        assert_eq!(
+            saved.to_line(),
+            "{\"event\":\"record_saved\",\"textile\":\"T030\",\"press\":3,\"presses\":5,\"path\":\"/rec/T030/0003\",\"frames\":142,\"duration_ms\":2350.0,\"peak\":5.25,\"reference_frames\":30,\"fps\":60.0}\n"
+        );
+        let state = Event::Record {
+            state: RecordPhase::Holding,
+            textile: "T030".into(),
+            press: 3,
+            presses: 5,
+            held_ms: Some(500.0),
+            score: Some(4.5),
+            reason: None,
+        };
+        let warning = Event::RecordWarning {
+            textile: "T030".into(),
+            press: 3,
+            code: "too_short".into(),
+            message: "press too short".into(),
+            rejected: true,
+        };
+        for ev in [saved, state, warning] {
+            assert_eq!(ev.kind(), Some(EventKind::Record));
+            assert_eq!(
+                parse_server_line(ev.to_line().trim_end().as_bytes()).unwrap(),
+                ServerLine::Event(ev)
+            );
+        }
         assert!(matches!(
             parse_server_line(br#"{"event":"future_kind","x":1}"#).unwrap(),
             ServerLine::UnknownEvent(_)
@@ -1372,7 +1617,7 @@ mod tests {
             peer: "p".into(),
             reason: "r".into()
         }));
-        assert_eq!(EventFilter::all().kinds().len(), 7);
+        assert_eq!(EventFilter::all().kinds().len(), 8);
         for k in EventKind::ALL {
             assert_eq!(EventKind::parse(k.as_str()), Some(k));
             assert_eq!(serde_json::to_value(k).unwrap(), json!(k.as_str()));

@@ -7,7 +7,7 @@ use proptest::prelude::*;
 use serde_json::{json, Value};
 use telextiles_control::protocol::{
     parse_request, parse_server_line, Command, EventKind, Frame, GotoTarget, JogArgs, LedArgs,
-    LineFramer, PairArgs, RequestId, SubscribeArgs, UnpairArgs,
+    LineFramer, PairArgs, RecordStartArgs, RequestId, SubscribeArgs, UnpairArgs,
 };
 
 fn frames(f: &mut LineFramer) -> Vec<Frame> {
@@ -15,7 +15,7 @@ fn frames(f: &mut LineFramer) -> Vec<Frame> {
 }
 
 fn arb_command() -> impl Strategy<Value = Command> {
-    let kinds = proptest::sample::subsequence(EventKind::ALL.to_vec(), 1..=7);
+    let kinds = proptest::sample::subsequence(EventKind::ALL.to_vec(), 1..=EventKind::ALL.len());
     prop_oneof![
         Just(Command::Status),
         Just(Command::Peers),
@@ -36,6 +36,21 @@ fn arb_command() -> impl Strategy<Value = Command> {
         Just(Command::RollerHome),
         (-360.0f64..=360.0).prop_map(|degrees| Command::RollerJog(JogArgs { degrees })),
         Just(Command::IndexInfo),
+        (
+            "[A-Za-z0-9_-]{1,20}",
+            proptest::option::of("[a-zA-Z0-9 ,.'-]{1,40}"),
+            1u32..=10_000,
+            "[a-zA-Z0-9 /._-]{1,60}",
+        )
+            .prop_map(|(textile, name, presses, out)| Command::RecordStart(
+                RecordStartArgs {
+                    textile,
+                    name,
+                    presses,
+                    out
+                }
+            )),
+        Just(Command::RecordStop),
         proptest::option::of(kinds).prop_map(|events| Command::Subscribe(SubscribeArgs { events })),
         Just(Command::Shutdown),
     ]
