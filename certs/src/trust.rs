@@ -54,14 +54,30 @@ pub fn from_unix_seconds(s: u64) -> SystemTime {
     UNIX_EPOCH + Duration::from_secs(s)
 }
 
-/// Cleans a peer-supplied name: control characters become spaces, outer
-/// whitespace is trimmed, length is capped; empty becomes `"unnamed"`.
+/// Whether `c` must not reach a terminal from a peer: control characters
+/// (C0, DEL, C1: ANSI escape sequences start with ESC or CSI) and the
+/// Unicode bidirectional overrides and isolates, which can make printed
+/// text read differently from what it is.
+pub fn is_unsafe_char(c: char) -> bool {
+    c.is_control()
+        || matches!(c, '\u{200e}' | '\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
+}
+
+/// Cleans peer-supplied text before it is printed or logged: every
+/// [`is_unsafe_char`] becomes a space and at most `max_chars` characters
+/// are kept.
+pub fn sanitize_text(text: &str, max_chars: usize) -> String {
+    text.chars()
+        .map(|c| if is_unsafe_char(c) { ' ' } else { c })
+        .take(max_chars)
+        .collect()
+}
+
+/// Cleans a peer-supplied name: control characters and bidi overrides
+/// become spaces, outer whitespace is trimmed, length is capped; empty
+/// becomes `"unnamed"`.
 pub fn sanitize_name(name: &str) -> String {
-    let cleaned: String = name
-        .chars()
-        .map(|c| if c.is_control() { ' ' } else { c })
-        .take(MAX_NAME_CHARS)
-        .collect();
+    let cleaned = sanitize_text(name, MAX_NAME_CHARS);
     let trimmed = cleaned.trim();
     if trimmed.is_empty() {
         "unnamed".into()

@@ -125,3 +125,30 @@ proptest! {
         }
     }
 }
+
+/// Peer-supplied names and texts reach terminals and logs: no C0/C1
+/// controls (ANSI escapes), no DEL, no bidi overrides or isolates (issue 19:
+/// the old `sanitize_name` kept U+202E and friends).
+#[test]
+fn peer_text_is_cleaned_of_escapes_and_bidi_controls() {
+    use telextiles_certs::trust::{is_unsafe_char, sanitize_name, sanitize_text};
+    let evil = "\u{1b}[2J\u{1b}]0;owned\u{7}bob\u{9b}31m\u{7f}\u{202e}gpj.exe\u{2066}x\u{200f}";
+    for cleaned in [sanitize_name(evil), sanitize_text(evil, 1000)] {
+        assert!(
+            !cleaned.chars().any(is_unsafe_char),
+            "unsafe characters left in {cleaned:?}"
+        );
+        assert!(
+            cleaned.contains("bob") && cleaned.contains("gpj.exe"),
+            "{cleaned:?}"
+        );
+    }
+    for c in [
+        '\u{1b}', '\u{9b}', '\u{7f}', '\u{202e}', '\u{2067}', '\u{200e}',
+    ] {
+        assert!(is_unsafe_char(c), "{c:?}");
+    }
+    assert!(!is_unsafe_char('é') && !is_unsafe_char('a'));
+    assert_eq!(sanitize_text("abcdef", 3), "abc");
+    assert_eq!(sanitize_name("\u{202e}\u{1b}"), "unnamed");
+}

@@ -59,6 +59,95 @@ pub mod close_code {
     pub const PROTOCOL: u32 = 4;
 }
 
+/// Resource limits sized to the protocol (one control stream of frames of
+/// at most [`peer::MAX_CONTROL_FRAME`] bytes, latent datagrams, a handful of
+/// paired peers). Everything a peer can make this daemon hold is bounded by
+/// these; `docs/peer-protocol.md` lists them with measured memory.
+pub mod limits {
+    /// Connections (handshaking or established) at once, all peers.
+    pub const MAX_CONNECTIONS: usize = 16;
+    /// Connections at once from one IP address.
+    pub const MAX_CONNECTIONS_PER_IP: usize = 4;
+    /// Connection attempts quinn buffers before the link sees them.
+    pub const MAX_INCOMING: usize = 32;
+    /// Bytes buffered per not-yet-accepted connection attempt / all of them.
+    pub const INCOMING_BUFFER: u64 = 16 * 1024;
+    pub const INCOMING_BUFFER_TOTAL: u64 = 256 * 1024;
+    /// Bidirectional streams a peer may open at once (the control stream).
+    pub const MAX_BIDI_STREAMS: u32 = 1;
+    /// Per-stream receive window: one maximal control frame plus slack.
+    pub const STREAM_WINDOW: u32 = 128 * 1024;
+    /// Per-connection receive window (all streams) and send window.
+    pub const CONNECTION_WINDOW: u32 = 256 * 1024;
+    pub const SEND_WINDOW: u64 = 256 * 1024;
+    /// Received datagrams buffered before the reader takes them.
+    pub const DATAGRAM_RECEIVE_BUFFER: usize = 64 * 1024;
+    /// Control messages queued for one peer's writer (pongs, pings, presses);
+    /// when full, pongs and pings are dropped (the clock estimate needs only
+    /// some of them) and `send_control` reports the peer as not queued.
+    pub const CONTROL_QUEUE: usize = 64;
+    /// Peer errors (bad datagrams, refused handshakes) reported per
+    /// [`ERROR_WINDOW`](self::ERROR_WINDOW) and source; the rest are counted
+    /// and summarised in the next report.
+    pub const ERRORS_PER_WINDOW: u32 = 5;
+    pub const ERROR_WINDOW: std::time::Duration = std::time::Duration::from_secs(10);
+    /// Addresses dialled for one paired peer (newest first, deduplicated).
+    pub const MAX_PEER_ADDRS: usize = 8;
+    /// Devices advertising a pairing code that one pairing session dials.
+    pub const MAX_PAIRING_DIALS: usize = 8;
+}
+
+/// Lets through at most [`limits::ERRORS_PER_WINDOW`] messages per
+/// [`limits::ERROR_WINDOW`]; the next message after a quiet spell says how
+/// many were suppressed. A peer cannot flood the log.
+#[derive(Debug)]
+pub(crate) struct RateLimit {
+    window_start: Option<Instant>,
+    in_window: u32,
+    suppressed: u64,
+    per_window: u32,
+    window: Duration,
+}
+
+impl RateLimit {
+    pub(crate) fn new() -> Self {
+        Self::with(limits::ERRORS_PER_WINDOW, limits::ERROR_WINDOW)
+    }
+
+    pub(crate) fn with(per_window: u32, window: Duration) -> Self {
+        RateLimit {
+            window_start: None,
+            in_window: 0,
+            suppressed: 0,
+            per_window,
+            window,
+        }
+    }
+
+    /// `Some(message)` (with a suppression note if any) if it may be
+    /// reported now, `None` if it is suppressed.
+    pub(crate) fn check(&mut self, now: Instant, message: String) -> Option<String> {
+        match self.window_start {
+            Some(t) if now.duration_since(t) < self.window => {}
+            _ => {
+                self.window_start = Some(now);
+                self.in_window = 0;
+            }
+        }
+        if self.in_window >= self.per_window {
+            self.suppressed = self.suppressed.saturating_add(1);
+            return None;
+        }
+        self.in_window += 1;
+        if self.suppressed > 0 {
+            let n = std::mem::take(&mut self.suppressed);
+            Some(format!("{message} ({n} similar messages suppressed)"))
+        } else {
+            Some(message)
+        }
+    }
+}
+
 /// Microseconds on this process's monotonic clock (origin: first call).
 /// Use it for [`LinkHandle::send_latent`]'s capture time.
 pub fn now_us() -> u64 {
@@ -285,7 +374,7 @@ pub enum LinkError {
 
 pub(crate) struct PeerSlot {
     pub conn: quinn::Connection,
-    pub ctrl: mpsc::UnboundedSender<Control>,
+    pub ctrl: mpsc::Sender<Control>,
     pub dialed_by_lower: bool,
 }
 
@@ -306,6 +395,11 @@ pub(crate) struct Shared {
     pub shutdown: watch::Sender<bool>,
     pub dialing: Mutex<HashMap<DeviceId, watch::Sender<Vec<SocketAddr>>>>,
     pub stopped: AtomicBool,
+    /// Open connections per remote IP (accepted and dialled).
+    pub conns: Mutex<HashMap<std::net::IpAddr, usize>>,
+    /// Rate limit of errors caused by unauthenticated senders (refused
+    /// handshakes, failed incoming connections).
+    pub refusals: Mutex<RateLimit>,
 }
 
 impl Shared {
@@ -336,6 +430,19 @@ impl Shared {
         Ok(cfg)
     }
 
+    /// Revokes a peer at once: drops its pin (new handshakes are refused),
+    /// stops dialing it and closes its live connection (the session ends
+    /// with `PeerDown`).
+    pub(crate) fn revoke(&self, id: &DeviceId) {
+        self.pins.remove(id);
+        lock(&self.dialing).remove(id);
+        let conn = lock(&self.peers).get(id).map(|p| p.conn.clone());
+        if let Some(c) = conn {
+            c.close(close_code::PAIRING.into(), b"unpaired");
+        }
+        self.peers_changed.notify_waiters();
+    }
+
     pub(crate) fn set_server_policy(&self, policy: PeerPolicy) -> Result<(), LinkError> {
         let cfg = make_server_config(&self.identity, policy, self.transport.clone())?;
         self.endpoint.set_server_config(Some(cfg));
@@ -355,7 +462,10 @@ fn make_server_config(
     let tls = server_config(identity, policy)?;
     let quic = QuicServerConfig::try_from(tls).map_err(|e| LinkError::Quic(e.to_string()))?;
     let mut cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
-    cfg.transport_config(transport);
+    cfg.transport_config(transport)
+        .max_incoming(limits::MAX_INCOMING)
+        .incoming_buffer_size(limits::INCOMING_BUFFER)
+        .incoming_buffer_size_total(limits::INCOMING_BUFFER_TOTAL);
     Ok(cfg)
 }
 
@@ -399,7 +509,12 @@ impl Link {
                 quinn::IdleTimeout::try_from(timing.idle_timeout)
                     .map_err(|e| LinkError::Quic(e.to_string()))?,
             ))
-            .datagram_receive_buffer_size(Some(64 * 1024))
+            .max_concurrent_bidi_streams(limits::MAX_BIDI_STREAMS.into())
+            .max_concurrent_uni_streams(0u32.into())
+            .stream_receive_window(limits::STREAM_WINDOW.into())
+            .receive_window(limits::CONNECTION_WINDOW.into())
+            .send_window(limits::SEND_WINDOW)
+            .datagram_receive_buffer_size(Some(limits::DATAGRAM_RECEIVE_BUFFER))
             // Latest wins at the sender too: a small send buffer makes quinn
             // drop the oldest queued latents instead of delaying new ones.
             .datagram_send_buffer_size(4 * 1300)
@@ -458,10 +573,15 @@ impl Link {
             shutdown,
             dialing: Mutex::new(HashMap::new()),
             stopped: AtomicBool::new(false),
+            conns: Mutex::new(HashMap::new()),
+            refusals: Mutex::new(RateLimit::new()),
         });
         shared.emit(LinkEvent::Listening { addr: local_addr }).await;
 
         tokio::spawn(session::accept_loop(shared.clone()));
+        if let Some(dir) = shared.data_dir.clone() {
+            tokio::spawn(watch_trust_store(shared.clone(), dir));
+        }
 
         for addr in connect {
             tokio::spawn(session::dial_loop(shared.clone(), None, vec![addr], true));
@@ -494,6 +614,68 @@ impl Link {
             },
             rx,
         ))
+    }
+}
+
+/// How often the trust store file is checked for changes made by another
+/// process (`telextilesd unpair`).
+pub const TRUST_STORE_POLL: Duration = Duration::from_millis(200);
+
+/// Identity of the trust store file's current version (a rewrite replaces
+/// the file, so the inode changes too).
+fn store_stamp(path: &std::path::Path) -> Option<(u64, u64, i64, i64)> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(path).ok()?;
+    Some((m.ino(), m.len(), m.mtime(), m.mtime_nsec()))
+}
+
+/// Applies changes of the trust store on disk to the running link: a peer
+/// removed from the file (unpaired by the CLI or another process) is
+/// revoked within [`TRUST_STORE_POLL`]; one added is pinned.
+async fn watch_trust_store(shared: Arc<Shared>, dir: PathBuf) {
+    let path = telextiles_certs::TrustStore::path_in(&dir);
+    let load = |dir: PathBuf| async move {
+        tokio::task::spawn_blocking(move || {
+            telextiles_certs::TrustStore::load(&dir)
+                .map(|s| s.device_ids().collect::<std::collections::BTreeSet<_>>())
+        })
+        .await
+        .ok()
+        .and_then(Result::ok)
+    };
+    let mut stamp = store_stamp(&path);
+    let mut known = match load(dir.clone()).await {
+        Some(k) => k,
+        None => shared.pins.snapshot().into_iter().collect(),
+    };
+    let mut stop = shared.shutdown.subscribe();
+    loop {
+        tokio::select! {
+            _ = tokio::time::sleep(TRUST_STORE_POLL) => {}
+            _ = stop.changed() => return,
+        }
+        let now = store_stamp(&path);
+        if now == stamp {
+            continue;
+        }
+        // A missing file is an empty store (every peer unpaired).
+        let ids = if now.is_none() {
+            Some(Default::default())
+        } else {
+            load(dir.clone()).await
+        };
+        let Some(ids) = ids else {
+            // Unreadable or mid-write: try again next time.
+            continue;
+        };
+        stamp = now;
+        for gone in known.difference(&ids) {
+            shared.revoke(gone);
+        }
+        for new in ids.difference(&known) {
+            shared.pins.insert(*new);
+        }
+        known = ids;
     }
 }
 
@@ -598,7 +780,7 @@ impl LinkHandle {
         }
         let mut n = 0;
         for p in peers.values() {
-            if p.ctrl.send(msg.clone()).is_ok() {
+            if p.ctrl.try_send(msg.clone()).is_ok() {
                 n += 1;
             }
         }
@@ -625,6 +807,14 @@ impl LinkHandle {
             capture_us,
             final_latent,
         })
+    }
+
+    /// Unpairs `peer` in the running link: its pin is dropped, it is no
+    /// longer dialled, and its live connection is closed at once (the
+    /// trust store on disk is the caller's to update; a change there made
+    /// by another process is picked up within [`TRUST_STORE_POLL`] anyway).
+    pub fn unpair(&self, peer: &DeviceId) {
+        self.shared.revoke(peer);
     }
 
     /// Dials an address (like `--connect`) from now on, with reconnects.

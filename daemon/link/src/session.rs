@@ -1,12 +1,13 @@
 //! Connection life cycle: accepting, dialing with backoff, pairing, hello,
 //! and the streaming session.
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
 use quinn::{Connection, ConnectionError, RecvStream, SendStream};
 use rustls::pki_types::CertificateDer;
+use telextiles_certs::trust::{sanitize_name, sanitize_text};
 use telextiles_certs::{
     peer_device_id, DeviceId, PairingError, PairingMessage, PairingRole, PairingSession,
     PairingStep, PeerPolicy, PeerRecord, TrustStore,
@@ -18,7 +19,8 @@ use tokio::sync::{mpsc, watch};
 
 use crate::discovery::Discovered;
 use crate::{
-    close_code, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot, Shared,
+    close_code, limits, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot,
+    RateLimit, Shared,
 };
 
 /// Why a connection ended, for the user.
@@ -75,7 +77,7 @@ fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
                 ErrorKind::Pairing,
                 format!(
                     "the device at {addr} closed the connection: {}",
-                    String::from_utf8_lossy(&c.reason)
+                    peer_reason(&c.reason)
                 ),
             )
         }
@@ -86,7 +88,7 @@ fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
                 ErrorKind::Incompatible(Vec::new()),
                 format!(
                     "the device at {addr} refused to stream: {}",
-                    String::from_utf8_lossy(&c.reason)
+                    peer_reason(&c.reason)
                 ),
             )
         }
@@ -97,6 +99,11 @@ fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
         }
         _ => End::quiet(format!("connection to {addr} lost: {e}")),
     }
+}
+
+/// A close reason sent by the peer, made safe to print.
+fn peer_reason(reason: &[u8]) -> String {
+    sanitize_text(&String::from_utf8_lossy(reason), 200)
 }
 
 fn peer_cert(conn: &Connection) -> Option<CertificateDer<'static>> {
@@ -117,9 +124,16 @@ pub(crate) async fn accept_loop(shared: Arc<Shared>) {
             _ = stop.changed() => return,
         };
         let Some(incoming) = incoming else { return };
+        let Some(slot) = ConnSlot::reserve(&shared, incoming.remote_address().ip()) else {
+            // Over the overall or per-address limit: refused before any
+            // handshake work or state.
+            incoming.refuse();
+            continue;
+        };
         let shared = shared.clone();
         let mut stop2 = shared.shutdown.subscribe();
         tokio::spawn(async move {
+            let _slot = slot;
             // Cancelled at shutdown so nothing keeps the endpoint alive.
             tokio::select! {
                 _ = accept_one(shared, incoming) => {}
@@ -129,11 +143,61 @@ pub(crate) async fn accept_loop(shared: Arc<Shared>) {
     }
 }
 
+/// One accepted connection's place in [`limits::MAX_CONNECTIONS`] and
+/// [`limits::MAX_CONNECTIONS_PER_IP`], given back when dropped.
+struct ConnSlot {
+    shared: Arc<Shared>,
+    ip: IpAddr,
+}
+
+impl ConnSlot {
+    fn reserve(shared: &Arc<Shared>, ip: IpAddr) -> Option<ConnSlot> {
+        let mut conns = lock(&shared.conns);
+        let total: usize = conns.values().sum();
+        let here = conns.get(&ip).copied().unwrap_or(0);
+        if total >= limits::MAX_CONNECTIONS || here >= limits::MAX_CONNECTIONS_PER_IP {
+            return None;
+        }
+        *conns.entry(ip).or_insert(0) += 1;
+        Some(ConnSlot {
+            shared: shared.clone(),
+            ip,
+        })
+    }
+}
+
+impl Drop for ConnSlot {
+    fn drop(&mut self) {
+        let mut conns = lock(&self.shared.conns);
+        if let Some(n) = conns.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                conns.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// Reports an error caused by a remote sender, rate-limited (see
+/// [`limits::ERRORS_PER_WINDOW`]).
+async fn report_limited(shared: &Shared, peer: Option<DeviceId>, kind: ErrorKind, message: String) {
+    let msg = lock(&shared.refusals).check(std::time::Instant::now(), message);
+    if let Some(message) = msg {
+        shared
+            .emit(LinkEvent::Error {
+                peer,
+                kind,
+                message,
+            })
+            .await;
+    }
+}
+
 async fn accept_one(shared: Arc<Shared>, incoming: quinn::Incoming) {
     let addr = incoming.remote_address();
     match incoming.await {
         Ok(conn) => {
-            let _ = run_connection(shared, conn, false).await;
+            let _ = run_connection(shared, conn, false, false).await;
         }
         Err(e) => {
             let text = e.to_string();
@@ -150,15 +214,34 @@ async fn accept_one(shared: Arc<Shared>, incoming: quinn::Incoming) {
             } else {
                 format!("incoming connection from {addr} failed: {text}")
             };
-            shared
-                .emit(LinkEvent::Error {
-                    peer: None,
-                    kind: ErrorKind::RefusedPeer,
-                    message: msg,
-                })
-                .await;
+            report_limited(&shared, None, ErrorKind::RefusedPeer, msg).await;
         }
     }
+}
+
+/// The addresses to dial for one peer: up to half from `new`, then `old`,
+/// then the rest of `new`, without duplicates, at most [`limits::MAX_PEER_ADDRS`] (mDNS adverts are claims
+/// anyone can make; the list must not grow with them).
+pub(crate) fn bounded_addrs(new: Vec<SocketAddr>, old: &[SocketAddr]) -> Vec<SocketAddr> {
+    // At most half from the newest claim, so a spoofed advert cannot push
+    // out every address the peer was really reached at.
+    let half = limits::MAX_PEER_ADDRS / 2;
+    let mut out: Vec<SocketAddr> = Vec::with_capacity(limits::MAX_PEER_ADDRS);
+    let mut push = |a: SocketAddr, cap: usize| {
+        if out.len() < cap && !out.contains(&a) {
+            out.push(a);
+        }
+    };
+    for &a in &new {
+        push(a, half);
+    }
+    for &a in old {
+        push(a, limits::MAX_PEER_ADDRS);
+    }
+    for &a in &new {
+        push(a, limits::MAX_PEER_ADDRS);
+    }
+    out
 }
 
 /// Starts (or updates the addresses of) the dial loop of a known peer.
@@ -170,16 +253,13 @@ pub(crate) fn ensure_dialing(shared: &Arc<Shared>, peer: DeviceId, addrs: Vec<So
     }
     let mut dialing = lock(&shared.dialing);
     if let Some(tx) = dialing.get(&peer) {
-        let mut merged = addrs;
-        for a in tx.borrow().iter() {
-            if !merged.contains(a) {
-                merged.push(*a);
-            }
+        let merged = bounded_addrs(addrs, &tx.borrow());
+        if *tx.borrow() != merged {
+            let _ = tx.send(merged);
         }
-        let _ = tx.send(merged);
         return;
     }
-    let (tx, rx) = watch::channel(addrs.clone());
+    let (tx, rx) = watch::channel(bounded_addrs(addrs, &[]));
     dialing.insert(peer, tx);
     tokio::spawn(dial_known(shared.clone(), peer, rx));
 }
@@ -199,7 +279,7 @@ async fn dial_known(
             }
         }
     });
-    dial_loop_inner(shared, Some(peer), &mut rx, false).await;
+    dial_loop_inner(shared, Some(peer), &mut rx, false, false).await;
 }
 
 /// Dials `addrs` until shut down, reconnecting with exponential backoff.
@@ -212,7 +292,15 @@ pub(crate) async fn dial_loop(
     explicit: bool,
 ) {
     let (_tx, mut rx) = watch::channel(addrs);
-    dial_loop_inner(shared, expect, &mut rx, explicit).await;
+    dial_loop_inner(shared, expect, &mut rx, explicit, false).await;
+}
+
+/// Dials a device that advertises a pairing code (found by mDNS) while
+/// this side is entering a code. Gives up when pairing mode ends unless it
+/// reached the device (which then goes on as a `--connect` peer).
+pub(crate) async fn dial_for_pairing(shared: Arc<Shared>, addrs: Vec<SocketAddr>) {
+    let (_tx, mut rx) = watch::channel(addrs);
+    dial_loop_inner(shared, None, &mut rx, true, true).await;
 }
 
 async fn dial_loop_inner(
@@ -220,6 +308,7 @@ async fn dial_loop_inner(
     mut expect: Option<DeviceId>,
     addrs: &mut watch::Receiver<Vec<SocketAddr>>,
     explicit: bool,
+    pairing_only: bool,
 ) {
     let mut stop = shared.shutdown.subscribe();
     let mut backoff = shared.timing.backoff_min;
@@ -227,6 +316,16 @@ async fn dial_loop_inner(
     loop {
         if *stop.borrow() || shared.stopped.load(Ordering::SeqCst) {
             return;
+        }
+        // An advertiser that never answered, once pairing is over.
+        if pairing_only && expect.is_none() && !shared.pairing_mode() {
+            return;
+        }
+        // A remembered/discovered peer that was unpaired meanwhile.
+        if let (false, Some(id)) = (explicit, expect) {
+            if !shared.pins.contains(&id) {
+                return;
+            }
         }
         // Already connected (either direction): wait until that changes.
         if let Some(id) = expect {
@@ -301,7 +400,7 @@ async fn dial_loop_inner(
                         }
                     }
                     let end = tokio::select! {
-                        e = run_connection(shared.clone(), conn, true) => e,
+                        e = run_connection(shared.clone(), conn, true, entering) => e,
                         _ = stop.changed() => return,
                     };
                     match end {
@@ -387,7 +486,10 @@ pub(crate) async fn discovery_loop(
     mut found: mpsc::UnboundedReceiver<Discovered>,
     enter_mode: bool,
 ) {
-    let mut pairing_dialled = false;
+    // Devices showing a pairing code that were dialled (bounded: a spoofed
+    // or stale advert cannot keep the real one from being tried, and a
+    // flood of adverts cannot start unbounded dialing).
+    let mut pairing_dialled: Vec<DeviceId> = Vec::new();
     while let Some(d) = found.recv().await {
         if d.device_id == shared.my_id || d.addrs.is_empty() {
             continue;
@@ -418,12 +520,19 @@ pub(crate) async fn discovery_loop(
                 .await;
             continue;
         }
-        if shared.pins.contains(&d.device_id) {
+        if enter_mode
+            && d.pairing
+            && shared.pairing_mode()
+            && !pairing_dialled.contains(&d.device_id)
+            && pairing_dialled.len() < limits::MAX_PAIRING_DIALS
+        {
+            // A device showing a code (even one still pinned here: it may
+            // have unpaired this one): dial every such advertiser, once.
+            pairing_dialled.push(d.device_id);
+            let addrs = bounded_addrs(d.addrs, &[]);
+            tokio::spawn(dial_for_pairing(shared.clone(), addrs));
+        } else if shared.pins.contains(&d.device_id) {
             ensure_dialing(&shared, d.device_id, d.addrs);
-        } else if enter_mode && d.pairing && !pairing_dialled && shared.pairing_mode() {
-            // The device showing a code: dial it once for pairing.
-            pairing_dialled = true;
-            tokio::spawn(dial_loop(shared.clone(), None, d.addrs, true));
         }
     }
 }
@@ -503,9 +612,17 @@ async fn open_ctrl(conn: &Connection, dialed: bool) -> Result<Ctrl, ConnectionEr
 }
 
 /// Runs a connection until it ends. `Ok` if it was up and ended normally.
-async fn run_connection(shared: Arc<Shared>, conn: Connection, dialed: bool) -> Result<(), End> {
+/// `entering`: this side dialled a device showing a pairing code because
+/// its user typed the code: it pairs even if it still pins that device
+/// (the other side may have unpaired it).
+async fn run_connection(
+    shared: Arc<Shared>,
+    conn: Connection,
+    dialed: bool,
+    entering: bool,
+) -> Result<(), End> {
     let addr = conn.remote_address();
-    let result = run_connection_inner(&shared, &conn, dialed).await;
+    let result = run_connection_inner(&shared, &conn, dialed, entering).await;
     if let Err(end) = &result {
         let code = match end.kind {
             ErrorKind::Incompatible(_) => close_code::INCOMPATIBLE,
@@ -518,14 +635,15 @@ async fn run_connection(shared: Arc<Shared>, conn: Connection, dialed: bool) -> 
             conn.close(code.into(), reason);
         }
         if !dialed && end.report {
-            // Dialers report via their loop (deduplicated); acceptors here.
-            shared
-                .emit(LinkEvent::Error {
-                    peer: peer_cert(&conn).and_then(|c| peer_device_id(&[c]).ok()),
-                    kind: end.kind.clone(),
-                    message: end.message.clone(),
-                })
-                .await;
+            // Dialers report via their loop (deduplicated); acceptors here,
+            // rate-limited: anyone can open connections.
+            report_limited(
+                &shared,
+                peer_cert(&conn).and_then(|c| peer_device_id(&[c]).ok()),
+                end.kind.clone(),
+                end.message.clone(),
+            )
+            .await;
         }
     }
     let _ = addr;
@@ -540,6 +658,7 @@ async fn run_connection_inner(
     shared: &Arc<Shared>,
     conn: &Connection,
     dialed: bool,
+    entering: bool,
 ) -> Result<(), End> {
     let addr = conn.remote_address();
     let cert = peer_cert(conn).ok_or_else(|| {
@@ -566,8 +685,9 @@ async fn run_connection_inner(
     };
 
     let paired = shared.pins.contains(&peer_id);
+    let entering = entering && matches!(*lock(&shared.pairing), Some(PairingMode::Enter(_)));
     if dialed {
-        if !paired {
+        if !paired || entering {
             tokio::time::timeout(
                 hs,
                 pair_as(
@@ -675,6 +795,9 @@ async fn run_connection_inner(
         }
     };
 
+    // The name is shown to the user and logged: no terminal escapes.
+    let mut their_hello = their_hello;
+    their_hello.device_name = sanitize_name(&their_hello.device_name);
     if let Err(reasons) = check_hello(&shared.hello, &their_hello) {
         let _ = ctrl
             .write(&Control::Mismatch {
@@ -696,7 +819,11 @@ async fn run_connection_inner(
     match tokio::time::timeout(hs, ctrl.read()).await {
         Ok(Ok(Control::HelloAck)) => {}
         Ok(Ok(Control::Mismatch { reasons })) => {
-            let text: Vec<String> = reasons.iter().map(|r| r.to_string()).collect();
+            // The peer's strings (hashes) are shown: no terminal escapes.
+            let text: Vec<String> = reasons
+                .iter()
+                .map(|r| sanitize_text(&r.to_string(), 400))
+                .collect();
             return Err(End::err(
                 ErrorKind::Incompatible(reasons),
                 format!(
@@ -717,7 +844,7 @@ async fn run_connection_inner(
     }
 
     // Up: register (resolving duplicates), then stream.
-    let (ctrl_tx, ctrl_rx) = mpsc::unbounded_channel();
+    let (ctrl_tx, ctrl_rx) = mpsc::channel(limits::CONTROL_QUEUE);
     let dialed_by_lower = dialed == (shared.my_id < peer_id);
     {
         let mut peers = lock(&shared.peers);
@@ -942,8 +1069,8 @@ async fn stream(
     conn: &Connection,
     peer_id: DeviceId,
     ctrl: Ctrl,
-    ctrl_tx: mpsc::UnboundedSender<Control>,
-    mut ctrl_rx: mpsc::UnboundedReceiver<Control>,
+    ctrl_tx: mpsc::Sender<Control>,
+    mut ctrl_rx: mpsc::Receiver<Control>,
 ) -> String {
     let Ctrl {
         mut send,
@@ -990,7 +1117,10 @@ async fn stream(
         loop {
             tick.tick().await;
             id = id.wrapping_add(1);
-            if ping_tx.send(Control::Ping { id, t1_us: 0 }).is_err() {
+            // A full queue (the peer does not read) skips this ping.
+            if let Err(mpsc::error::TrySendError::Closed(_)) =
+                ping_tx.try_send(Control::Ping { id, t1_us: 0 })
+            {
                 return;
             }
         }
@@ -1002,16 +1132,20 @@ async fn stream(
     let dclock = clock.clone();
     let datagrams = tokio::spawn(async move {
         let mut latest = LatestWins::new();
+        let mut errors = RateLimit::new();
         while let Ok(bytes) = dconn.read_datagram().await {
             let recv_us = now_us();
             let frame = match LatentFrame::decode(&bytes) {
                 Ok(f) => f,
                 Err(e) => {
-                    dshared.emit_now(LinkEvent::Error {
-                        peer: Some(peer_id),
-                        kind: ErrorKind::Protocol,
-                        message: format!("dropped a bad latent datagram: {e}"),
-                    });
+                    let msg = format!("dropped a bad latent datagram: {e}");
+                    if let Some(message) = errors.check(std::time::Instant::now(), msg) {
+                        dshared.emit_now(LinkEvent::Error {
+                            peer: Some(peer_id),
+                            kind: ErrorKind::Protocol,
+                            message,
+                        });
+                    }
                     continue;
                 }
             };
@@ -1039,7 +1173,9 @@ async fn stream(
         match ctrl.read().await {
             Ok(Control::Ping { id, t1_us }) => {
                 let t2 = now_us();
-                let _ = ctrl_tx.send(Control::Pong {
+                // Bounded: a ping flood from a peer that does not read its
+                // pongs fills the queue and further pongs are dropped.
+                let _ = ctrl_tx.try_send(Control::Pong {
                     id,
                     t1_us,
                     t2_us: t2,
@@ -1061,8 +1197,16 @@ async fn stream(
                 });
             }
             Ok(Control::Hello(_) | Control::HelloAck) => {}
+            Ok(Control::Error { code, message }) => {
+                let message = sanitize_text(&message, peer::MAX_TEXT_LEN);
+                let msg = Control::Error { code, message };
+                shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
+            }
             Ok(msg) => {
                 shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
+            }
+            Err(ReadFail::Conn(_)) if !shared.pins.contains(&peer_id) => {
+                break "unpaired on this device".to_string()
             }
             Err(ReadFail::Conn(e)) => break explain(&e, conn.remote_address()).message,
             Err(ReadFail::Closed(s)) => break s,

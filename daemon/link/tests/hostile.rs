@@ -1,0 +1,511 @@
+//! Hostile peers over real QUIC on 127.0.0.1 (issue 19): floods that must
+//! stay within bounded memory, rate-limited error reports, peer text made
+//! safe to print, revocation of a live peer, re-pairing after a one-sided
+//! unpair.
+//!
+//! The attackers are raw quinn clients in this process: the memory figures
+//! are the RSS of the whole test process (link + attacker). They are
+//! printed (`--nocapture`) and written to `docs/peer-protocol.md`.
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use telextiles_certs::{
+    client_config, CodeOffer, Identity, PairingCode, PeerPolicy, PeerRecord, PinSet, TrustStore,
+    DEFAULT_CODE_TTL, SERVER_NAME,
+};
+use telextiles_link::{
+    limits, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, Timing,
+};
+use telextiles_proto::peer::{encode_control, Control, Hello, PROTOCOL_VERSION};
+use tokio::sync::mpsc::Receiver;
+
+fn hello() -> HelloInfo {
+    HelloInfo {
+        encoder_hash: "e".repeat(64),
+        index_fingerprint: "f".repeat(64),
+        embedding_dim: 512,
+    }
+}
+
+fn config(name: &str) -> LinkConfig {
+    let mut c = LinkConfig::new(name, "127.0.0.1:0".parse().unwrap(), hello());
+    c.timing = Timing {
+        keep_alive: Duration::from_millis(200),
+        idle_timeout: Duration::from_millis(1500),
+        backoff_min: Duration::from_millis(50),
+        backoff_max: Duration::from_millis(500),
+        ping_interval: Duration::from_millis(100),
+        handshake_timeout: Duration::from_secs(5),
+        connect_timeout: Duration::from_millis(500),
+    };
+    c
+}
+
+async fn start(
+    cfg: LinkConfig,
+    id: &Identity,
+    pins: &[&Identity],
+) -> (LinkHandle, Receiver<LinkEvent>) {
+    let pins = PinSet::new(pins.iter().map(|i| i.device_id()));
+    let (h, mut rx) = Link::start(cfg, id.clone(), pins).await.unwrap();
+    match rx.recv().await {
+        Some(LinkEvent::Listening { .. }) => {}
+        other => panic!("expected Listening, got {other:?}"),
+    }
+    (h, rx)
+}
+
+async fn wait_for<T>(
+    rx: &mut Receiver<LinkEvent>,
+    within: Duration,
+    what: &str,
+    mut f: impl FnMut(&LinkEvent) -> Option<T>,
+) -> T {
+    let deadline = tokio::time::Instant::now() + within;
+    let mut seen = Vec::new();
+    loop {
+        match tokio::time::timeout_at(deadline, rx.recv()).await {
+            Ok(Some(ev)) => {
+                if let Some(t) = f(&ev) {
+                    return t;
+                }
+                if !matches!(ev, LinkEvent::Latent(_)) {
+                    seen.push(format!("{ev:?}"));
+                }
+            }
+            Ok(None) => panic!("event channel closed waiting for {what}; saw {seen:#?}"),
+            Err(_) => panic!("timed out waiting for {what}; saw {seen:#?}"),
+        }
+    }
+}
+
+/// Every event that arrives within `d`.
+async fn drain(rx: &mut Receiver<LinkEvent>, d: Duration) -> Vec<LinkEvent> {
+    let deadline = tokio::time::Instant::now() + d;
+    let mut out = Vec::new();
+    while let Ok(Some(ev)) = tokio::time::timeout_at(deadline, rx.recv()).await {
+        out.push(ev);
+    }
+    out
+}
+
+/// Resident set size of this process, MiB.
+fn rss_mib() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").expect("/proc/self/status");
+    let kb: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("VmRSS");
+    kb / 1024.0
+}
+
+/// A quinn client endpoint with quinn's default (generous) limits.
+fn attacker_endpoint(me: &Identity, policy: PeerPolicy) -> quinn::Endpoint {
+    let tls = client_config(me, policy).unwrap();
+    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(tls).unwrap();
+    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    ep.set_default_client_config(quinn::ClientConfig::new(Arc::new(quic)));
+    ep
+}
+
+fn raw_hello(name: &str) -> Hello {
+    let h = hello();
+    Hello {
+        protocol_version: PROTOCOL_VERSION,
+        device_name: name.into(),
+        encoder_hash: h.encoder_hash,
+        index_fingerprint: h.index_fingerprint,
+        embedding_dim: h.embedding_dim,
+    }
+}
+
+/// A paired attacker through the hello exchange: returns the connection
+/// and the control stream halves (the attacker never reads unless asked).
+async fn paired_attacker(
+    me: &Identity,
+    server: &Identity,
+    addr: SocketAddr,
+    name: &str,
+) -> (
+    quinn::Endpoint,
+    quinn::Connection,
+    quinn::SendStream,
+    quinn::RecvStream,
+) {
+    let ep = attacker_endpoint(me, PeerPolicy::Expect(server.device_id()));
+    let conn = ep.connect(addr, SERVER_NAME).unwrap().await.unwrap();
+    let (mut send, recv) = conn.open_bi().await.unwrap();
+    let mut bytes = encode_control(&Control::Hello(raw_hello(name))).unwrap();
+    bytes.extend(encode_control(&Control::HelloAck).unwrap());
+    send.write_all(&bytes).await.unwrap();
+    (ep, conn, send, recv)
+}
+
+/// An unpaired client against a device showing a pairing code opens
+/// connections, starts a control stream it never finishes, and fills
+/// further streams the link never accepts. With quinn's defaults (100 streams x 1.25 MB per connection, no
+/// connection limit) this grew RSS by > 100 MiB; with the link's limits
+/// the growth stays under 40 MiB and the excess connections are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
+    let ia = Identity::generate().unwrap();
+    let mut ca = config("alice");
+    ca.pairing = Some(PairingMode::Show(CodeOffer::new(
+        &mut rand::rngs::OsRng,
+        std::time::Instant::now(),
+        DEFAULT_CODE_TTL,
+    )));
+    ca.timing.handshake_timeout = Duration::from_secs(30);
+    let (a, _ra) = start(ca, &ia, &[]).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let before = rss_mib();
+
+    let evil = Identity::generate().unwrap();
+    let chunk = bytes::Bytes::from(vec![0x55u8; 64 * 1024]);
+    let mut tasks = Vec::new();
+    let mut connected = 0;
+    let mut eps = Vec::new();
+    for _ in 0..24 {
+        let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
+        let conn = match tokio::time::timeout(
+            Duration::from_secs(2),
+            ep.connect(a.local_addr(), SERVER_NAME).unwrap(),
+        )
+        .await
+        {
+            Ok(Ok(c)) => c,
+            _ => continue,
+        };
+        connected += 1;
+        // The first stream is the control stream: two bytes of a length
+        // prefix, then silence, so the link waits for the rest.
+        let (mut first, _r) = conn.open_bi().await.unwrap();
+        first.write_all(&[1, 0]).await.unwrap();
+        tasks.push(tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(60)).await;
+            drop((first, _r));
+        }));
+        for _ in 0..99 {
+            let conn = conn.clone();
+            let chunk = chunk.clone();
+            tasks.push(tokio::spawn(async move {
+                let Ok(Ok((mut s, _r))) =
+                    tokio::time::timeout(Duration::from_secs(8), conn.open_bi()).await
+                else {
+                    return;
+                };
+                for _ in 0..20 {
+                    let w = s.write_chunk(chunk.clone());
+                    if !matches!(
+                        tokio::time::timeout(Duration::from_secs(8), w).await,
+                        Ok(Ok(()))
+                    ) {
+                        return;
+                    }
+                }
+            }));
+        }
+        eps.push((ep, conn));
+    }
+    tokio::time::sleep(Duration::from_secs(8)).await;
+    let during = rss_mib();
+    for (ep, conn) in &eps {
+        conn.close(0u32.into(), b"bye");
+        ep.close(0u32.into(), b"bye");
+    }
+    for t in tasks {
+        t.abort();
+    }
+    drop(eps);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let after = rss_mib();
+    println!(
+        "unpaired stream flood (pairing mode): {connected} of 24 connections accepted; RSS before {before:.1} MiB, during {during:.1} MiB (+{:.1}), after {after:.1} MiB (+{:.1})",
+        during - before,
+        after - before
+    );
+    assert!(
+        connected <= limits::MAX_CONNECTIONS_PER_IP,
+        "{connected} connections from one address were accepted"
+    );
+    assert!(
+        during - before < 40.0,
+        "RSS grew by {:.1} MiB",
+        during - before
+    );
+    assert!(
+        after - before < 40.0,
+        "RSS grew by {:.1} MiB",
+        after - before
+    );
+    a.shutdown().await;
+}
+
+/// A paired peer floods pings and never reads its pongs. The old unbounded
+/// pong queue grew without limit; now pongs beyond the bounded queue are
+/// dropped and RSS growth stays under 40 MiB.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paired_ping_flood_stays_bounded() {
+    let (ia, evil) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (a, mut ra) = start(config("alice"), &ia, &[&evil]).await;
+    let (_ep, conn, mut send, _recv) = paired_attacker(&evil, &ia, a.local_addr(), "mallory").await;
+    wait_for(&mut ra, Duration::from_secs(5), "PeerUp", |e| match e {
+        LinkEvent::PeerUp { .. } => Some(()),
+        _ => None,
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let before = rss_mib();
+    let mut batch = Vec::new();
+    for id in 0..4096u32 {
+        batch.extend(encode_control(&Control::Ping { id, t1_us: 1 }).unwrap());
+    }
+    let batch = bytes::Bytes::from(batch);
+    let start_t = Instant::now();
+    let mut sent: u64 = 0;
+    let events = tokio::spawn(async move {
+        // Keep the event channel drained like the daemon does.
+        while ra.recv().await.is_some() {}
+    });
+    while start_t.elapsed() < Duration::from_secs(8) {
+        match tokio::time::timeout(Duration::from_secs(2), send.write_chunk(batch.clone())).await {
+            Ok(Ok(())) => sent += 4096,
+            _ => break,
+        }
+    }
+    let during = rss_mib();
+    conn.close(0u32.into(), b"bye");
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let after = rss_mib();
+    println!(
+        "paired ping flood: {sent} pings in {:.1} s; RSS before {before:.1} MiB, during {during:.1} MiB (+{:.1}), after {after:.1} MiB (+{:.1})",
+        start_t.elapsed().as_secs_f64(),
+        during - before,
+        after - before
+    );
+    assert!(sent > 100_000, "the flood did not get going ({sent} pings)");
+    assert!(
+        during - before < 40.0,
+        "RSS grew by {:.1} MiB",
+        during - before
+    );
+    assert!(
+        after - before < 40.0,
+        "RSS grew by {:.1} MiB",
+        after - before
+    );
+    events.abort();
+    a.shutdown().await;
+}
+
+/// A paired peer sends thousands of undecodable datagrams: a handful of
+/// errors are reported (the old link reported every one, as many as the
+/// event channel held), and the peer's device name is cleaned of terminal
+/// escapes and bidi overrides before anything shows it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_datagram_flood_is_rate_limited_and_names_are_sanitised() {
+    let (ia, evil) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (a, mut ra) = start(config("alice"), &ia, &[&evil]).await;
+    let evil_name = "\u{1b}[2J\u{1b}[31mmallory\u{7}\u{202e}gpj.exe";
+    let (_ep, conn, _send, _recv) = paired_attacker(&evil, &ia, a.local_addr(), evil_name).await;
+    let name = wait_for(&mut ra, Duration::from_secs(5), "PeerUp", |e| match e {
+        LinkEvent::PeerUp { name, .. } => Some(name.clone()),
+        _ => None,
+    })
+    .await;
+    assert!(
+        !name.chars().any(telextiles_certs::trust::is_unsafe_char),
+        "unsafe characters reach the user: {name:?}"
+    );
+    assert!(name.contains("mallory"), "{name:?}");
+    for i in 0..5000u32 {
+        let _ = conn.send_datagram(bytes::Bytes::from(vec![9u8, (i % 251) as u8, 1, 2]));
+        if i % 200 == 0 {
+            tokio::task::yield_now().await;
+        }
+    }
+    let evs = drain(&mut ra, Duration::from_secs(2)).await;
+    let errors = evs
+        .iter()
+        .filter(|e| matches!(e, LinkEvent::Error { message, .. } if message.contains("bad latent datagram")))
+        .count();
+    println!("bad datagram flood: {errors} error events for 5000 bad datagrams");
+    assert!(errors >= 1, "the first bad datagram is reported");
+    assert!(
+        errors <= limits::ERRORS_PER_WINDOW as usize,
+        "{errors} error events"
+    );
+    conn.close(0u32.into(), b"bye");
+    a.shutdown().await;
+}
+
+fn record(id: &Identity, name: &str) -> PeerRecord {
+    PeerRecord::new(id.cert_der().clone(), name, SystemTime::now()).unwrap()
+}
+
+/// Two paired links with trust stores on disk, streaming.
+async fn paired_pair() -> (
+    (Identity, tempfile::TempDir, LinkHandle, Receiver<LinkEvent>),
+    (Identity, tempfile::TempDir, LinkHandle, Receiver<LinkEvent>),
+) {
+    let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut sa = TrustStore::empty_in(da.path());
+    sa.insert(record(&ib, "bob"));
+    sa.save().unwrap();
+    let mut sb = TrustStore::empty_in(db.path());
+    sb.insert(record(&ia, "alice"));
+    sb.save().unwrap();
+    let mut ca = config("alice");
+    ca.data_dir = Some(da.path().to_path_buf());
+    let (a, mut ra) = start(ca, &ia, &[&ib]).await;
+    let mut cb = config("bob");
+    cb.data_dir = Some(db.path().to_path_buf());
+    cb.connect = vec![a.local_addr()];
+    let (b, mut rb) = start(cb, &ib, &[&ia]).await;
+    for rx in [&mut ra, &mut rb] {
+        wait_for(rx, Duration::from_secs(10), "PeerUp", |e| match e {
+            LinkEvent::PeerUp { .. } => Some(()),
+            _ => None,
+        })
+        .await;
+    }
+    ((ia, da, a, ra), (ib, db, b, rb))
+}
+
+/// `telextilesd unpair` edits the trust store from another process; the
+/// running link must drop the peer within a second and keep it out.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unpair_in_the_trust_store_revokes_the_live_peer_within_a_second() {
+    let ((_ia, da, a, mut ra), (ib, _db, b, mut rb)) = paired_pair().await;
+    let t0 = Instant::now();
+    TrustStore::update(da.path(), |s| (true, s.remove(&ib.device_id()))).unwrap();
+    let peer = wait_for(
+        &mut ra,
+        Duration::from_secs(3),
+        "PeerDown on a",
+        |e| match e {
+            LinkEvent::PeerDown { peer, reason } => Some((*peer, reason.clone())),
+            _ => None,
+        },
+    )
+    .await;
+    let took = t0.elapsed();
+    println!("store unpair: PeerDown after {took:?} ({})", peer.1);
+    assert_eq!(peer.0, ib.device_id());
+    assert!(took < Duration::from_secs(1), "revocation took {took:?}");
+    // b loses the session and cannot get back in.
+    wait_for(
+        &mut rb,
+        Duration::from_secs(3),
+        "PeerDown on b",
+        |e| match e {
+            LinkEvent::PeerDown { .. } => Some(()),
+            _ => None,
+        },
+    )
+    .await;
+    for e in drain(&mut ra, Duration::from_secs(2)).await {
+        assert!(!matches!(e, LinkEvent::PeerUp { .. }), "b came back: {e:?}");
+    }
+    assert!(a.connected_peers().is_empty());
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+/// `ctl unpair` goes through `LinkHandle::unpair`: immediate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn handle_unpair_closes_the_live_connection_at_once() {
+    let ((_ia, _da, a, mut ra), (ib, _db, b, mut rb)) = paired_pair().await;
+    let t0 = Instant::now();
+    a.unpair(&ib.device_id());
+    let reason = wait_for(
+        &mut ra,
+        Duration::from_secs(2),
+        "PeerDown on a",
+        |e| match e {
+            LinkEvent::PeerDown { reason, .. } => Some(reason.clone()),
+            _ => None,
+        },
+    )
+    .await;
+    let took = t0.elapsed();
+    println!("handle unpair: PeerDown after {took:?} ({reason})");
+    assert!(took < Duration::from_secs(1), "revocation took {took:?}");
+    assert!(reason.contains("unpaired"), "{reason}");
+    wait_for(
+        &mut rb,
+        Duration::from_secs(3),
+        "PeerDown on b",
+        |e| match e {
+            LinkEvent::PeerDown { .. } => Some(()),
+            _ => None,
+        },
+    )
+    .await;
+    for e in drain(&mut ra, Duration::from_secs(2)).await {
+        assert!(!matches!(e, LinkEvent::PeerUp { .. }), "b came back: {e:?}");
+    }
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+/// Alice unpaired Bob, Bob did not unpair Alice. Pairing again (Alice
+/// shows a code, Bob types it) must work: Bob pairs although he still pins
+/// Alice. The old link skipped pairing on Bob's side and Alice refused him.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn repairing_works_after_a_one_sided_unpair() {
+    let ((ia, da, a, _ra), (ib, db, b, _rb)) = paired_pair().await;
+    a.shutdown().await;
+    b.shutdown().await;
+    TrustStore::update(da.path(), |s| (true, s.remove(&ib.device_id()))).unwrap();
+    assert!(TrustStore::load(db.path())
+        .unwrap()
+        .contains(&ia.device_id()));
+
+    let offer = CodeOffer::new(
+        &mut rand::rngs::OsRng,
+        std::time::Instant::now(),
+        DEFAULT_CODE_TTL,
+    );
+    let typed: PairingCode = offer.display().parse().unwrap();
+    let mut ca = config("alice");
+    ca.pairing = Some(PairingMode::Show(offer));
+    ca.data_dir = Some(da.path().to_path_buf());
+    let (a, mut ra) = start(ca, &ia, &[]).await;
+    let mut cb = config("bob");
+    cb.pairing = Some(PairingMode::Enter(typed));
+    cb.connect = vec![a.local_addr()];
+    cb.data_dir = Some(db.path().to_path_buf());
+    let (b, mut rb) = start(cb, &ib, &[&ia]).await;
+    for (rx, who) in [(&mut ra, "alice"), (&mut rb, "bob")] {
+        wait_for(
+            rx,
+            Duration::from_secs(10),
+            &format!("Paired on {who}"),
+            |e| match e {
+                LinkEvent::Paired { .. } => Some(()),
+                _ => None,
+            },
+        )
+        .await;
+        wait_for(
+            rx,
+            Duration::from_secs(10),
+            &format!("PeerUp on {who}"),
+            |e| match e {
+                LinkEvent::PeerUp { .. } => Some(()),
+                _ => None,
+            },
+        )
+        .await;
+    }
+    assert!(TrustStore::load(da.path())
+        .unwrap()
+        .contains(&ib.device_id()));
+    a.shutdown().await;
+    b.shutdown().await;
+}
