@@ -1,6 +1,7 @@
 //! `telextilesd id`, `telextilesd peers`, `telextilesd unpair <peer>`:
 //! this device's ID and the trust store of paired peers, read and changed
-//! directly in the state directory (no running daemon needed).
+//! directly in the state directory (no running daemon needed; a running
+//! one watches the trust store and revokes an unpaired peer at once).
 
 use crate::config::{Config, ConfigArgs};
 use anyhow::Context;
@@ -121,7 +122,7 @@ pub fn unpair(args: UnpairArgs) -> anyhow::Result<()> {
     .with_context(|| format!("cannot unpair {:?}", args.peer))?;
     if let Some(p) = removed {
         println!(
-            "Unpaired {} ({}): removed from {}.\nTo pair again, run `telextilesd pair` on both devices.",
+            "Unpaired {} ({}): removed from {}.\nA running daemon drops the peer's connection within a second.\nTo pair again, run `telextilesd pair` on both devices.",
             p.name,
             p.device_id,
             TrustStore::path_in(&dir).display()

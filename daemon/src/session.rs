@@ -1011,7 +1011,8 @@ impl Handler for Daemon {
                     .ok_or_else(|| {
                         CtlError::invalid_args(format!("no paired peer {:?}", a.peer))
                     })?;
-                    s.pins.remove(&removed.device_id);
+                    // Drops the pin and closes the live connection at once.
+                    s.link.unpair(&removed.device_id);
                     Ok(json!({"unpaired": removed.device_id.to_string(), "name": removed.name}))
                 }
                 Command::SensorRecalibrate => {
