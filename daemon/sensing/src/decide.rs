@@ -161,6 +161,10 @@ impl FlatIndex {
     pub fn entry_by_id(&self, id: &str) -> Option<usize> {
         self.ids.iter().position(|i| i == id)
     }
+    /// The (unit) centroid of an entry.
+    pub fn centroid(&self, entry: usize) -> &[f32] {
+        &self.centroids[entry]
+    }
 }
 
 impl TextileIndex for FlatIndex {

@@ -1,0 +1,30 @@
+//! The live session's core, without I/O (as quinn-proto is to quinn): pure,
+//! deterministic state machines fed explicit time and inputs, returning
+//! actions for the daemon's thin tokio wiring (`daemon/src/session.rs`) to
+//! carry out.
+//!
+//! - [`latent::Latent`]: an embedding that is valid by construction (the
+//!   dimension agreed in the peers' hello, finite, unit length). Everything
+//!   a peer sends crosses into the core through [`latent::Latent::new`].
+//! - [`sender::SenderCore`]: the front end's per-frame output (contact
+//!   events, embeddings) → messages for the peers: press start, a latent
+//!   per frame, press stop with the press's final (mean) latent.
+//! - [`receiver::ReceiverCore`]: messages from peers → per-peer presses,
+//!   decisions, roller targets and map touches. One press per peer, so two
+//!   peers pressing at once never reset each other; reordered, duplicated,
+//!   lost or malformed messages never panic it and never stop decisions.
+//!
+//! Clocks: a peer's `capture_us` is on the peer's clock and is only ever
+//! compared with other timestamps of the same peer (durations within a
+//! press); the link's `one_way_latency_us` (from its clock-offset estimate)
+//! is the only bridge to the local clock.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod latent;
+pub mod receiver;
+pub mod sender;
+
+pub use latent::{Latent, LatentError};
+pub use receiver::{ReceiverConfig, ReceiverCore, RxAction, RxDecision, RxInput};
+pub use sender::{SenderCore, TxAction};

@@ -1,0 +1,372 @@
+//! [`ReceiverCore`]: what peers' presses do here.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use telextiles_sensing::decide::{DecideConfig, Decider, TextileIndex};
+
+use crate::latent::Latent;
+
+/// Receiver tuning.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReceiverConfig {
+    /// Hysteresis of the per-press decisions.
+    pub decide: DecideConfig,
+    /// Every n-th latent of a peer is also a map touch (0 = none).
+    pub touch_every: u64,
+    /// Peers tracked at once (the least recently heard one is forgotten
+    /// beyond this).
+    pub max_peers: usize,
+}
+
+impl Default for ReceiverConfig {
+    fn default() -> Self {
+        ReceiverConfig {
+            decide: DecideConfig::default(),
+            touch_every: 6,
+            max_peers: 64,
+        }
+    }
+}
+
+/// A message from a peer, as the link decoded it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RxInput<'a> {
+    /// The peer's press started.
+    PressStart {
+        /// Its number.
+        press_id: u32,
+        /// Capture time of its first frame (peer's clock).
+        capture_us: u64,
+    },
+    /// A frame's latent (a datagram: may be lost, late, duplicated).
+    Latent {
+        /// Its press.
+        press_id: u32,
+        /// Datagram sequence number.
+        seq: u64,
+        /// Capture time (peer's clock).
+        capture_us: u64,
+        /// The dequantised vector, unchecked.
+        vector: &'a [f32],
+        /// Capture there → receipt here, from the link's clock-offset
+        /// estimate (None before the first pong).
+        one_way_latency_us: Option<i64>,
+    },
+    /// The peer's press ended.
+    PressStop {
+        /// Its number.
+        press_id: u32,
+        /// Capture time of the frame that ended it (peer's clock).
+        capture_us: u64,
+        /// The press's mean latent, unchecked, with its capture time.
+        final_latent: Option<(&'a [f32], u64)>,
+    },
+    /// The peer disconnected.
+    PeerDown,
+}
+
+/// A decision about a peer's press.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RxDecision {
+    /// Whose press.
+    pub peer: String,
+    /// Which press.
+    pub press_id: u32,
+    /// Index entry decided.
+    pub entry: usize,
+    /// Its roller slot.
+    pub slot: usize,
+    /// Distance of the press's latent(s) to it.
+    pub distance: f32,
+    /// Capture there → this decision, where the link knows the clock
+    /// offset.
+    pub latency_ms: Option<f64>,
+    /// First contact there → this decision (the press's duration on the
+    /// peer's clock plus the one-way latency).
+    pub since_contact_ms: Option<f64>,
+    /// The press ended: this is its final answer.
+    pub final_decision: bool,
+    /// The decided textile differs from this press's previous decision.
+    pub changed: bool,
+}
+
+/// What the wiring must do.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RxAction {
+    /// A peer's press began here.
+    PressStarted {
+        /// Whose.
+        peer: String,
+        /// Which.
+        press_id: u32,
+    },
+    /// A decision was made or changed, or a press's final answer.
+    Decision(RxDecision),
+    /// Turn the roller to this slot (latest target wins).
+    RollerTarget {
+        /// The slot.
+        slot: usize,
+    },
+    /// Where a peer's touch falls on the map.
+    Touch {
+        /// Whose.
+        peer: String,
+        /// The latent.
+        latent: Latent,
+    },
+    /// A message was refused (malformed); nothing else changed.
+    Refused {
+        /// From whom.
+        peer: String,
+        /// Why (for a rate-limited log).
+        why: String,
+    },
+}
+
+struct RxPress {
+    press_id: u32,
+    contact_capture_us: u64,
+    decider: Decider,
+    decided: Option<usize>,
+    latency_us: Option<i64>,
+    latents: u64,
+}
+
+#[derive(Default)]
+struct PeerState {
+    press: Option<RxPress>,
+    last_finished: Option<u32>,
+    heard: u64,
+}
+
+/// `a` is a later press number than `b` (serial-number arithmetic: ids
+/// wrap).
+fn later(a: u32, b: u32) -> bool {
+    (a.wrapping_sub(b) as i32) > 0
+}
+
+/// The receiving half of a session (see the crate docs).
+pub struct ReceiverCore<I: TextileIndex> {
+    index: Arc<I>,
+    cfg: ReceiverConfig,
+    peers: BTreeMap<String, PeerState>,
+    tick: u64,
+}
+
+impl<I: TextileIndex> ReceiverCore<I> {
+    /// A receiver deciding against `index`.
+    pub fn new(index: Arc<I>, cfg: ReceiverConfig) -> Self {
+        ReceiverCore {
+            index,
+            cfg,
+            peers: BTreeMap::new(),
+            tick: 0,
+        }
+    }
+
+    /// The index.
+    pub fn index(&self) -> &I {
+        &self.index
+    }
+
+    /// Peers with state here.
+    pub fn peers(&self) -> usize {
+        self.peers.len()
+    }
+
+    /// The press of `peer` in progress, if any.
+    pub fn press_of(&self, peer: &str) -> Option<u32> {
+        self.peers.get(peer)?.press.as_ref().map(|p| p.press_id)
+    }
+
+    fn peer(&mut self, peer: &str) -> &mut PeerState {
+        self.tick += 1;
+        if !self.peers.contains_key(peer) && self.peers.len() >= self.cfg.max_peers.max(1) {
+            if let Some(oldest) = self
+                .peers
+                .iter()
+                .min_by_key(|(_, s)| s.heard)
+                .map(|(k, _)| k.clone())
+            {
+                self.peers.remove(&oldest);
+            }
+        }
+        let s = self.peers.entry(peer.to_string()).or_default();
+        s.heard = self.tick;
+        s
+    }
+
+    /// One message from `peer`; actions go to `out`.
+    pub fn handle(&mut self, peer: &str, input: RxInput<'_>, out: &mut Vec<RxAction>) {
+        let dim = self.index.dim();
+        match input {
+            RxInput::PeerDown => {
+                self.peers.remove(peer);
+            }
+            RxInput::PressStart {
+                press_id,
+                capture_us,
+            } => {
+                self.start(peer, press_id, capture_us, out);
+            }
+            RxInput::Latent {
+                press_id,
+                seq,
+                capture_us,
+                vector,
+                one_way_latency_us,
+            } => {
+                let latent = match Latent::new(vector, dim) {
+                    Ok(l) => l,
+                    Err(e) => {
+                        out.push(RxAction::Refused {
+                            peer: peer.to_string(),
+                            why: format!("latent of press {press_id}: {e}"),
+                        });
+                        return;
+                    }
+                };
+                if !self.start(peer, press_id, capture_us, out) {
+                    return;
+                }
+                let touch_every = self.cfg.touch_every;
+                let index = self.index.clone();
+                let st = self.peer(peer);
+                let Some(p) = st.press.as_mut() else {
+                    return;
+                };
+                p.latents += 1;
+                if one_way_latency_us.is_some() {
+                    p.latency_us = one_way_latency_us;
+                }
+                if touch_every > 0 && seq % touch_every == 0 {
+                    out.push(RxAction::Touch {
+                        peer: peer.to_string(),
+                        latent: latent.clone(),
+                    });
+                }
+                let Some(step) = p.decider.on_embedding(&*index, capture_us, latent.as_slice())
+                else {
+                    return;
+                };
+                if let (true, Some(d)) = (step.changed, step.decision) {
+                    Self::decide(&*index, peer, p, d.entry, d.distance, capture_us, false, out);
+                }
+            }
+            RxInput::PressStop {
+                press_id,
+                capture_us,
+                final_latent,
+            } => {
+                let checked = final_latent.map(|(v, t)| (Latent::new(v, dim), t));
+                if let Some((Err(e), _)) = &checked {
+                    out.push(RxAction::Refused {
+                        peer: peer.to_string(),
+                        why: format!("final latent of press {press_id}: {e}"),
+                    });
+                }
+                let good = checked.and_then(|(l, t)| l.ok().map(|l| (l, t)));
+                // A stop for a press never seen (its start and every latent
+                // lost) still decides, from the final latent alone.
+                let started_at = good.as_ref().map_or(capture_us, |(_, t)| *t);
+                if !self.start(peer, press_id, started_at, out) {
+                    return;
+                }
+                let index = self.index.clone();
+                let st = self.peer(peer);
+                let Some(mut p) = st.press.take() else {
+                    return;
+                };
+                st.last_finished = Some(press_id);
+                // The sender's mean of the whole press decides the final
+                // answer, so lost datagrams never change it; without a
+                // usable one, this side's own running decision stands.
+                let fin = match &good {
+                    Some((l, t)) => index
+                        .nearest2(l.as_slice())
+                        .map(|n| (n.best, n.best_dist, *t)),
+                    None => p
+                        .decider
+                        .current()
+                        .map(|d| (d.entry, d.distance, capture_us)),
+                };
+                if let Some((entry, distance, t)) = fin {
+                    Self::decide(&*index, peer, &mut p, entry, distance, t, true, out);
+                }
+            }
+        }
+    }
+
+    /// Make sure `peer`'s press `press_id` is the current one, starting it
+    /// if it is new. False when the message belongs to an older or finished
+    /// press (a late or duplicated one): ignore it.
+    fn start(&mut self, peer: &str, press_id: u32, capture_us: u64, out: &mut Vec<RxAction>) -> bool {
+        let cfg = self.cfg.decide.clone();
+        let dim = self.index.dim();
+        let st = self.peer(peer);
+        if st.last_finished == Some(press_id) {
+            return false;
+        }
+        if let Some(p) = &st.press {
+            if p.press_id == press_id {
+                return true;
+            }
+            if !later(press_id, p.press_id) {
+                return false;
+            }
+        } else if st.last_finished.is_some_and(|f| !later(press_id, f)) {
+            return false;
+        }
+        let mut decider = Decider::new(cfg, dim);
+        decider.press_start(capture_us);
+        st.press = Some(RxPress {
+            press_id,
+            contact_capture_us: capture_us,
+            decider,
+            decided: None,
+            latency_us: None,
+            latents: 0,
+        });
+        out.push(RxAction::PressStarted {
+            peer: peer.to_string(),
+            press_id,
+        });
+        true
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn decide(
+        index: &I,
+        peer: &str,
+        p: &mut RxPress,
+        entry: usize,
+        distance: f32,
+        capture_us: u64,
+        final_decision: bool,
+        out: &mut Vec<RxAction>,
+    ) {
+        let changed = p.decided != Some(entry);
+        if !changed && !final_decision {
+            return;
+        }
+        p.decided = Some(entry);
+        let slot = index.slot_of(entry);
+        if changed {
+            out.push(RxAction::RollerTarget { slot });
+        }
+        let latency_ms = p.latency_us.map(|l| l.max(0) as f64 / 1000.0);
+        let pressed_ms = capture_us.saturating_sub(p.contact_capture_us) as f64 / 1000.0;
+        out.push(RxAction::Decision(RxDecision {
+            peer: peer.to_string(),
+            press_id: p.press_id,
+            entry,
+            slot,
+            distance,
+            latency_ms,
+            since_contact_ms: latency_ms.map(|l| pressed_ms + l),
+            final_decision,
+            changed,
+        }));
+    }
+}

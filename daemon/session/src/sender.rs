@@ -1,0 +1,216 @@
+//! [`SenderCore`]: what this side's presses send to its peers.
+
+use telextiles_sensing::contact::ContactEvent;
+
+use crate::latent::Latent;
+
+/// A message for the peers (the wiring sends controls on the reliable
+/// stream and latents as datagrams).
+#[derive(Clone, Debug, PartialEq)]
+pub enum TxAction {
+    /// A press started (its first frame's capture time, local clock).
+    PressStart {
+        /// Press number (wrapping).
+        press_id: u32,
+        /// Capture time of the frame that started it.
+        capture_us: u64,
+    },
+    /// The latent of one frame in contact.
+    Latent {
+        /// Its press.
+        press_id: u32,
+        /// Capture time of the frame.
+        capture_us: u64,
+        /// The frame's latent.
+        latent: Latent,
+    },
+    /// The press ended; `final_latent` is the mean of all its latents (so a
+    /// receiver that lost datagrams still decides on the whole press).
+    PressStop {
+        /// Its press.
+        press_id: u32,
+        /// Capture time of the frame that ended it.
+        capture_us: u64,
+        /// Mean latent of the press (None: no frame was encoded).
+        final_latent: Option<Latent>,
+    },
+}
+
+/// The sending half of a session: fed the front end's output frame by
+/// frame, it numbers presses and produces the messages for the peers.
+#[derive(Clone, Debug)]
+pub struct SenderCore {
+    dim: usize,
+    press_id: u32,
+    in_press: bool,
+    sum: Vec<f64>,
+    frames: u32,
+}
+
+impl SenderCore {
+    /// A sender of `dim`-dimensional latents.
+    pub fn new(dim: usize) -> SenderCore {
+        SenderCore {
+            dim,
+            press_id: 0,
+            in_press: false,
+            sum: vec![0.0; dim],
+            frames: 0,
+        }
+    }
+
+    /// Whether a press is in progress.
+    pub fn in_press(&self) -> bool {
+        self.in_press
+    }
+
+    /// The current (or last) press number.
+    pub fn press_id(&self) -> u32 {
+        self.press_id
+    }
+
+    /// One frame: its capture time (local clock), the contact event it
+    /// carried, and its embedding if it was encoded. Actions go to `out`.
+    /// An embedding that is not a valid latent (wrong dimension, non-finite,
+    /// zero) is dropped and counted nowhere else: the encoder never makes one.
+    pub fn on_frame(
+        &mut self,
+        capture_us: u64,
+        event: Option<ContactEvent>,
+        embedding: Option<&[f32]>,
+        out: &mut Vec<TxAction>,
+    ) {
+        match event {
+            Some(ContactEvent::PressStart { .. }) => {
+                if self.in_press {
+                    // Never two presses at once: close the open one first.
+                    self.stop(capture_us, out);
+                }
+                self.press_id = self.press_id.wrapping_add(1);
+                self.in_press = true;
+                self.sum.iter_mut().for_each(|s| *s = 0.0);
+                self.frames = 0;
+                out.push(TxAction::PressStart {
+                    press_id: self.press_id,
+                    capture_us,
+                });
+            }
+            Some(ContactEvent::PressEnd { .. }) => self.stop(capture_us, out),
+            _ => {}
+        }
+        if !self.in_press {
+            return;
+        }
+        let Some(latent) = embedding.and_then(|e| Latent::new(e, self.dim).ok()) else {
+            return;
+        };
+        for (s, &v) in self.sum.iter_mut().zip(latent.as_slice()) {
+            *s += v as f64;
+        }
+        self.frames += 1;
+        out.push(TxAction::Latent {
+            press_id: self.press_id,
+            capture_us,
+            latent,
+        });
+    }
+
+    /// End the press in progress, if any (also what the wiring calls when
+    /// the sensor goes away mid-press).
+    pub fn stop(&mut self, capture_us: u64, out: &mut Vec<TxAction>) {
+        if !self.in_press {
+            return;
+        }
+        self.in_press = false;
+        let final_latent = (self.frames > 0)
+            .then(|| {
+                let v: Vec<f32> = self.sum.iter().map(|&x| x as f32).collect();
+                Latent::new(&v, self.dim).ok()
+            })
+            .flatten();
+        out.push(TxAction::PressStop {
+            press_id: self.press_id,
+            capture_us,
+            final_latent,
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn start(t: u64) -> Option<ContactEvent> {
+        Some(ContactEvent::PressStart { t_us: t })
+    }
+    fn end(t: u64) -> Option<ContactEvent> {
+        Some(ContactEvent::PressEnd {
+            start_us: 0,
+            t_us: t,
+            reason: telextiles_sensing::contact::EndReason::Released,
+        })
+    }
+
+    #[test]
+    fn a_press_is_start_latents_and_stop_with_the_mean_latent() {
+        let mut s = SenderCore::new(2);
+        let mut out = Vec::new();
+        s.on_frame(10, None, None, &mut out);
+        assert!(out.is_empty());
+        s.on_frame(20, start(20), Some(&[1.0, 0.0]), &mut out);
+        s.on_frame(30, None, Some(&[0.0, 2.0]), &mut out);
+        s.on_frame(35, None, Some(&[f32::NAN, 1.0]), &mut out);
+        s.on_frame(36, None, Some(&[1.0, 1.0, 1.0]), &mut out);
+        s.on_frame(40, end(40), None, &mut out);
+        s.on_frame(50, None, Some(&[1.0, 0.0]), &mut out);
+        assert_eq!(out.len(), 4, "{out:?}");
+        assert!(matches!(out[0], TxAction::PressStart { press_id: 1, capture_us: 20 }));
+        match &out[2] {
+            TxAction::Latent { press_id: 1, capture_us: 30, latent } => {
+                assert_eq!(latent.as_slice(), &[0.0, 1.0])
+            }
+            other => panic!("{other:?}"),
+        }
+        match &out[3] {
+            TxAction::PressStop {
+                press_id: 1,
+                capture_us: 40,
+                final_latent: Some(m),
+            } => {
+                let h = std::f32::consts::FRAC_1_SQRT_2;
+                assert!((m.as_slice()[0] - h).abs() < 1e-6 && (m.as_slice()[1] - h).abs() < 1e-6);
+            }
+            other => panic!("{other:?}"),
+        }
+        // A press with no encoded frame stops without a final latent; the
+        // next press has the next number.
+        out.clear();
+        s.on_frame(60, start(60), None, &mut out);
+        s.on_frame(70, end(70), None, &mut out);
+        assert_eq!(
+            out,
+            [
+                TxAction::PressStart { press_id: 2, capture_us: 60 },
+                TxAction::PressStop { press_id: 2, capture_us: 70, final_latent: None }
+            ]
+        );
+    }
+
+    #[test]
+    fn a_start_during_a_press_closes_it_first_and_ids_wrap() {
+        let mut s = SenderCore::new(1);
+        s.press_id = u32::MAX;
+        let mut out = Vec::new();
+        s.on_frame(1, start(1), Some(&[1.0]), &mut out);
+        s.on_frame(2, start(2), Some(&[1.0]), &mut out);
+        let ids: Vec<_> = out
+            .iter()
+            .map(|a| match a {
+                TxAction::PressStart { press_id, .. } => ("start", *press_id),
+                TxAction::Latent { press_id, .. } => ("latent", *press_id),
+                TxAction::PressStop { press_id, .. } => ("stop", *press_id),
+            })
+            .collect();
+        assert_eq!(ids, [("start", 0), ("latent", 0), ("stop", 0), ("start", 1), ("latent", 1)]);
+    }
+}
