@@ -40,6 +40,11 @@ pub const MAX_TEXT_LEN: usize = 1024;
 pub const DATAGRAM_VERSION: u8 = 1;
 /// Bytes of a latent datagram before the vector payload.
 pub const DATAGRAM_HEADER_LEN: usize = 25;
+/// Largest magnitude a latent component may have after dequantisation.
+/// Latents are L2-normalised (|x| <= 1); the bound leaves room for models
+/// that are not, while keeping a receiver's f32 sums of squares finite for
+/// every dimension up to [`MAX_DIM`].
+pub const MAX_LATENT_ABS: f32 = 1.0e9;
 
 /// Everything that can be wrong with bytes received from a peer.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -447,9 +452,21 @@ impl QuantVec {
         QuantVec::I8 { scale, data }
     }
 
-    /// Half-precision quantisation (round to nearest even).
+    /// Half-precision quantisation (round to nearest even). Non-finite
+    /// inputs become 0 and values beyond the f16 range saturate at
+    /// ±65504, so the result is always a valid latent.
     pub fn quantize_f16(v: &[f32]) -> QuantVec {
-        QuantVec::F16(v.iter().map(|&x| f32_to_f16(x)).collect())
+        QuantVec::F16(
+            v.iter()
+                .map(|&x| {
+                    if x.is_finite() {
+                        f32_to_f16(x.clamp(-65504.0, 65504.0))
+                    } else {
+                        0
+                    }
+                })
+                .collect(),
+        )
     }
 
     /// Number of components.
@@ -566,11 +583,24 @@ impl LatentFrame {
         if self.vector.dim() > MAX_DIM {
             return Err(PeerError::Limit("latent dimension too large"));
         }
-        if let QuantVec::I8 { scale, .. } = &self.vector {
-            if !scale.is_finite() || *scale < 0.0 {
-                return Err(PeerError::Limit(
-                    "latent scale not a finite non-negative number",
-                ));
+        // Every component the receiver computes from the frame must be a
+        // finite number of bounded size.
+        match &self.vector {
+            QuantVec::I8 { scale, .. } => {
+                if !scale.is_finite() || *scale < 0.0 {
+                    return Err(PeerError::Limit(
+                        "latent scale not a finite non-negative number",
+                    ));
+                }
+                if *scale > MAX_LATENT_ABS / 127.0 {
+                    return Err(PeerError::Limit("latent scale too large"));
+                }
+            }
+            QuantVec::F16(d) => {
+                // Exponent all ones: infinity or NaN.
+                if d.iter().any(|h| h & 0x7c00 == 0x7c00) {
+                    return Err(PeerError::Limit("latent component not finite"));
+                }
             }
         }
         Ok(())

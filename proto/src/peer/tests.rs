@@ -459,6 +459,45 @@ fn clock_offset_prefers_the_min_rtt_sample() {
     assert_eq!(est.len(), 8);
 }
 
+/// A decoded latent only ever carries finite components of bounded size
+/// (issue 19: an int8 scale near f32::MAX or an f16 infinity/NaN decoded
+/// fine and reached the receiver as inf/NaN).
+#[test]
+fn latents_with_non_finite_or_huge_components_are_refused() {
+    let frame = |vector| LatentFrame {
+        seq: 1,
+        capture_us: 2,
+        press_id: 3,
+        flags: 0,
+        vector,
+    };
+    let ok = frame(QuantVec::I8 {
+        scale: 1.0 / 127.0,
+        data: vec![127, -127],
+    });
+    let mut huge = ok.encode().unwrap();
+    huge[DATAGRAM_HEADER_LEN..DATAGRAM_HEADER_LEN + 4].copy_from_slice(&f32::MAX.to_le_bytes());
+    assert_eq!(
+        LatentFrame::decode(&huge),
+        Err(PeerError::Limit("latent scale too large"))
+    );
+    for bits in [0x7c00u16, 0xfc00, 0x7e00] {
+        let f = frame(QuantVec::F16(vec![0x3c00, bits]));
+        assert!(f.encode().is_err());
+        let mut b = frame(QuantVec::F16(vec![0x3c00, 0x3c00])).encode().unwrap();
+        let n = b.len();
+        b[n - 2..].copy_from_slice(&bits.to_le_bytes());
+        assert_eq!(
+            LatentFrame::decode(&b),
+            Err(PeerError::Limit("latent component not finite"))
+        );
+    }
+    // The sender's quantiser never produces such frames.
+    let q = QuantVec::quantize_f16(&[f32::INFINITY, f32::NAN, 1.0e6, -1.0e6, 0.5]);
+    assert_eq!(q.dequantize(), vec![0.0, 0.0, 65504.0, -65504.0, 0.5]);
+    assert!(frame(q).encode().is_ok());
+}
+
 /// Peer-chosen timestamps at the ends of the u64 range (issue 19: the old
 /// `as i64` arithmetic overflowed and panicked in checked builds).
 #[test]
