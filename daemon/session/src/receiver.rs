@@ -133,17 +133,14 @@ struct RxPress {
     latents: u64,
 }
 
+/// Finished presses remembered per peer (to ignore their late messages).
+const FINISHED_KEPT: usize = 8;
+
 #[derive(Default)]
 struct PeerState {
     press: Option<RxPress>,
-    last_finished: Option<u32>,
+    finished: std::collections::VecDeque<u32>,
     heard: u64,
-}
-
-/// `a` is a later press number than `b` (serial-number arithmetic: ids
-/// wrap).
-fn later(a: u32, b: u32) -> bool {
-    (a.wrapping_sub(b) as i32) > 0
 }
 
 /// The receiving half of a session (see the crate docs).
@@ -278,7 +275,10 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 let Some(mut p) = st.press.take() else {
                     return;
                 };
-                st.last_finished = Some(press_id);
+                if st.finished.len() >= FINISHED_KEPT {
+                    st.finished.pop_front();
+                }
+                st.finished.push_back(press_id);
                 // The sender's mean of the whole press decides the final
                 // answer, so lost datagrams never change it; without a
                 // usable one, this side's own running decision stands.
@@ -299,24 +299,31 @@ impl<I: TextileIndex> ReceiverCore<I> {
     }
 
     /// Make sure `peer`'s press `press_id` is the current one, starting it
-    /// if it is new. False when the message belongs to an older or finished
-    /// press (a late or duplicated one): ignore it.
-    fn start(&mut self, peer: &str, press_id: u32, capture_us: u64, out: &mut Vec<RxAction>) -> bool {
+    /// if it is new. False when the message belongs to a finished press, or
+    /// to one captured before the current press began (a late datagram):
+    /// ignore it. Press ids are only compared for equality (a peer that
+    /// restarts numbers from 1 again); order comes from the peer's capture
+    /// clock, which is monotonic.
+    fn start(
+        &mut self,
+        peer: &str,
+        press_id: u32,
+        capture_us: u64,
+        out: &mut Vec<RxAction>,
+    ) -> bool {
         let cfg = self.cfg.decide.clone();
         let dim = self.index.dim();
         let st = self.peer(peer);
-        if st.last_finished == Some(press_id) {
+        if st.finished.contains(&press_id) {
             return false;
         }
         if let Some(p) = &st.press {
             if p.press_id == press_id {
                 return true;
             }
-            if !later(press_id, p.press_id) {
+            if capture_us < p.contact_capture_us {
                 return false;
             }
-        } else if st.last_finished.is_some_and(|f| !later(press_id, f)) {
-            return false;
         }
         let mut decider = Decider::new(cfg, dim);
         decider.press_start(capture_us);

@@ -350,9 +350,10 @@ fn malformed_messages_are_refused_and_decisions_go_on() {
     rx.handle("p", RxInput::Latent { press_id: u32::MAX, seq: u64::MAX, capture_us: 0, vector: &good, one_way_latency_us: Some(i64::MIN) }, &mut out);
     rx.handle("p", RxInput::PressStop { press_id: u32::MAX, capture_us: 0, final_latent: Some((&good, u64::MAX)) }, &mut out);
     assert!(out.iter().any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 4)), "{out:?}");
-    // A later press of the same peer is still decided.
+    // A later press of the same peer is still decided, even when its
+    // number starts again from 0 (the peer restarted).
     out.clear();
-    rx.handle("p", RxInput::PressStop { press_id: 0, capture_us: 0, final_latent: Some((&centroid(&idx, 2), 0)) }, &mut out);
+    rx.handle("p", RxInput::PressStop { press_id: 0, capture_us: 50, final_latent: Some((&centroid(&idx, 2), 50)) }, &mut out);
     assert!(out.iter().any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 2)), "{out:?}");
 }
 
