@@ -620,7 +620,8 @@ fn eval(a: EvalArgs) -> Result<()> {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.threads = a.ort_threads;
-        cfg.runs = 0;
+        cfg.time_threads = vec![a.ort_threads];
+        cfg.runs = 100;
         let r = recorded::run(&cfg, std::slice::from_ref(&m), None)?;
         println!("{}", recorded::markdown(&r));
         if let Some(j) = a.json {

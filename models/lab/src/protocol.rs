@@ -274,15 +274,14 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
         .collect();
     let t0 = std::time::Instant::now();
     let build = |name: &str, plan: Vec<PressPlan>| -> Result<(ImageSet, ImageSet)> {
-        let label = name.to_string();
-        let progress = move |d: usize, n: usize| {
-            if d.is_multiple_of(10) || d == n {
-                eprint!(
-                    "\rrendering {label}: {d}/{n} presses, {:.0}s   ",
-                    t0.elapsed().as_secs_f64()
-                );
-            }
-        };
+        // A bar with ETA on a terminal, plain lines every few seconds
+        // otherwise.
+        let bar = telextiles_progress::Progress::new(
+            &format!("rendering {name}"),
+            plan.len() as u64,
+            "presses",
+        );
+        let progress = |_d: usize, _n: usize| bar.inc(1);
         let r = build_sets(
             source.as_ref(),
             classes.clone(),
@@ -292,7 +291,7 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
             threads,
             &progress,
         );
-        eprintln!();
+        bar.finish();
         r
     };
     let (train, train_index) = build(

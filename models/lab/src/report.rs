@@ -148,20 +148,25 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
     let t = Instant::now();
     let mut views = Views::new(&sets);
     let mut results = Vec::new();
+    let bar =
+        telextiles_progress::Progress::new("speed and accuracy", methods.len() as u64, "methods");
     for m in methods {
         let t0 = Instant::now();
+        bar.set_message(&m.name());
         let r = methods::evaluate(m, &mut views, &cfg.time_threads, cfg.runs)
             .with_context(|| format!("method {}", m.name()))?;
-        eprintln!(
+        bar.println(&format!(
             "{}: {:.3} ms/frame, top-1 per frame {:.2}%, per press {:.2}% ({:.0} s)",
             r.name,
             r.ms(),
             100.0 * r.frame_top1,
             100.0 * r.press_top1,
             t0.elapsed().as_secs_f64()
-        );
+        ));
+        bar.inc(1);
         results.push(r);
     }
+    bar.finish();
     let pareto: Vec<String> = methods::pareto(&results)
         .into_iter()
         .map(|i| results[i].name.clone())

@@ -203,3 +203,145 @@ fn presses_one_run_equals_each_recording_alone() {
         assert_eq!(dx, dy);
     }
 }
+
+#[test]
+fn presses_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("recordings");
+    write_set(&rec);
+    let lab = env!("CARGO_BIN_EXE_telextiles-lab");
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../encoder.onnx");
+    let source = format!("presses:{}", rec.display());
+    let run = |args: &[&str]| std::process::Command::new(lab).args(args).output().unwrap();
+    let out = dir.path().join("out");
+    let o = run(&[
+        "bench",
+        "--source",
+        &source,
+        "--index-presses",
+        "3",
+        "--no-descriptors",
+        "--model",
+        &format!("shipped={}", shipped.display()),
+        "--runs",
+        "5",
+        "--time-threads",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    // Not a terminal: plain progress lines.
+    assert!(stderr.contains("12/12 recordings (100 %)"), "{stderr}");
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("| shipped |"), "{md}");
+    assert!(md.contains("### Confusion, shipped"), "{md}");
+    // eval: one model, leave one press out, JSON.
+    let json = dir.path().join("eval.json");
+    let o = run(&[
+        "eval",
+        "--source",
+        &source,
+        "--split",
+        "lopo",
+        "--model",
+        shipped.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(j["split"], "Lopo");
+    assert_eq!(j["methods"][0]["summary"]["presses"], 12);
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("## Accuracy against time since first contact")
+    );
+    // Misuse is refused with a message.
+    for (args, msg) in [
+        (
+            vec!["bench", "--source", source.as_str()],
+            "--out <dir> is required",
+        ),
+        (
+            vec!["cache", "--source", source.as_str()],
+            "works with `eval` and `bench`",
+        ),
+        (
+            vec![
+                "bench",
+                "--source",
+                source.as_str(),
+                "--split",
+                "lopo",
+                "--index-presses",
+                "2",
+                "--out",
+                "x",
+            ],
+            "exclude each other",
+        ),
+        (vec!["bench", "--source", "presses:"], "needs a directory"),
+    ] {
+        let o = run(&args);
+        assert!(!o.status.success(), "{args:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains(msg), "{args:?}: {e}");
+    }
+}
+
+#[test]
+fn presses_in_the_pytouch_layout() {
+    // root/<class>/<serial>/*.png: one recording per class and serial.
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("pytouch");
+    let sim = Simulator::new().unwrap();
+    for (ci, class) in ["T001", "T090"].iter().enumerate() {
+        for (k, serial) in ["D20001", "D20002", "D20003"].iter().enumerate() {
+            let p = sim
+                .render_press(&PressSpec {
+                    sensor: [0, 4, 5][k],
+                    frames: 60,
+                    ..PressSpec::new(*class, 10 * ci as u64 + k as u64)
+                })
+                .unwrap();
+            // A PyTouch sequence carries no reference: ten more quiet
+            // frames in front (the press's own first, untouched, frame) let
+            // the contact detector capture one.
+            assert!(p.meta.reference_frames.unwrap() > 0);
+            let frames: Vec<_> = std::iter::repeat_n(p.frames[0].clone(), 10)
+                .chain(p.frames)
+                .collect();
+            let d = root.join(class).join(serial);
+            std::fs::create_dir_all(&d).unwrap();
+            for (i, f) in frames.iter().enumerate() {
+                f.save(d.join(telextiles_sim::recording::frame_name(i)))
+                    .unwrap();
+            }
+        }
+    }
+    let refs = recorded::list_recordings(&root).unwrap();
+    assert_eq!(refs.len(), 6);
+    assert!(refs.iter().all(|r| r.layout == recorded::Layout::Pytouch));
+    let mut cfg = StudyConfig::new(&root, Split::IndexPresses(2));
+    cfg.runs = 0;
+    let methods: Vec<Method> = methods()
+        .into_iter()
+        .filter(|m| m.name() == "shipped")
+        .collect();
+    let r = recorded::run(&cfg, &methods, None).unwrap();
+    assert_eq!(r.layout, "pytouch");
+    assert_eq!(r.fps, vec![(60.0, 6)]);
+    let roles: Vec<&str> = r.recordings.iter().map(|x| x.role.as_str()).collect();
+    assert_eq!(
+        roles,
+        ["index", "index", "query", "index", "index", "query"]
+    );
+    assert_eq!(r.recordings[2].sensor, "D20003");
+    // No recorded reference: the front end captured one from the first
+    // quiet frames, and the two queries are decided.
+    assert!(r.recordings.iter().all(|x| !x.own_reference));
+    let m = &r.methods[0];
+    assert_eq!(m.summary.presses, 2);
+    assert_eq!(m.confusion.iter().flatten().sum::<usize>(), 2);
+}
