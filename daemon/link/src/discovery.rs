@@ -11,6 +11,7 @@
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::str::FromStr;
+use std::time::{Duration, Instant};
 
 use mdns_sd::{IfKind, IfPredicate, ServiceDaemon, ServiceEvent, ServiceInfo};
 use telextiles_certs::DeviceId;
@@ -98,6 +99,50 @@ pub struct Discovered {
     pub fullname: String,
 }
 
+/// Adverts remembered (to report each change once) at most.
+pub const MAX_SEEN: usize = 64;
+/// An advert not heard again for this long is forgotten.
+pub const SEEN_TTL: Duration = Duration::from_secs(120);
+/// Adverts waiting for the link; more are dropped (mDNS repeats them).
+pub const FOUND_QUEUE: usize = 64;
+
+/// Bounded, expiring memory of the adverts already reported: anyone on the
+/// LAN can send adverts with new names, so it must not grow with them.
+#[derive(Debug, Default)]
+pub struct Seen {
+    map: HashMap<String, (Discovered, Instant)>,
+}
+
+impl Seen {
+    /// Whether `d` is new or changed (report it); remembers it either way.
+    pub fn is_new(&mut self, d: &Discovered, now: Instant) -> bool {
+        self.map
+            .retain(|_, (_, t)| now.saturating_duration_since(*t) < SEEN_TTL);
+        let new = self.map.get(&d.fullname).map(|(old, _)| old) != Some(d);
+        if !self.map.contains_key(&d.fullname) && self.map.len() >= MAX_SEEN {
+            // Full of live entries: forget the one heard least recently.
+            if let Some(oldest) = self
+                .map
+                .iter()
+                .min_by_key(|(_, (_, t))| *t)
+                .map(|(k, _)| k.clone())
+            {
+                self.map.remove(&oldest);
+            }
+        }
+        self.map.insert(d.fullname.clone(), (d.clone(), now));
+        new
+    }
+
+    pub fn len(&self) -> usize {
+        self.map.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.map.is_empty()
+    }
+}
+
 /// Parses a resolved service's TXT record into a [`Discovered`].
 pub fn parse_txt(
     fullname: &str,
@@ -136,7 +181,7 @@ impl Discovery {
         my_id: &DeviceId,
         port: u16,
         pairing: bool,
-    ) -> Result<(Discovery, mpsc::UnboundedReceiver<Discovered>), LinkError> {
+    ) -> Result<(Discovery, mpsc::Receiver<Discovered>), LinkError> {
         let err = |e: mdns_sd::Error| LinkError::Discovery(e.to_string());
         let daemon = ServiceDaemon::new().map_err(err)?;
         // Never multicast anywhere but the selected interfaces.
@@ -168,13 +213,13 @@ impl Discovery {
         daemon.register(info).map_err(err)?;
         let events = daemon.browse(SERVICE_TYPE).map_err(err)?;
 
-        let (tx, rx) = mpsc::unbounded_channel();
+        let (tx, rx) = mpsc::channel(FOUND_QUEUE);
         let me = *my_id;
         let own = fullname.clone();
         std::thread::Builder::new()
             .name("telextiles-mdns".into())
             .spawn(move || {
-                let mut seen: HashMap<String, Discovered> = HashMap::new();
+                let mut seen = Seen::default();
                 while let Ok(ev) = events.recv() {
                     let ServiceEvent::ServiceResolved(svc) = ev else {
                         continue;
@@ -187,6 +232,7 @@ impl Discovery {
                         .iter()
                         .map(|a| SocketAddr::new(a.to_ip_addr(), svc.get_port()))
                         .filter(|a| !a.ip().is_unspecified())
+                        .take(crate::limits::MAX_PEER_ADDRS)
                         .collect();
                     let d = match parse_txt(
                         &svc.fullname,
@@ -204,12 +250,12 @@ impl Discovery {
                     if d.device_id == me {
                         continue;
                     }
-                    if seen.get(&d.fullname) == Some(&d) {
+                    if !seen.is_new(&d, Instant::now()) {
                         continue;
                     }
-                    seen.insert(d.fullname.clone(), d.clone());
-                    if tx.send(d).is_err() {
-                        return;
+                    match tx.try_send(d) {
+                        Ok(()) | Err(mpsc::error::TrySendError::Full(_)) => {}
+                        Err(mpsc::error::TrySendError::Closed(_)) => return,
                     }
                 }
             })
@@ -243,6 +289,37 @@ mod tests {
         let only = Interfaces::Only(vec!["veth-a".into()]);
         assert!(only.allows("veth-a"));
         assert!(!only.allows("eth0"));
+    }
+
+    fn advert(i: usize, port: u16) -> Discovered {
+        Discovered {
+            fullname: format!("telextiles-{i}._telextiles._udp.local."),
+            device_id: DeviceId::from_bytes([(i % 251) as u8; 32]),
+            protocol_version: 1,
+            pairing: false,
+            addrs: vec![SocketAddr::from(([192, 0, 2, 1], port))],
+        }
+    }
+
+    /// A flood of spoofed adverts with fresh names keeps the memory at
+    /// [`MAX_SEEN`] (issue 19: the map only grew); a repeated advert is
+    /// reported once, a changed one again, an expired one again.
+    #[test]
+    fn seen_adverts_are_bounded_and_expire() {
+        let t0 = Instant::now();
+        let mut seen = Seen::default();
+        for i in 0..10_000 {
+            assert!(seen.is_new(&advert(i, 1), t0));
+            assert!(seen.len() <= MAX_SEEN);
+        }
+        assert_eq!(seen.len(), MAX_SEEN);
+        let a = advert(20_000, 1);
+        assert!(seen.is_new(&a, t0));
+        assert!(!seen.is_new(&a, t0 + Duration::from_secs(1)));
+        assert!(seen.is_new(&advert(20_000, 2), t0 + Duration::from_secs(2)));
+        let later = t0 + SEEN_TTL + Duration::from_secs(3);
+        assert!(seen.is_new(&advert(20_000, 2), later));
+        assert_eq!(seen.len(), 1, "everything else expired");
     }
 
     #[test]

@@ -219,27 +219,20 @@ async fn accept_one(shared: Arc<Shared>, incoming: quinn::Incoming) {
     }
 }
 
-/// The addresses to dial for one peer: up to half from `new`, then `old`,
-/// then the rest of `new`, without duplicates, at most [`limits::MAX_PEER_ADDRS`] (mDNS adverts are claims
-/// anyone can make; the list must not grow with them).
+/// The addresses to dial for one peer, at most [`limits::MAX_PEER_ADDRS`],
+/// without duplicates: the first half of `old` stays (the first addresses
+/// a peer's list starts with are the ones it was really reached at, from
+/// the trust store), then the newest claim `new`, then the rest of `old`.
+/// mDNS adverts are claims anyone can make: they rotate through the second
+/// half and can neither grow the list nor push out the remembered ones.
 pub(crate) fn bounded_addrs(new: Vec<SocketAddr>, old: &[SocketAddr]) -> Vec<SocketAddr> {
-    // At most half from the newest claim, so a spoofed advert cannot push
-    // out every address the peer was really reached at.
     let half = limits::MAX_PEER_ADDRS / 2;
+    let (keep, rest) = old.split_at(old.len().min(half));
     let mut out: Vec<SocketAddr> = Vec::with_capacity(limits::MAX_PEER_ADDRS);
-    let mut push = |a: SocketAddr, cap: usize| {
-        if out.len() < cap && !out.contains(&a) {
+    for &a in keep.iter().chain(&new).chain(rest) {
+        if out.len() < limits::MAX_PEER_ADDRS && !out.contains(&a) {
             out.push(a);
         }
-    };
-    for &a in &new {
-        push(a, half);
-    }
-    for &a in old {
-        push(a, limits::MAX_PEER_ADDRS);
-    }
-    for &a in &new {
-        push(a, limits::MAX_PEER_ADDRS);
     }
     out
 }
@@ -483,7 +476,7 @@ async fn report_once(
 
 pub(crate) async fn discovery_loop(
     shared: Arc<Shared>,
-    mut found: mpsc::UnboundedReceiver<Discovered>,
+    mut found: mpsc::Receiver<Discovered>,
     enter_mode: bool,
 ) {
     // Devices showing a pairing code that were dialled (bounded: a spoofed
@@ -1253,5 +1246,37 @@ impl ReaderOnly {
                 Err(e) => return Err(ReadFail::Closed(e.to_string())),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn a(i: u16) -> SocketAddr {
+        SocketAddr::from(([192, 0, 2, 1], i))
+    }
+
+    /// Spoofed mDNS adverts claiming a paired peer cannot grow its dial
+    /// list (issue 19: 30 of 30 attacker addresses were dialled), nor push
+    /// out the addresses it was really reached at.
+    #[test]
+    fn dial_addresses_are_bounded_deduplicated_and_keep_the_known_ones() {
+        let known = vec![a(1), a(2)];
+        let mut list = bounded_addrs(known.clone(), &[]);
+        for round in 0..30u16 {
+            let spoofed: Vec<SocketAddr> = (0..30).map(|i| a(1000 + round * 30 + i)).collect();
+            list = bounded_addrs(spoofed, &list);
+            assert!(list.len() <= limits::MAX_PEER_ADDRS, "{}", list.len());
+            for k in &known {
+                assert!(list.contains(k), "round {round}: lost {k}");
+            }
+        }
+        assert_eq!(
+            bounded_addrs(vec![a(5), a(5), a(7)], &[a(6), a(5)]),
+            vec![a(6), a(5), a(7)]
+        );
+        // A real new address from an advert is tried.
+        assert!(bounded_addrs(vec![a(9)], &list).contains(&a(9)));
     }
 }
