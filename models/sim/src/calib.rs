@@ -83,6 +83,16 @@ impl Calibration {
     }
 }
 
+impl Calibration {
+    /// One channel of `eval` (the RGB change of channel `ch` for bin (mag, dir)).
+    #[inline]
+    pub fn eval_channel(&self, mag: usize, dir: usize, ch: usize, x: f32, y: f32) -> f32 {
+        let base = (mag * BINS + dir) * 18 + ch * 6;
+        let cc = &self.coef[base..base + 6];
+        cc[0] * x * x + cc[1] * y * y + cc[2] * x * y + cc[3] * x + cc[4] * y + cc[5]
+    }
+}
+
 /// The embedded real DIGIT no-contact frame, 240 wide x 320 tall.
 pub fn embedded_background() -> Result<image::RgbImage, SimError> {
     let img = image::load_from_memory_with_format(BACKGROUND_JPG, image::ImageFormat::Jpeg)

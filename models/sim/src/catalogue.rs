@@ -36,6 +36,12 @@ pub enum Family {
     Terry,
     Fleece,
     Felt,
+    /// Catalogue 2: loop yarn fabrics (boucle).
+    Loop,
+    /// Catalogue 2: tufted pile (carpet, rug).
+    Tuft,
+    /// Catalogue 2: soft, low-texture fabrics (blankets, pillow covers).
+    Soft,
 }
 
 impl Family {
@@ -51,6 +57,24 @@ impl Family {
         Family::Terry,
         Family::Fleece,
         Family::Felt,
+    ];
+    /// The families of catalogue version 2 (those of version 1 plus loop,
+    /// tuft and soft).
+    pub const ALL_V2: [Family; 14] = [
+        Family::Plain,
+        Family::Twill,
+        Family::Satin,
+        Family::Basket,
+        Family::Crepe,
+        Family::Knit,
+        Family::Rib,
+        Family::Pile,
+        Family::Terry,
+        Family::Fleece,
+        Family::Felt,
+        Family::Loop,
+        Family::Tuft,
+        Family::Soft,
     ];
 }
 
@@ -85,6 +109,22 @@ pub enum Structure {
     Fleece,
     /// Felt / nonwoven: random fibre mat.
     Felt,
+    /// Catalogue 2: gauze, a coarse open plain weave (one of the few fabrics
+    /// whose periodic weave shows cleanly on a real sensor).
+    Gauze,
+    /// Catalogue 2: long cut pile (plush, faux fur).
+    Plush,
+    /// Catalogue 2: boucle, a ground covered in irregular curly loops `loop_mm`
+    /// across.
+    Boucle { loop_mm: f32 },
+    /// Catalogue 2: tufted pile in rows (carpet, rug); `tuft_mm` between rows.
+    Tufted { tuft_mm: f32 },
+    /// Catalogue 2: a brushed blanket (minky, fleece blanket): almost no
+    /// texture under the gel.
+    Blanket,
+    /// Catalogue 2: a fine cover over soft padding (pillow, duvet): almost no
+    /// texture under the gel.
+    Padded,
 }
 
 impl Structure {
@@ -102,6 +142,11 @@ impl Structure {
             Structure::Terry { .. } => Family::Terry,
             Structure::Fleece => Family::Fleece,
             Structure::Felt => Family::Felt,
+            Structure::Gauze => Family::Plain,
+            Structure::Plush => Family::Pile,
+            Structure::Boucle { .. } => Family::Loop,
+            Structure::Tufted { .. } => Family::Tuft,
+            Structure::Blanket | Structure::Padded => Family::Soft,
         }
     }
 
@@ -124,6 +169,12 @@ impl Structure {
             Structure::Terry { loop_mm } => format!("terry {loop_mm:.1} mm loops"),
             Structure::Fleece => "fleece".into(),
             Structure::Felt => "felt".into(),
+            Structure::Gauze => "gauze".into(),
+            Structure::Plush => "plush".into(),
+            Structure::Boucle { loop_mm } => format!("boucle {loop_mm:.1} mm loops"),
+            Structure::Tufted { tuft_mm } => format!("tufted pile, rows {tuft_mm:.1} mm"),
+            Structure::Blanket => "brushed blanket".into(),
+            Structure::Padded => "padded cover".into(),
         }
     }
 }
@@ -472,6 +523,287 @@ fn twin_groups() -> Vec<(usize, &'static [Fibre])> {
     ]
 }
 
+/// Templates of catalogue version 2: fewer clean wovens, more irregular
+/// relief (loops, tufts, pile) and a share of soft low-texture fabrics.
+fn templates_v2() -> Vec<Template> {
+    let t = |structure, count, balance, cover, relief, fibres, n| Template {
+        structure,
+        count,
+        balance,
+        cover,
+        relief,
+        fibres,
+        n,
+    };
+    vec![
+        t(
+            Structure::Plain,
+            (14.0, 45.0),
+            (0.8, 1.1),
+            (0.7, 1.0),
+            (0.6, 0.9),
+            &[Cotton, Linen, Silk, Wool, Polyester, Viscose, Nylon],
+            11,
+        ),
+        t(
+            Structure::Ripstop { grid: 6 },
+            (30.0, 45.0),
+            (0.95, 1.05),
+            (0.8, 0.95),
+            (0.5, 0.7),
+            &[Nylon, Polyester],
+            2,
+        ),
+        t(
+            Structure::Gauze,
+            (6.0, 12.0),
+            (0.9, 1.1),
+            (0.3, 0.5),
+            (0.7, 1.0),
+            &[Cotton, Linen],
+            3,
+        ),
+        t(
+            Structure::Twill { over: 2, under: 1 },
+            (18.0, 40.0),
+            (0.6, 0.9),
+            (0.8, 1.05),
+            (0.6, 0.9),
+            &[Cotton, Wool, Silk, Polyester, Viscose],
+            8,
+        ),
+        t(
+            Structure::Twill { over: 3, under: 1 },
+            (20.0, 38.0),
+            (0.5, 0.8),
+            (0.85, 1.1),
+            (0.6, 0.9),
+            &[Cotton, Wool, Polyester],
+            5,
+        ),
+        t(
+            Structure::Twill { over: 2, under: 2 },
+            (18.0, 36.0),
+            (0.8, 1.0),
+            (0.8, 1.0),
+            (0.6, 0.9),
+            &[Wool, Cotton, Cashmere],
+            4,
+        ),
+        t(
+            Structure::Herringbone {
+                over: 2,
+                under: 2,
+                band: 8,
+            },
+            (14.0, 26.0),
+            (0.8, 1.0),
+            (0.8, 1.0),
+            (0.6, 0.9),
+            &[Wool, Cotton],
+            3,
+        ),
+        t(
+            Structure::Satin { harness: 5 },
+            (35.0, 70.0),
+            (0.4, 0.6),
+            (0.9, 1.2),
+            (0.3, 0.5),
+            &[Silk, Polyester, Viscose, Cotton],
+            5,
+        ),
+        t(
+            Structure::Satin { harness: 8 },
+            (45.0, 80.0),
+            (0.4, 0.6),
+            (0.9, 1.2),
+            (0.25, 0.4),
+            &[Silk, Polyester],
+            2,
+        ),
+        t(
+            Structure::Basket { group: 2 },
+            (14.0, 30.0),
+            (0.9, 1.1),
+            (0.8, 1.0),
+            (0.6, 0.9),
+            &[Cotton, Linen, Wool],
+            4,
+        ),
+        t(
+            Structure::Crepe,
+            (25.0, 45.0),
+            (0.9, 1.1),
+            (0.7, 0.95),
+            (0.7, 1.0),
+            &[Silk, Polyester, Wool, Viscose],
+            4,
+        ),
+        t(
+            Structure::Jersey,
+            (10.0, 20.0),
+            (1.2, 1.6),
+            (0.45, 0.65),
+            (0.7, 0.9),
+            &[Cotton, Viscose, Wool, Polyester, Acrylic],
+            10,
+        ),
+        t(
+            Structure::Rib { knit: 1, purl: 1 },
+            (8.0, 14.0),
+            (1.3, 1.7),
+            (0.5, 0.7),
+            (0.8, 1.0),
+            &[Cotton, Wool, Acrylic],
+            4,
+        ),
+        t(
+            Structure::Rib { knit: 2, purl: 2 },
+            (7.0, 12.0),
+            (1.3, 1.7),
+            (0.5, 0.7),
+            (0.8, 1.0),
+            &[Wool, Cotton, Acrylic],
+            3,
+        ),
+        t(
+            Structure::Velvet,
+            (40.0, 70.0),
+            (1.0, 1.0),
+            (0.4, 0.6),
+            (0.3, 0.6),
+            &[Silk, Polyester, Cotton, Viscose],
+            5,
+        ),
+        t(
+            Structure::Corduroy { wale_mm: 2.5 },
+            (40.0, 60.0),
+            (1.0, 1.0),
+            (0.4, 0.6),
+            (0.4, 0.7),
+            &[Cotton, Polyester],
+            4,
+        ),
+        t(
+            Structure::Plush,
+            (30.0, 50.0),
+            (1.0, 1.0),
+            (0.4, 0.6),
+            (0.4, 0.7),
+            &[Polyester, Acrylic],
+            4,
+        ),
+        t(
+            Structure::Terry { loop_mm: 1.6 },
+            (8.0, 14.0),
+            (1.0, 1.0),
+            (0.6, 0.9),
+            (0.8, 1.2),
+            &[Cotton, Polyester],
+            6,
+        ),
+        t(
+            Structure::Boucle { loop_mm: 1.8 },
+            (6.0, 12.0),
+            (1.0, 1.0),
+            (0.5, 0.8),
+            (0.6, 0.9),
+            &[Wool, Acrylic, Cotton],
+            6,
+        ),
+        t(
+            Structure::Tufted { tuft_mm: 3.0 },
+            (3.0, 6.0),
+            (1.0, 1.0),
+            (0.5, 0.8),
+            (0.7, 1.0),
+            &[Wool, Nylon, Polyester],
+            6,
+        ),
+        t(
+            Structure::Fleece,
+            (30.0, 50.0),
+            (1.0, 1.0),
+            (0.5, 0.8),
+            (0.5, 0.9),
+            &[Polyester, Acrylic, Wool],
+            5,
+        ),
+        t(
+            Structure::Felt,
+            (60.0, 90.0),
+            (1.0, 1.0),
+            (0.3, 0.6),
+            (0.3, 0.6),
+            &[Wool, Polyester, Acrylic],
+            4,
+        ),
+        t(
+            Structure::Blanket,
+            (40.0, 70.0),
+            (1.0, 1.0),
+            (0.4, 0.6),
+            (0.15, 0.3),
+            &[Polyester, Acrylic, Wool, Cashmere],
+            6,
+        ),
+        t(
+            Structure::Padded,
+            (40.0, 80.0),
+            (0.9, 1.1),
+            (0.8, 1.0),
+            (0.1, 0.2),
+            &[Cotton, Polyester, Silk],
+            5,
+        ),
+    ]
+}
+
+/// Near-twin groups of catalogue version 2 (template index, fibres).
+fn twin_groups_v2() -> Vec<(usize, &'static [Fibre])> {
+    vec![
+        (0, &[Cotton, Wool, Silk]),
+        (3, &[Cotton, Wool, Silk]),
+        (7, &[Silk, Cotton]),
+        (11, &[Cotton, Wool]),
+        (14, &[Silk, Cotton]),
+        (22, &[Polyester, Acrylic]),
+    ]
+}
+
+/// The unseen book of catalogue version 2.
+fn unseen_structures_v2() -> Vec<(Structure, Fibre)> {
+    vec![
+        (Structure::Plain, Linen),
+        (Structure::Twill { over: 2, under: 1 }, Linen),
+        (Structure::Satin { harness: 5 }, Nylon),
+        (Structure::Basket { group: 3 }, Cotton),
+        (Structure::Crepe, Cotton),
+        (Structure::Gauze, Silk),
+        (Structure::Jersey, Cashmere),
+        (Structure::Rib { knit: 2, purl: 1 }, Cotton),
+        (Structure::Velvet, Wool),
+        (Structure::Corduroy { wale_mm: 4.0 }, Cotton),
+        (Structure::Plush, Wool),
+        (Structure::Terry { loop_mm: 2.2 }, Cotton),
+        (Structure::Boucle { loop_mm: 2.5 }, Silk),
+        (Structure::Tufted { tuft_mm: 4.0 }, Acrylic),
+        (Structure::Fleece, Cashmere),
+        (Structure::Felt, Acrylic),
+        (Structure::Blanket, Cotton),
+        (Structure::Padded, Linen),
+        (
+            Structure::Herringbone {
+                over: 2,
+                under: 2,
+                band: 6,
+            },
+            Cashmere,
+        ),
+        (Structure::Ripstop { grid: 8 }, Cotton),
+    ]
+}
+
 fn lerp(a: f32, b: f32, t: f32) -> f32 {
     a + (b - a) * t
 }
@@ -506,6 +838,7 @@ fn make_textile(
     relief_frac: f32,
     rng: &mut ChaCha8Rng,
     twin_of: Option<String>,
+    version: u32,
 ) -> Textile {
     let (stiff, hair, irr, comp) = fibre.properties();
     let spacing_mm = 10.0 / warp;
@@ -517,9 +850,31 @@ fn make_textile(
                 Structure::Corduroy { .. } => lerp(0.9, 1.6, rng.gen::<f32>()),
                 Structure::Fleece => lerp(1.5, 3.0, rng.gen::<f32>()),
                 Structure::Felt => lerp(1.0, 3.0, rng.gen::<f32>()),
+                Structure::Plush => lerp(2.0, 4.0, rng.gen::<f32>()),
                 _ => lerp(0.6, 1.2, rng.gen::<f32>()),
             };
             (d, pile * relief_frac * 0.4, pile + 0.3)
+        }
+        // catalogue 2 families
+        Family::Loop => {
+            let d = spacing_mm * cover;
+            (
+                d,
+                d * relief_frac * lerp(0.9, 1.3, rng.gen::<f32>()),
+                lerp(1.5, 3.0, rng.gen::<f32>()),
+            )
+        }
+        Family::Tuft => {
+            let d = spacing_mm * cover;
+            (
+                d,
+                lerp(0.5, 0.9, rng.gen::<f32>()) * relief_frac,
+                lerp(5.0, 10.0, rng.gen::<f32>()),
+            )
+        }
+        Family::Soft => {
+            let d = spacing_mm * cover;
+            (d, d * relief_frac, lerp(3.0, 12.0, rng.gen::<f32>()))
         }
         Family::Terry => {
             let d = spacing_mm * cover * 0.5;
@@ -543,6 +898,8 @@ fn make_textile(
     let extra_fuzz = match family {
         Family::Fleece | Family::Felt => 0.4,
         Family::Pile => 0.2,
+        Family::Soft => 0.45,
+        Family::Loop | Family::Tuft => 0.15,
         Family::Satin => -0.2,
         _ => 0.0,
     };
@@ -550,12 +907,14 @@ fn make_textile(
     let compliance_base = match family {
         Family::Pile | Family::Fleece | Family::Terry => 0.35,
         Family::Knit | Family::Rib | Family::Felt => 0.2,
+        Family::Loop | Family::Tuft => 0.3,
+        Family::Soft => 0.6,
         _ => 0.0,
     };
     let compliance = jitter(rng, comp * 0.7 + compliance_base, 0.1);
     let stiffness = jitter(rng, stiff, 0.1);
     let irregularity = jitter(rng, irr, 0.1);
-    let micro_seed = hash_str(&format!("micro/{id}/{CATALOGUE_VERSION}"));
+    let micro_seed = hash_str(&format!("micro/{id}/{version}"));
     let name = format!(
         "{} {}, {:.0}x{:.0}/cm",
         fibre.name(),
@@ -621,6 +980,8 @@ pub fn derive_attributes(t: &Textile) -> Attributes {
         Family::Fleece => 0.5,
         Family::Crepe => 0.3,
         Family::Felt => 0.05,
+        Family::Soft => 0.4,
+        Family::Loop => 0.3,
         _ => 0.1,
     } * (1.0 - 0.3 * t.stiffness)
         + 0.05;
@@ -639,10 +1000,31 @@ pub fn derive_attributes(t: &Textile) -> Attributes {
 }
 
 impl Catalogue {
-    /// The built-in catalogue: 119 training + 20 unseen textiles.
+    /// The built-in catalogue: 119 training + 20 unseen textiles (version 1).
     pub fn builtin() -> Catalogue {
-        let mut rng = ChaCha8Rng::seed_from_u64(0x007e_1e77_11e5_u64);
-        let tpls = templates();
+        Self::build(CATALOGUE_VERSION)
+    }
+
+    /// Built-in catalogue `version` (1 or 2); None for an unknown version.
+    /// Both have the ids T001..T119 and U01..U20; version 2 has more
+    /// families (gauze, plush, boucle, tufted, soft low-texture fabrics) and
+    /// is rendered by the version-2 simulator (bolts, sensor units, camera).
+    pub fn version(version: u32) -> Option<Catalogue> {
+        match version {
+            1 => Some(Self::build(1)),
+            2 => Some(Self::build(2)),
+            _ => None,
+        }
+    }
+
+    fn build(version: u32) -> Catalogue {
+        let v2 = version >= 2;
+        let mut rng = ChaCha8Rng::seed_from_u64(if v2 {
+            0x007e_1e77_11e5_0002
+        } else {
+            0x007e_1e77_11e5_u64
+        });
+        let tpls = if v2 { templates_v2() } else { templates() };
         let mut textiles: Vec<Textile> = Vec::new();
         let mut next_id = 1usize;
         let new_id = |n: &mut usize| {
@@ -650,7 +1032,7 @@ impl Catalogue {
             *n += 1;
             s
         };
-        let twins = twin_groups();
+        let twins = if v2 { twin_groups_v2() } else { twin_groups() };
         for (ti, tpl) in tpls.iter().enumerate() {
             let mut made = 0usize;
             if let Some((_, fibres)) = twins.iter().find(|(i, _)| *i == ti) {
@@ -673,6 +1055,7 @@ impl Catalogue {
                         relief,
                         &mut trng,
                         first.clone(),
+                        version,
                     ));
                     first.get_or_insert(id);
                     made += 1;
@@ -697,6 +1080,7 @@ impl Catalogue {
                     relief,
                     &mut trng,
                     None,
+                    version,
                 ));
                 made += 1;
             }
@@ -704,7 +1088,7 @@ impl Catalogue {
         debug_assert_eq!(textiles.len(), 119);
         // Unseen book: new draws (and some structure variants the training
         // book does not have), rejected if too close to any training textile.
-        let unseen_structs = [
+        let unseen_v1 = [
             (Structure::Plain, Linen),
             (Structure::Twill { over: 2, under: 1 }, Linen),
             (Structure::Twill { over: 3, under: 1 }, Cashmere),
@@ -733,7 +1117,13 @@ impl Catalogue {
             (Structure::Jersey, Silk),
             (Structure::Rib { knit: 1, purl: 1 }, Silk),
         ];
-        let mut urng = ChaCha8Rng::seed_from_u64(0x0005_ee11_u64);
+        let unseen_v2 = unseen_structures_v2();
+        let unseen_structs: &[(Structure, Fibre)] = if v2 { &unseen_v2 } else { &unseen_v1 };
+        let mut urng = ChaCha8Rng::seed_from_u64(if v2 {
+            0x0005_ee11_0002
+        } else {
+            0x0005_ee11_u64
+        });
         for (k, (s, f)) in unseen_structs.iter().enumerate() {
             let tpl = tpls
                 .iter()
@@ -758,6 +1148,7 @@ impl Catalogue {
                     relief,
                     &mut trng,
                     None,
+                    version,
                 );
                 tries += 1;
                 let too_close = textiles
@@ -769,10 +1160,7 @@ impl Catalogue {
                 }
             }
         }
-        Catalogue {
-            version: CATALOGUE_VERSION,
-            textiles,
-        }
+        Catalogue { version, textiles }
     }
 
     /// Look a textile up by id.
@@ -841,5 +1229,43 @@ mod tests {
             }
         }
         assert_eq!(c, Catalogue::builtin());
+        assert_eq!(Catalogue::version(1), Some(c));
+        assert!(Catalogue::version(3).is_none());
+    }
+
+    #[test]
+    fn version_2_counts_twins_and_new_families() {
+        let c = Catalogue::version(2).unwrap();
+        assert_eq!(c.version, 2);
+        assert_eq!(c.training().count(), 119);
+        assert_eq!(c.unseen().count(), 20);
+        assert!(c.twin_pairs().len() >= 7);
+        for (a, b) in c.twin_pairs() {
+            assert_eq!(a.structure, b.structure);
+            assert_ne!(a.fibre, b.fibre);
+        }
+        for f in Family::ALL_V2 {
+            assert!(
+                c.training().any(|t| t.structure.family() == f),
+                "no {f:?} in catalogue 2"
+            );
+        }
+        let soft = c
+            .training()
+            .filter(|t| t.structure.family() == Family::Soft)
+            .count();
+        assert!(soft >= 8, "{soft} soft textiles");
+        for u in c.unseen() {
+            for t in c.training() {
+                assert!(!is_copy(t, u), "{} copies {}", u.id, t.id);
+            }
+        }
+        // the same ids, different cloth than version 1
+        let v1 = Catalogue::builtin();
+        assert_ne!(
+            c.get("T050").unwrap().micro_seed,
+            v1.get("T050").unwrap().micro_seed
+        );
+        assert_eq!(c, Catalogue::version(2).unwrap());
     }
 }

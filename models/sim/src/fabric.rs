@@ -40,14 +40,14 @@ impl HeightField {
 }
 
 #[inline]
-fn smooth(t: f32) -> f32 {
+pub(crate) fn smooth(t: f32) -> f32 {
     let t = t.clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }
 
 /// Elliptical yarn cross-section: 1 at the crown, 0 at the edge.
 #[inline]
-fn crown(d: f32) -> f32 {
+pub(crate) fn crown(d: f32) -> f32 {
     let q = 1.0 - d * d;
     if q > 0.0 {
         q.sqrt()
@@ -58,12 +58,12 @@ fn crown(d: f32) -> f32 {
 
 /// Hash-based value noise in 1D and 2D (deterministic, seedable).
 #[inline]
-fn hash2(seed: u64, i: i64, j: i64) -> f32 {
+pub(crate) fn hash2(seed: u64, i: i64, j: i64) -> f32 {
     let h = mix64(seed ^ mix64((i as u64).wrapping_mul(0x9E37_79B9) ^ ((j as u64) << 32)));
     (h >> 40) as f32 / (1u64 << 24) as f32
 }
 
-fn value_noise(seed: u64, x: f32, y: f32) -> f32 {
+pub(crate) fn value_noise(seed: u64, x: f32, y: f32) -> f32 {
     let xi = x.floor();
     let yi = y.floor();
     let fx = smooth(x - xi);
@@ -79,7 +79,7 @@ fn value_noise(seed: u64, x: f32, y: f32) -> f32 {
 }
 
 /// Fractal noise, roughly -1..1, lowest frequency 1/`scale` per sample.
-fn fbm(seed: u64, x: f32, y: f32, scale: f32, octaves: u32) -> f32 {
+pub(crate) fn fbm(seed: u64, x: f32, y: f32, scale: f32, octaves: u32) -> f32 {
     let mut s = 0.0;
     let mut amp = 1.0;
     let mut norm = 0.0;
@@ -94,7 +94,7 @@ fn fbm(seed: u64, x: f32, y: f32, scale: f32, octaves: u32) -> f32 {
 }
 
 /// Weave rule: is the warp (vertical yarn, column `i`) over the weft (row `j`)?
-fn warp_up(s: &Structure, i: i64, j: i64) -> bool {
+pub(crate) fn warp_up(s: &Structure, i: i64, j: i64) -> bool {
     let m = |a: i64, n: i64| a.rem_euclid(n);
     match *s {
         Structure::Plain | Structure::Ripstop { .. } | Structure::Crepe => m(i + j, 2) == 0,
@@ -308,7 +308,7 @@ fn knit(c: &mut Ctx) -> Vec<f32> {
 }
 
 /// Separable box-ish blur (3 passes of a box approximate a Gaussian).
-fn blur(h: &mut [f32], n: usize, r: usize) {
+pub(crate) fn blur(h: &mut [f32], n: usize, r: usize) {
     if r == 0 {
         return;
     }

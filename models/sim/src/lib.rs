@@ -9,17 +9,22 @@
 //! ```
 #![forbid(unsafe_code)]
 
+pub mod bolt;
 pub mod calib;
 pub mod catalogue;
 pub mod dataset;
 pub mod fabric;
+pub mod gabor;
 pub mod recording;
 mod render;
+mod render2;
 pub mod sheet;
+pub mod stats;
 
 pub use catalogue::{Book, Catalogue, Textile};
 pub use image::{ImageFormat, RgbImage};
 pub use render::{person_style, sensor_model, PersonStyle, SensorModel, Simulator};
+pub use render2::{sensor_model_v2, SensorModelV2, FPS_CHOICES, V2_UNITS};
 
 use serde::{Deserialize, Serialize};
 
@@ -33,6 +38,12 @@ pub const WIDTH: u32 = 240;
 pub const HEIGHT: u32 = 320;
 /// Number of simulated people in the paper protocol.
 pub const PEOPLE: u32 = 11;
+/// Catalogue versions the simulator renders (`PressSpec::catalogue`).
+pub const CATALOGUE_VERSIONS: [u32; 2] = [1, 2];
+/// Texture generators of catalogue 2 (`PressSpec::generator`): 1 is the
+/// structural generator used for training and method selection, 2 an
+/// independent construction (Gabor noise) for the cross-generator test set.
+pub const GENERATORS: [u32; 2] = [1, 2];
 
 /// Errors of the simulator.
 #[derive(Debug, thiserror::Error)]
@@ -75,8 +86,21 @@ pub struct PressSpec {
     pub release: Option<bool>,
     /// Number of frames (default 150).
     pub frames: usize,
-    /// Camera noise on (default true).
+    /// Camera noise on (default true). In catalogue 2, off also turns off
+    /// the exposure drift (the camera's blur and compression stay).
     pub noise: bool,
+    /// Catalogue version 1 or 2 (None: the simulator's default, see
+    /// `Simulator::with_catalogue`). Left out of JSON when None.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub catalogue: Option<u32>,
+    /// Texture generator of catalogue 2: 1 or 2 (None: the simulator's
+    /// default, 1 unless `Simulator::with_options` says otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator: Option<u32>,
+    /// Frame rate in catalogue 2 (25..=60; None: drawn per press from
+    /// `FPS_CHOICES`). Catalogue 1 is always 60 fps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f32>,
 }
 
 impl PressSpec {
@@ -95,6 +119,9 @@ impl PressSpec {
             release: None,
             frames: PRESS_FRAMES,
             noise: true,
+            catalogue: None,
+            generator: None,
+            fps: None,
         }
     }
 }
@@ -140,6 +167,25 @@ pub struct PressParams {
     pub wobble: f32,
     pub noise: bool,
     pub catalogue_version: u32,
+    /// Texture generator (catalogue 2; 1 when absent).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub generator: u32,
+    /// Region of the bolt this press saw (catalogue 2): presses with another
+    /// swatch see other cloth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub swatch: Option<u32>,
+    /// Catalogue 2: what else is in the window ("crease", "fold", "seam",
+    /// "hem", "edge", "tilt") and the ramp ("slow-ramp", "fast-ramp").
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub features: Vec<String>,
+}
+
+fn one() -> u32 {
+    1
+}
+
+fn is_one(v: &u32) -> bool {
+    *v == 1
 }
 
 /// Metadata of a press (simulated or captured).

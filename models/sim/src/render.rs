@@ -3,6 +3,7 @@
 use crate::calib::{self, Calibration, BINS, HEIGHT as H, WIDTH as W};
 use crate::catalogue::{hash_str, mix64, Catalogue, Textile, CATALOGUE_VERSION};
 use crate::fabric::{self, HeightField, MM_PER_PX, PATCH};
+use crate::render2::sensor_model_v2;
 use crate::{Press, PressMeta, PressParams, PressSpec, SimError, FPS};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -10,11 +11,11 @@ use std::collections::HashMap;
 use std::f32::consts::PI;
 use std::sync::{Arc, Mutex};
 
-const N: usize = W * H;
+pub(crate) const N: usize = W * H;
 /// Depth fractions (of the full indentation) at which the contact is solved;
 /// frames interpolate between these key states.
-const KEYS: [f32; 7] = [0.0, 0.12, 0.28, 0.48, 0.72, 1.0, 1.3];
-const FULL_KEY: usize = 5;
+pub(crate) const KEYS: [f32; 7] = [0.0, 0.12, 0.28, 0.48, 0.72, 1.0, 1.3];
+pub(crate) const FULL_KEY: usize = 5;
 /// Gaussian width of the gel low-pass per mm of elastomer thickness (mm/mm).
 pub const GEL_BLUR_PER_MM: f32 = 0.13;
 
@@ -128,32 +129,43 @@ pub fn sensor_model(id: u32) -> SensorModel {
 }
 
 /// Everything a press needs per frame, solved once per press.
-struct Setup {
-    params: PressParams,
-    frames: usize,
-    bg: Vec<f32>,
+pub(crate) struct Setup {
+    pub(crate) params: PressParams,
+    pub(crate) frames: usize,
+    pub(crate) bg: Vec<f32>,
     /// RGB change at each key depth (interleaved, 3 per pixel); key 0 is zero.
-    keys: Vec<Vec<f32>>,
+    pub(crate) keys: Vec<Vec<f32>>,
     /// Change at full depth after the hold slip (hand-held only).
-    slipped: Option<Vec<f32>>,
+    pub(crate) slipped: Option<Vec<f32>>,
     /// Depth fraction per frame and slip progress per frame.
-    depth: Vec<f32>,
-    slip: Vec<f32>,
-    noise_seed: u64,
-    read_noise: f32,
-    shot_gain: f32,
+    pub(crate) depth: Vec<f32>,
+    pub(crate) slip: Vec<f32>,
+    pub(crate) noise_seed: u64,
+    pub(crate) read_noise: f32,
+    pub(crate) shot_gain: f32,
     /// Per-value noise standard deviation (read noise and shot noise).
-    noise_sd: Vec<f32>,
+    pub(crate) noise_sd: Vec<f32>,
+    /// Frame rate of the press.
+    pub(crate) fps: f32,
+    /// The catalogue-2 camera chain (None: catalogue 1's per-pixel noise).
+    pub(crate) v2: Option<crate::render2::Camera>,
 }
 
 /// The DIGIT press simulator. Cheap to share between threads (`Sync`).
 pub struct Simulator {
     catalogue: Catalogue,
-    calib: Calibration,
+    pub(crate) calib: Calibration,
     background: image::RgbImage,
     /// Zero-slope response per pixel (subtracted so flat contact adds nothing).
-    flat: Vec<f32>,
-    normals: Vec<f32>,
+    pub(crate) flat: Vec<f32>,
+    pub(crate) normals: Vec<f32>,
+    /// Catalogue version 2.
+    pub(crate) catalogue2: Catalogue,
+    /// The second real no-contact frame (tvl), a base of the v2 units.
+    pub(crate) background_tvl: image::RgbImage,
+    /// Catalogue version and generator of specs that leave them unset.
+    default_catalogue: u32,
+    default_generator: u32,
     patches: Mutex<HashMap<String, Arc<HeightField>>>,
     setups: Mutex<Vec<(String, Arc<Setup>)>>,
 }
@@ -188,20 +200,80 @@ impl Simulator {
                 (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
             })
             .collect();
+        let background_tvl = crate::render2::embedded_background_tvl()?;
         Ok(Simulator {
             catalogue: Catalogue::builtin(),
             calib,
             background,
             flat,
             normals,
+            catalogue2: Catalogue::version(2).expect("catalogue 2 is built in"),
+            background_tvl,
+            default_catalogue: 1,
+            default_generator: 1,
             patches: Mutex::new(HashMap::new()),
             setups: Mutex::new(Vec::new()),
         })
     }
 
-    /// The textile catalogue the simulator renders.
+    /// A simulator whose specs render catalogue `version` (1 or 2) unless
+    /// they name one (`PressSpec::catalogue`).
+    pub fn with_catalogue(version: u32) -> Result<Simulator, SimError> {
+        Self::with_options(version, 1)
+    }
+
+    /// A simulator with a default catalogue version and texture generator
+    /// (generator 2, the cross-generator test set, needs catalogue 2).
+    pub fn with_options(version: u32, generator: u32) -> Result<Simulator, SimError> {
+        check_versions(version, generator)?;
+        let mut s = Simulator::new()?;
+        s.default_catalogue = version;
+        s.default_generator = generator;
+        Ok(s)
+    }
+
+    /// The default catalogue version of this simulator.
+    pub fn catalogue_version(&self) -> u32 {
+        self.default_catalogue
+    }
+
+    /// The default texture generator of this simulator.
+    pub fn generator(&self) -> u32 {
+        self.default_generator
+    }
+
+    /// The textile catalogue the simulator renders by default.
     pub fn catalogue(&self) -> &Catalogue {
-        &self.catalogue
+        self.catalogue_of(self.default_catalogue)
+    }
+
+    /// Catalogue `version` (1 or 2; anything else gives version 1's).
+    pub fn catalogue_of(&self, version: u32) -> &Catalogue {
+        if version == 2 {
+            &self.catalogue2
+        } else {
+            &self.catalogue
+        }
+    }
+
+    /// (catalogue version, generator) a spec renders with.
+    pub fn resolve(&self, spec: &PressSpec) -> Result<(u32, u32), SimError> {
+        let v = spec.catalogue.unwrap_or(self.default_catalogue);
+        let g = spec
+            .generator
+            .unwrap_or(if v == 2 { self.default_generator } else { 1 });
+        check_versions(v, g)?;
+        if let Some(f) = spec.fps {
+            if v == 1 && f != crate::FPS {
+                return Err(SimError::InvalidSpec(format!(
+                    "fps {f}: catalogue 1 renders 60 fps only"
+                )));
+            }
+            if !(25.0..=60.0).contains(&f) {
+                return Err(SimError::InvalidSpec(format!("fps {f} (25..=60)")));
+            }
+        }
+        Ok((v, g))
     }
 
     /// The real no-contact frame as embedded (sensor 0's background).
@@ -209,8 +281,18 @@ impl Simulator {
         &self.background
     }
 
-    /// The no-contact frame of sensor `sensor` (no noise).
+    /// The no-contact frame of sensor `sensor` (no noise) in the default
+    /// catalogue version (its sensor units).
     pub fn background(&self, sensor: u32) -> image::RgbImage {
+        self.background_of(self.default_catalogue, sensor)
+    }
+
+    /// The no-contact frame of sensor unit `sensor` of catalogue `version`
+    /// (version 2: through the unit's camera chain, without noise or drift).
+    pub fn background_of(&self, version: u32, sensor: u32) -> image::RgbImage {
+        if version == 2 {
+            return to_image(&self.background_v2(&sensor_model_v2(sensor)), None);
+        }
         let bg = self.background_f32(&sensor_model(sensor));
         to_image(&bg, None)
     }
@@ -299,28 +381,44 @@ impl Simulator {
             person: spec.person,
             sensor: spec.sensor,
             jig: spec.jig,
-            fps: FPS,
-            timestamps_us: (0..setup.frames as u64)
-                .map(|i| (i * 1_000_000 + 30) / 60)
-                .collect(),
+            fps: setup.fps,
+            timestamps_us: if setup.v2.is_none() {
+                (0..setup.frames as u64)
+                    .map(|i| (i * 1_000_000 + 30) / 60)
+                    .collect()
+            } else {
+                (0..setup.frames)
+                    .map(|i| (i as f64 * 1e6 / setup.fps as f64).round() as u64)
+                    .collect()
+            },
             seed: Some(spec.seed),
             source: "sim".into(),
             sensor_serial: Some(format!("SIM{:04}", spec.sensor)),
             params: Some(setup.params.clone()),
             // Frames before the first contact show the untouched sensor.
-            reference_frames: (setup.params.contact_frame > 0).then_some(setup.params.contact_frame),
+            reference_frames: (setup.params.contact_frame > 0)
+                .then_some(setup.params.contact_frame),
         }
     }
 
     fn setup(&self, spec: &PressSpec) -> Result<Arc<Setup>, SimError> {
-        let key = serde_json::to_string(spec).map_err(|e| SimError::InvalidSpec(e.to_string()))?;
+        let (version, generator) = self.resolve(spec)?;
+        let mut resolved = spec.clone();
+        resolved.catalogue = Some(version);
+        resolved.generator = Some(generator);
+        let key =
+            serde_json::to_string(&resolved).map_err(|e| SimError::InvalidSpec(e.to_string()))?;
         {
             let cache = self.setups.lock().unwrap_or_else(|e| e.into_inner());
             if let Some((_, s)) = cache.iter().find(|(k, _)| *k == key) {
                 return Ok(s.clone());
             }
         }
-        let s = Arc::new(self.solve(spec)?);
+        let s = Arc::new(if version == 2 {
+            self.solve_v2(spec, generator)?
+        } else {
+            self.solve(spec)?
+        });
         let mut cache = self.setups.lock().unwrap_or_else(|e| e.into_inner());
         if cache.len() >= 4 {
             cache.remove(0);
@@ -455,6 +553,9 @@ impl Simulator {
             wobble,
             noise: spec.noise,
             catalogue_version: CATALOGUE_VERSION,
+            generator: 1,
+            swatch: None,
+            features: Vec::new(),
         };
         // --- per-frame depth and slip ---------------------------------------
         let phase: f32 = rng.gen_range(0.0..2.0 * PI);
@@ -529,6 +630,8 @@ impl Simulator {
             noise_seed: mix64(spec.seed ^ 0xA5A5_5A5A ^ hash_str(&spec.textile)),
             read_noise: if spec.noise { sensor.read_noise } else { 0.0 },
             shot_gain: if spec.noise { sensor.shot_gain } else { 0.0 },
+            fps: FPS,
+            v2: None,
         })
     }
 
@@ -604,6 +707,9 @@ impl Simulator {
     }
 
     fn frame_from(&self, s: &Setup, i: usize) -> image::RgbImage {
+        if let Some(cam) = &s.v2 {
+            return self.frame_v2(s, cam, i);
+        }
         let u = s.depth[i];
         // find the key segment
         let mut k = 1;
@@ -665,12 +771,12 @@ impl Simulator {
     }
 }
 
-fn smooth(t: f32) -> f32 {
+pub(crate) fn smooth(t: f32) -> f32 {
     let t = t.clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }
 
-fn to_image(buf: &[f32], _unused: Option<()>) -> image::RgbImage {
+pub(crate) fn to_image(buf: &[f32], _unused: Option<()>) -> image::RgbImage {
     let raw: Vec<u8> = buf
         .iter()
         .map(|v| v.round().clamp(0.0, 255.0) as u8)
@@ -679,7 +785,7 @@ fn to_image(buf: &[f32], _unused: Option<()>) -> image::RgbImage {
         .unwrap_or_else(|| image::RgbImage::new(W as u32, H as u32))
 }
 
-fn gaussian_kernel(sigma: f32) -> Vec<f32> {
+pub(crate) fn gaussian_kernel(sigma: f32) -> Vec<f32> {
     let r = (3.0 * sigma).ceil().max(1.0) as i32;
     let mut k: Vec<f32> = (-r..=r)
         .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
@@ -692,7 +798,7 @@ fn gaussian_kernel(sigma: f32) -> Vec<f32> {
 }
 
 /// Separable Gaussian blur of a W x H field with clamped edges.
-fn blur_separable(f: &mut [f32], k: &[f32]) {
+pub(crate) fn blur_separable(f: &mut [f32], k: &[f32]) {
     let r = (k.len() / 2) as i32;
     let mut tmp = vec![0f32; f.len()];
     for y in 0..H {
@@ -716,4 +822,18 @@ fn blur_separable(f: &mut [f32], k: &[f32]) {
             f[y * W + x] = s;
         }
     }
+}
+
+fn check_versions(version: u32, generator: u32) -> Result<(), SimError> {
+    if !crate::CATALOGUE_VERSIONS.contains(&version) {
+        return Err(SimError::InvalidSpec(format!(
+            "catalogue version {version} (known: 1, 2)"
+        )));
+    }
+    if !crate::GENERATORS.contains(&generator) || (generator != 1 && version != 2) {
+        return Err(SimError::InvalidSpec(format!(
+            "generator {generator} (1, or 2 with catalogue 2)"
+        )));
+    }
+    Ok(())
 }
