@@ -775,6 +775,19 @@ async fn run_connection_inner(
             h
         }
         Control::Pair(PairingMessage::Abort(a)) => {
+            // Honoured (reported as a pairing failure) only from a device
+            // authenticated by its pin. From anyone else it is noise: it
+            // proved no code, and it must not end `pair --show`.
+            if !dialed && !shared.pins.contains(&peer_id) {
+                return Err(End::err(
+                    ErrorKind::RefusedPeer,
+                    format!(
+                        "ignored a pairing abort ({}) from device {} at {addr}: it is not paired and proved no pairing code",
+                        a.describe(),
+                        peer_id.short()
+                    ),
+                ));
+            }
             return Err(End::err(
                 ErrorKind::Pairing,
                 format!("the device at {addr}: {}", a.describe()),
@@ -896,6 +909,24 @@ async fn run_connection_inner(
 }
 
 /// Runs the pairing exchange on the control stream.
+/// Leaves pairing mode when dropped while armed: an attempt on the code
+/// this side shows that ends any way but success (error, timeout,
+/// cancellation) burns the code, and the link goes back to accepting only
+/// pinned peers at once instead of waiting, silent and accepting any
+/// certificate, until the code expires.
+struct ShowAttempt<'a> {
+    shared: &'a Arc<Shared>,
+    armed: bool,
+}
+
+impl Drop for ShowAttempt<'_> {
+    fn drop(&mut self) {
+        if self.armed {
+            finish_pairing_mode(self.shared);
+        }
+    }
+}
+
 async fn pair_as(
     shared: &Arc<Shared>,
     ctrl: &mut Ctrl,
@@ -903,14 +934,62 @@ async fn pair_as(
     peer_cert: &CertificateDer<'static>,
     peer_id: DeviceId,
     addr: SocketAddr,
+    pending: Option<PairingMessage>,
+) -> Result<(), End> {
+    let mut attempt = ShowAttempt {
+        shared,
+        armed: false,
+    };
+    let result = pair_as_inner(
+        shared,
+        ctrl,
+        role,
+        peer_cert,
+        peer_id,
+        addr,
+        pending,
+        &mut attempt.armed,
+    )
+    .await;
+    match result {
+        Err(end) if attempt.armed => {
+            // The user must see it: the code is gone (`pair --show` ends).
+            Err(End::err(
+                ErrorKind::Pairing,
+                format!(
+                    "pairing with device {} at {addr} failed: {}; this pairing code is used up: run `telextilesd pair` again for a new one",
+                    peer_id.short(),
+                    end.message
+                ),
+            ))
+        }
+        other => {
+            attempt.armed = false;
+            other
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn pair_as_inner(
+    shared: &Arc<Shared>,
+    ctrl: &mut Ctrl,
+    role: PairingRole,
+    peer_cert: &CertificateDer<'static>,
+    peer_id: DeviceId,
+    addr: SocketAddr,
     mut pending: Option<PairingMessage>,
+    code_taken: &mut bool,
 ) -> Result<(), End> {
     let code = {
         let mut mode = lock(&shared.pairing);
         match (&mut *mode, role) {
             (Some(PairingMode::Show(offer)), PairingRole::ShowsCode) => {
                 match offer.take(std::time::Instant::now()) {
-                    Ok(c) => Ok(c),
+                    Ok(c) => {
+                        *code_taken = true;
+                        Ok(c)
+                    }
                     Err(e) => Err((e.abort_reason(), e.to_string())),
                 }
             }

@@ -509,3 +509,141 @@ async fn repairing_works_after_a_one_sided_unpair() {
     a.shutdown().await;
     b.shutdown().await;
 }
+
+fn show_config(name: &str) -> (LinkConfig, PairingCode) {
+    let offer = CodeOffer::new(
+        &mut rand::rngs::OsRng,
+        std::time::Instant::now(),
+        DEFAULT_CODE_TTL,
+    );
+    let typed: PairingCode = offer.display().parse().unwrap();
+    let mut c = config(name);
+    c.pairing = Some(PairingMode::Show(offer));
+    (c, typed)
+}
+
+/// Anyone can connect to a device showing a pairing code. An `Abort` from
+/// such a client proved nothing: it must not end `pair --show` (the old
+/// link reported it as a pairing failure, which ends the command), and the
+/// real pairing afterwards works.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unauthenticated_abort_does_not_end_pairing_mode() {
+    let (ia, ib, evil) = (
+        Identity::generate().unwrap(),
+        Identity::generate().unwrap(),
+        Identity::generate().unwrap(),
+    );
+    let (ca, typed) = show_config("alice");
+    let (a, mut ra) = start(ca, &ia, &[]).await;
+    let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
+    let conn = ep
+        .connect(a.local_addr(), SERVER_NAME)
+        .unwrap()
+        .await
+        .unwrap();
+    let (mut send, _recv) = conn.open_bi().await.unwrap();
+    let abort = Control::Pair(telextiles_certs::PairingMessage::Abort(
+        telextiles_certs::pairing::PairingAbort::CodeExpired,
+    ));
+    send.write_all(&encode_control(&abort).unwrap())
+        .await
+        .unwrap();
+    for e in drain(&mut ra, Duration::from_secs(1)).await {
+        assert!(
+            !matches!(
+                e,
+                LinkEvent::Error {
+                    kind: telextiles_link::ErrorKind::Pairing,
+                    ..
+                }
+            ),
+            "an unauthenticated abort ended pairing: {e:?}"
+        );
+    }
+    let mut cb = config("bob");
+    cb.pairing = Some(PairingMode::Enter(typed));
+    cb.connect = vec![a.local_addr()];
+    let (b, mut rb) = start(cb, &ib, &[]).await;
+    for rx in [&mut ra, &mut rb] {
+        wait_for(rx, Duration::from_secs(10), "Paired", |e| match e {
+            LinkEvent::Paired { .. } => Some(()),
+            _ => None,
+        })
+        .await;
+    }
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+/// An attacker burns the code (sends a pairing start, then hangs up). The
+/// showing side must say so at once and leave pairing mode (unpinned
+/// devices are refused in the handshake again); the old link stayed
+/// silent and accepted any certificate until the code expired.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn burnt_code_is_reported_and_pairing_mode_left_at_once() {
+    let (ia, evil) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (mut ca, _typed) = show_config("alice");
+    ca.timing.handshake_timeout = Duration::from_secs(30);
+    let (a, mut ra) = start(ca, &ia, &[]).await;
+    let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
+    let conn = ep
+        .connect(a.local_addr(), SERVER_NAME)
+        .unwrap()
+        .await
+        .unwrap();
+    let (mut send, mut recv) = conn.open_bi().await.unwrap();
+    let guess = PairingCode::generate(&mut rand::rngs::OsRng);
+    let (_session, start_msg) = telextiles_certs::PairingSession::start(
+        telextiles_certs::PairingRole::EntersCode,
+        guess,
+        evil.cert_der(),
+        ia.cert_der(),
+        &mut rand::rngs::OsRng,
+    )
+    .unwrap();
+    send.write_all(&encode_control(&Control::Pair(start_msg)).unwrap())
+        .await
+        .unwrap();
+    // Wait for alice's reply (her start: the code is taken), then leave.
+    let mut buf = [0u8; 64];
+    let n = tokio::time::timeout(Duration::from_secs(5), recv.read(&mut buf))
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(n.is_some());
+    let t0 = Instant::now();
+    conn.close(0u32.into(), b"bye");
+    let msg = wait_for(
+        &mut ra,
+        Duration::from_secs(2),
+        "pairing failure",
+        |e| match e {
+            LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::Pairing,
+                message,
+                ..
+            } => Some(message.clone()),
+            _ => None,
+        },
+    )
+    .await;
+    println!("burnt code reported after {:?}: {msg}", t0.elapsed());
+    assert!(msg.contains("used up"), "{msg}");
+    // Pairing mode is over: an unpinned device is refused in the handshake.
+    let other = Identity::generate().unwrap();
+    let ep2 = attacker_endpoint(&other, PeerPolicy::AnyForPairing);
+    let c2 = ep2.connect(a.local_addr(), SERVER_NAME).unwrap().await;
+    let refused = match c2 {
+        Err(_) => true,
+        Ok(c) => {
+            // QUIC clients may learn of the refusal only on first use.
+            let r = tokio::time::timeout(Duration::from_secs(2), c.accept_bi()).await;
+            matches!(r, Ok(Err(_)))
+        }
+    };
+    assert!(
+        refused,
+        "an unpinned device still got in after the code was burnt"
+    );
+    a.shutdown().await;
+}
