@@ -50,6 +50,12 @@ pub struct Args {
     /// Keep the work directory (logs, identities) afterwards.
     #[arg(long)]
     pub keep: bool,
+    /// Encoder both daemons run (the shipped one, from the repository root).
+    #[arg(long, default_value = "models/encoder.onnx")]
+    pub model: PathBuf,
+    /// Textile index both daemons hold.
+    #[arg(long, default_value = "models/index.tlxi")]
+    pub index: PathBuf,
 }
 
 struct Netns {
@@ -173,6 +179,7 @@ fn spawn_daemon(
     connect: Option<&str>,
     mdns_iface: Option<&str>,
     pair_arg: &[&str],
+    models: (&Path, &Path),
 ) -> Result<Daemon> {
     let exe = std::env::current_exe()?;
     let dir = work.join(name);
@@ -200,6 +207,10 @@ fn spawn_daemon(
         .arg(&socket)
         .args(["--sensor", "sim", "--roller", "sim", "--map=false"])
         .args(["--listen", listen])
+        .arg("--model")
+        .arg(models.0)
+        .arg("--index")
+        .arg(models.1)
         .arg("--config")
         .arg(dir.join("none.toml"))
         .env("TELEXTILESD_SIM_ROLLER_SPEED", "4")
@@ -347,6 +358,17 @@ async fn demo(a: Args) -> Result<()> {
 }
 
 async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
+    let model = std::path::absolute(&a.model)?;
+    let index = std::path::absolute(&a.index)?;
+    for (p, what, flag) in [(&model, "encoder", "--model"), (&index, "index", "--index")] {
+        if !p.is_file() {
+            bail!(
+                "the demo's {what} {} is not there: run the demo from the repository root (models/ is shipped there), or pass {flag}",
+                p.display()
+            );
+        }
+    }
+    let models = (model.as_path(), index.as_path());
     let netns = if !a.loopback && is_root() {
         match Netns::create() {
             Ok(n) => Some(n),
@@ -392,6 +414,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         None,
         veth_a.as_deref(),
         &["--show"],
+        models,
     )?;
     let line = wait_line(&mut da, "Pairing code:", Duration::from_secs(30))?;
     let code = pairing_code_in(&line).ok_or_else(|| anyhow!("no code in {line:?}"))?;
@@ -404,6 +427,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         connect_b.as_deref(),
         veth_b.as_deref(),
         &["--code", &code],
+        models,
     )?;
     let b_paired = wait_line(&mut db, "Paired with", Duration::from_secs(30))?;
     println!("B: {}", b_paired.trim());
@@ -657,6 +681,8 @@ mod tests {
             press_timeout_s: 10.0,
             json: false,
             keep: false,
+            model: PathBuf::from("m.onnx"),
+            index: PathBuf::from("i.tlxi"),
         };
         let s = script(&a);
         assert_eq!(s.len(), 9);

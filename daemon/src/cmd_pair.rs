@@ -152,6 +152,7 @@ pub struct RunArgs {
 /// The live session with already-paired peers, no pairing (systemd's entry).
 pub fn run_session(args: RunArgs) -> anyhow::Result<()> {
     let cfg = Config::load(&args.config)?;
+    crate::set_log_filter(cfg.env_filter()?);
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -174,6 +175,7 @@ pub fn run_session(args: RunArgs) -> anyhow::Result<()> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let cfg = Config::load(&args.config)?;
+    crate::set_log_filter(cfg.env_filter()?);
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

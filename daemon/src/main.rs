@@ -58,10 +58,29 @@ enum Cmd {
     Roller(cmd_roller::Args),
 }
 
+/// The log filter of the running process, replaceable once the daemon's
+/// configuration (`--log`, `TELEXTILESD_LOG`, `log` in the file) is known.
+static LOG: std::sync::OnceLock<
+    tracing_subscriber::reload::Handle<tracing_subscriber::EnvFilter, tracing_subscriber::Registry>,
+> = std::sync::OnceLock::new();
+
+/// Use `filter` from now on (the daemon's configured log level).
+pub fn set_log_filter(filter: tracing_subscriber::EnvFilter) {
+    if let Some(h) = LOG.get() {
+        let _ = h.reload(filter);
+    }
+}
+
 fn main() -> anyhow::Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
-        .with_writer(std::io::stderr)
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    // RUST_LOG until a command loads its configuration.
+    let (filter, handle) =
+        tracing_subscriber::reload::Layer::new(tracing_subscriber::EnvFilter::from_default_env());
+    let _ = LOG.set(handle);
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
         .init();
     let cli = Cli::parse();
     match cli.cmd {

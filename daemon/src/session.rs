@@ -1,48 +1,53 @@
 //! The live session: sensing -> peer link -> decision -> roller, both ways.
+//! This file is wiring only; the logic lives in the sans-IO session core
+//! (`telextiles-session`: sender and receiver state machines) and the
+//! sensing front end (`telextiles-sensing::front`).
 //!
 //! One daemon is both a sender (its DIGIT, or the simulator, pressed onto a
-//! fabric: contact detection, encoding, latents streamed to the peer) and a
-//! receiver (latents from the peer: running-mean decision with hysteresis
-//! against the shared index, roller commands). A control socket lets
-//! scripts watch and steer it; the 2D map is served when enabled.
+//! fabric: contact detection, encoding, latents streamed to the peers) and a
+//! receiver (latents from the peers: per-peer decisions against the shared
+//! index, roller commands). A control socket lets scripts watch and steer
+//! it; the 2D map is served when enabled.
 //!
-//! Threads and tasks:
-//! - the sensing thread (blocking: camera reads and ONNX inference) owns the
-//!   frame source, contact detector and encoder; it sends latents straight
-//!   into the link (a datagram per frame, no queue) and events to the bus;
-//! - the receiver task turns link events into decisions and roller targets;
-//! - the roller driver task (telextiles-roller) owns the serial port;
-//! - the control server and the map server serve local clients.
+//! Threads and tasks (all supervised: if any of them ends or panics before
+//! shutdown, the session ends with an error, so systemd restarts it rather
+//! than leaving a deaf daemon):
+//! - the sensing thread (`session/sensing.rs`; blocking: camera reads and
+//!   ONNX inference) owns the frame source and the front end; its sender
+//!   core's messages go straight into the link (a datagram per frame, no
+//!   queue);
+//! - the receiver task (`session/receive.rs`) feeds link events to the
+//!   receiver core and carries out its actions;
+//! - the roller driver task (telextiles-roller) owns the serial port; its
+//!   events go to the bus (`session/roller.rs`);
+//! - the control server (`session/control.rs`) and the map server serve
+//!   local clients.
+
+mod control;
+mod receive;
+mod roller;
+mod sensing;
 
 use anyhow::{anyhow, bail, Context, Result};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::mpsc as std_mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use telextiles_certs::{Identity, PinSet, TrustStore};
-use telextiles_control::{
-    Command, ContactPhase, CtlError, Event, GotoTarget, Handler, HandlerFuture, Server,
-    ServerConfig,
-};
+use telextiles_control::{Event, Server, ServerConfig};
 use telextiles_index::Index;
-use telextiles_link::{now_us, HelloInfo, LinkConfig, LinkEvent, LinkHandle, PairingMode};
-use telextiles_proto::peer::Control;
-use telextiles_proto::roller::steps_to_mdeg;
-use telextiles_roller::{DriverConfig, RollerDriver, RollerEvent, Target};
-use telextiles_sensing::contact::{ContactConfig, ContactEvent};
-use telextiles_sensing::decide::{DecideConfig, Decider, TextileIndex};
+use telextiles_link::{HelloInfo, LinkConfig, LinkHandle, PairingMode};
+use telextiles_roller::RollerDriver;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions, ModelInfo};
-use telextiles_sensing::frame::Frame;
-use telextiles_sensing::front::FrontEnd;
-use telextiles_sensing::source::recorded::{Pace, RecordedSource};
-use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
-use telextiles_sensing::source::FrameSource;
+use telextiles_sensing::source::sim::SimHandle;
+use telextiles_session::{ReceiverConfig, ReceiverCore};
 use tokio::sync::{broadcast, watch};
 
-use crate::config::{Config, RollerSource, SensorSource};
+use crate::config::Config;
+use sensing::SensorCmd;
 
 /// Extra knobs of a session beyond the configuration.
 #[derive(Debug, Default)]
@@ -60,22 +65,8 @@ pub struct SessionOptions {
     pub latency_trace: Option<PathBuf>,
 }
 
-/// Commands for the sensing thread.
-#[derive(Debug)]
-enum SensorCmd {
-    Recapture,
-    Sim(SimCommand),
-    Stop,
-}
-
-/// Per-press bookkeeping on the receiving side.
-struct RxPress {
-    peer: String,
-    press_id: u32,
-    contact_capture_us: u64,
-    decider: Decider,
-    decided: Option<usize>,
-}
+/// The receiver core, deciding against the shared index.
+type Receiver = ReceiverCore<Index>;
 
 #[derive(Default)]
 struct Counters {
@@ -86,8 +77,11 @@ struct Counters {
     latents_received: u64,
     decisions: u64,
     bad_frames: u64,
+    refused: u64,
 }
 
+/// What the tasks share (the session core's state is not here: the
+/// receiver task owns it).
 struct State {
     name: String,
     device_id: String,
@@ -128,44 +122,40 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-fn normalise(v: &mut [f32]) {
-    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
-    if n > 0.0 && n.is_finite() {
-        v.iter_mut().for_each(|x| *x /= n);
-    }
+/// A peer's name for people, or its ID when not connected.
+fn peer_name(state: &State, id: &str) -> String {
+    lock(&state.peers)
+        .get(id)
+        .and_then(|v| v["name"].as_str().map(String::from))
+        .unwrap_or_else(|| id.to_string())
 }
 
-/// The default model and index: the configured paths, else the ones
-/// shipped in the source tree (for runs from a checkout).
-pub fn resolve_model_paths(cfg: &Config) -> (PathBuf, PathBuf) {
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
-    let pick = |p: &Path, name: &str| {
-        if p.exists() {
-            p.to_path_buf()
-        } else if shipped.join(name).exists() {
-            shipped.join(name)
-        } else {
-            p.to_path_buf()
-        }
-    };
-    (
-        pick(&cfg.model, "encoder.onnx"),
-        pick(&cfg.index, "index.tlxi"),
-    )
-}
-
-/// Load encoder and index and check they belong together.
+/// Load encoder and index (from the configured paths: `--model`/`--index`,
+/// `TELEXTILESD_MODEL`/`_INDEX`, the configuration file, else the data
+/// directory) and check they belong together.
 pub fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index)> {
-    let (model, index_path) = resolve_model_paths(cfg);
+    let (model, index_path) = (&cfg.model, &cfg.index);
+    for (p, what, flag) in [
+        (model, "encoder model", "--model"),
+        (index_path, "textile index", "--index"),
+    ] {
+        if !p.is_file() {
+            bail!(
+                "{what} {} not found: put the shipped models/encoder.onnx and models/index.tlxi in {}, or pass {flag}",
+                p.display(),
+                cfg.data_dir.display()
+            );
+        }
+    }
     let enc = Encoder::open(
-        &model,
+        model,
         &EncoderOptions {
             threads,
             ..Default::default()
         },
     )
     .with_context(|| format!("cannot load the encoder {}", model.display()))?;
-    let index = Index::read(&index_path)?;
+    let index = Index::read(index_path)?;
     index.check_encoder(&enc.info().sha256)?;
     if index.dim != enc.dim() {
         bail!(
@@ -226,8 +216,9 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         link.local_addr()
     );
 
-    // Roller.
-    let (roller, roller_desc, _sim_roller) = start_roller(&cfg, &opts)?;
+    // Roller, set to the index's slot count.
+    let slots = u16::try_from(index.roller.n()).context("the index has too many roller slots")?;
+    let (roller, roller_desc, _sim_roller) = roller::start_roller(&cfg, &opts, slots)?;
 
     // Events.
     let (events, _) = broadcast::channel::<Event>(1024);
@@ -240,7 +231,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
 
     // Sensing thread.
     let (sensor_tx, sensor_rx) = std_mpsc::channel();
-    let (source, sim, sensor_desc) = open_source(&cfg, &opts)?;
+    let (source, sim, sensor_desc) = sensing::open_source(&cfg, &opts)?;
     let (shutdown, mut shutdown_rx) = watch::channel(false);
     let state = Arc::new(State {
         name: cfg.name.clone(),
@@ -268,21 +259,31 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         started: Instant::now(),
         trace,
     });
+    // Every task and the sensing thread report here when they end: before
+    // shutdown that is fatal (a deaf daemon must not linger).
+    let (ended_tx, mut ended_rx) =
+        tokio::sync::mpsc::unbounded_channel::<(&'static str, Option<String>)>();
     let sensing = {
         let state = state.clone();
+        let ended = ended_tx.clone();
         std::thread::Builder::new()
             .name("sensing".into())
-            .spawn(move || sensing_thread(state, source, encoder, sensor_rx))?
+            .spawn(move || {
+                let guard = EndGuard::new("sensing thread", ended);
+                let r = sensing::sensing_thread(state, source, encoder, sensor_rx);
+                guard.done(r.err());
+            })?
     };
 
-    // Receiver.
+    // Receiver: the session core, fed by the link.
     let receiver = {
         let state = state.clone();
-        tokio::spawn(async move {
-            let mut rx: Option<RxPress> = None;
+        let mut rx = Receiver::new(index.clone(), ReceiverConfig::default());
+        supervise("receiver task", &ended_tx, async move {
             while let Some(ev) = link_rx.recv().await {
-                on_link_event(&state, &mut rx, ev);
+                receive::on_link_event(&state, &mut rx, ev);
             }
+            Some("the peer link closed".to_string())
         })
     };
 
@@ -290,13 +291,15 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     let roller_events = state.roller.as_ref().map(|r| {
         let mut sub = r.subscribe();
         let state = state.clone();
-        tokio::spawn(async move {
+        supervise("roller events task", &ended_tx, async move {
             let mut last_pos = Instant::now() - Duration::from_secs(1);
             loop {
                 match sub.recv().await {
-                    Ok(ev) => on_roller_event(&state, ev, &mut last_pos),
+                    Ok(ev) => roller::on_roller_event(&state, ev, &mut last_pos),
                     Err(broadcast::error::RecvError::Lagged(_)) => continue,
-                    Err(broadcast::error::RecvError::Closed) => break,
+                    Err(broadcast::error::RecvError::Closed) => {
+                        return Some("the roller driver stopped".to_string())
+                    }
                 }
             }
         })
@@ -308,7 +311,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         Server::bind(ServerConfig::new(spec)).map_err(|e| anyhow!("control socket: {e}"))?;
     eprintln!("control socket {}", server.path().display());
     let control = {
-        let handler = Arc::new(Daemon(state.clone()));
+        let handler = Arc::new(control::Daemon(state.clone()));
         let mut sd = state.shutdown.subscribe();
         tokio::spawn(server.serve(handler, events.clone(), async move {
             let _ = sd.wait_for(|v| *v).await;
@@ -344,6 +347,14 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         }
         _ = tokio::signal::ctrl_c() => { eprintln!("interrupted"); }
         _ = sigterm() => {}
+        Some((what, why)) = ended_rx.recv() => {
+            // (A task ending because shutdown was asked for is no failure.)
+            let mut fatal = lock(&state.fatal);
+            if !*state.shutdown.borrow() && fatal.is_none() {
+                let why = why.unwrap_or_else(|| "it stopped".into());
+                *fatal = Some(format!("the {what} ended: {why}"));
+            }
+        }
     }
     let _ = state.shutdown.send(true);
     let _ = state.sensor_tx.send(SensorCmd::Stop);
@@ -428,697 +439,105 @@ fn resolve_addr(s: &str) -> Result<SocketAddr> {
         .ok_or_else(|| anyhow!("peer address {s:?} resolves to nothing"))
 }
 
-type SimRollerGuard = Option<telextiles_roller::SimRoller>;
+/// Spawn a task whose end (return or panic) is reported on `ended`.
+fn supervise(
+    what: &'static str,
+    ended: &tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
+    fut: impl std::future::Future<Output = Option<String>> + Send + 'static,
+) -> tokio::task::JoinHandle<()> {
+    let guard = EndGuard::new(what, ended.clone());
+    tokio::spawn(async move {
+        let why = fut.await;
+        guard.done(why);
+    })
+}
 
-fn start_roller(
-    cfg: &Config,
-    opts: &SessionOptions,
-) -> Result<(Option<RollerDriver>, String, SimRollerGuard)> {
-    let sim = |why: &str| -> Result<(Option<RollerDriver>, String, SimRollerGuard)> {
-        let sim = telextiles_roller::SimRoller::spawn(telextiles_roller::SimConfig {
-            speed: opts.sim_roller_speed.unwrap_or(1.0),
-            ..Default::default()
-        })
-        .context("cannot start the simulated roller")?;
-        let path = sim.path();
-        let driver = RollerDriver::start(DriverConfig::path(&path));
-        Ok((
-            Some(driver),
-            format!("simulated roller on {}{why}", path.display()),
-            Some(sim),
-        ))
-    };
-    match &cfg.roller {
-        RollerSource::None => Ok((None, "none".into(), None)),
-        RollerSource::Sim => sim(""),
-        RollerSource::Path(p) => Ok((
-            Some(RollerDriver::start(DriverConfig::path(p))),
-            p.display().to_string(),
-            None,
-        )),
-        RollerSource::Auto => match telextiles_roller::detect_port() {
-            Ok(p) => Ok((Some(RollerDriver::start(DriverConfig::path(&p))), p, None)),
-            Err(e) => {
-                eprintln!("{e}; using the simulated roller");
-                sim(" (no roller found)")
-            }
-        },
+/// Reports the end of a task or thread, panics included (the report is
+/// sent from `Drop`, which runs while unwinding).
+struct EndGuard {
+    what: &'static str,
+    ended: tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
+    why: Option<Option<String>>,
+}
+
+impl EndGuard {
+    fn new(
+        what: &'static str,
+        ended: tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
+    ) -> EndGuard {
+        EndGuard {
+            what,
+            ended,
+            why: None,
+        }
+    }
+    /// Ended normally, with a reason if it was an error.
+    fn done(mut self, why: Option<String>) {
+        self.why = Some(why);
     }
 }
 
-/// The frame source, the simulator's handle (when simulated) and a
-/// description for people.
-type OpenedSource = (
-    Box<dyn FrameSource>,
-    Option<(SimHandle, Arc<telextiles_sim::Simulator>)>,
-    String,
-);
-
-fn open_source(cfg: &Config, opts: &SessionOptions) -> Result<OpenedSource> {
-    // A simulated DIGIT: pressing `textile` again and again, or (None)
-    // lifted until `ctl sensor sim <textile>` asks for a press.
-    let sim_source = |textile: Option<&str>, why: &str| -> Result<OpenedSource> {
-        let simulator = Arc::new(telextiles_sim::Simulator::new()?);
-        let spec = telextiles_sim::PressSpec::new(textile.unwrap_or("T001"), 1);
-        let (src, handle) = SimSource::new(
-            simulator.clone(),
-            spec,
-            opts.sim_gap_frames.unwrap_or(60),
-            Pace::RealTime,
-        )?;
-        let (src, desc) = match textile {
-            Some(t) => (src, format!("simulated DIGIT pressing {t} repeatedly{why}")),
-            None => (
-                src.start_idle(),
-                format!(
-                    "simulated DIGIT, lifted until `telextilesd ctl sensor sim <textile>`{why}"
-                ),
-            ),
+impl Drop for EndGuard {
+    fn drop(&mut self) {
+        let why = match self.why.take() {
+            Some(why) => why,
+            None if std::thread::panicking() => Some("it panicked".into()),
+            None => Some("it was cancelled".into()),
         };
-        let src: Box<dyn FrameSource> = Box::new(src);
-        Ok((src, Some((handle, simulator)), desc))
-    };
-    match &cfg.sensor {
-        SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
-        SensorSource::Replay { dir } => {
-            let src = RecordedSource::open(dir, Pace::RealTime)?.looping(true);
-            Ok((Box::new(src), None, format!("replay of {}", dir.display())))
-        }
-        SensorSource::Digit { serial } => {
-            let opts = telextiles_sensing::source::digit::DigitOptions {
-                serial: serial.clone(),
-                ..Default::default()
-            };
-            match telextiles_sensing::source::digit::DigitSource::open(&opts) {
-                Ok(src) => {
-                    let desc = format!(
-                        "DIGIT {} on {}",
-                        src.info().serial,
-                        src.info().node.display()
-                    );
-                    // The first open succeeded; later opens (after an unplug)
-                    // retry with backoff.
-                    let mut first = Some(src);
-                    let src = telextiles_sensing::source::Resilient::new(move || {
-                        if let Some(s) = first.take() {
-                            return Ok(Box::new(s) as Box<dyn FrameSource>);
-                        }
-                        telextiles_sensing::source::digit::DigitSource::open(&opts)
-                            .map(|s| Box::new(s) as Box<dyn FrameSource>)
-                    });
-                    Ok((Box::new(src), None, desc))
-                }
-                Err(e) if serial.is_none() => {
-                    eprintln!("{e}; using the simulated DIGIT");
-                    sim_source(None, " (no DIGIT found)")
-                }
-                Err(e) => Err(e.into()),
-            }
-        }
+        let _ = self.ended.send((self.what, why));
     }
 }
 
-fn sensing_thread(
-    state: Arc<State>,
-    mut source: Box<dyn FrameSource>,
-    encoder: Encoder,
-    cmds: std_mpsc::Receiver<SensorCmd>,
-) {
-    // The one per-frame path (as `classify` and `index build` run it):
-    // contact detection and the no-contact reference, then encoding while
-    // in contact.
-    let mut front = FrontEnd::new(encoder, ContactConfig::default(), None);
-    let mut frame = Frame::blank();
-    let dim = front.encoder().dim();
-    let mut press_id: u32 = 0;
-    let mut sum = vec![0.0f32; dim];
-    let mut mean = vec![0.0f32; dim];
-    let mut frames_in_press = 0u32;
-    loop {
-        while let Ok(cmd) = cmds.try_recv() {
-            match cmd {
-                SensorCmd::Recapture => front.recapture(),
-                SensorCmd::Sim(c) => {
-                    if let Some(h) = &state.sim {
-                        h.send(c);
-                    }
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A task or the sensing thread that panics or returns before shutdown
+    /// is reported, so the session ends with an error instead of going on
+    /// deaf.
+    #[test]
+    fn a_task_or_thread_that_panics_or_ends_is_reported() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+            let _ = supervise("receiver task", &tx, async {
+                if std::hint::black_box(true) {
+                    panic!("peer sent something odd");
                 }
-                SensorCmd::Stop => return,
-            }
-        }
-        if *state.shutdown.borrow() {
-            return;
-        }
-        if let Err(e) = source.next_frame(&mut frame) {
-            let fatal = matches!(
-                e,
-                telextiles_sensing::source::SourceError::Fatal(_)
-                    | telextiles_sensing::source::SourceError::Ended
+                None
+            });
+            let (what, why) = rx.recv().await.unwrap();
+            assert_eq!(
+                (what, why.as_deref()),
+                ("receiver task", Some("it panicked"))
             );
-            let _ = state.events.send(Event::Error {
-                source: "sensor".into(),
-                message: e.to_string(),
+            let _ = supervise("roller events task", &tx, async {
+                Some("the roller driver stopped".to_string())
             });
-            lock(&state.counters).bad_frames += 1;
-            if fatal {
-                eprintln!("sensor: {e}");
-                return;
-            }
-            continue;
-        }
-        let capture_us = now_us();
-        lock(&state.counters).frames += 1;
-        let out = match front.process(&frame) {
-            Ok(o) => o,
-            Err(e) => {
-                lock(&state.counters).bad_frames += 1;
-                let _ = state.events.send(Event::Error {
-                    source: "encoder".into(),
-                    message: e.to_string(),
-                });
-                continue;
-            }
-        };
-        let up = out.contact;
-        let contact_us = capture_us + out.contact_ns / 1000;
-        match up.event {
-            Some(ContactEvent::PressStart { .. }) => {
-                press_id = press_id.wrapping_add(1);
-                sum.iter_mut().for_each(|x| *x = 0.0);
-                frames_in_press = 0;
-                *lock(&state.in_contact) = true;
-                lock(&state.counters).presses_sent += 1;
-                let _ = state.link.send_control(Control::PressStart {
-                    press_id,
-                    capture_us,
-                });
-                let _ = state.events.send(Event::Contact {
-                    phase: ContactPhase::Start,
-                    score: Some(up.score),
-                });
-            }
-            Some(ContactEvent::PressEnd { .. }) => {
-                *lock(&state.in_contact) = false;
-                let last = (frames_in_press > 0).then_some(mean.as_slice());
-                let _ = state.link.send_press_stop(press_id, last, capture_us);
-                let _ = state.events.send(Event::Contact {
-                    phase: ContactPhase::End,
-                    score: Some(up.score),
-                });
-            }
-            _ => {}
-        }
-        if let Some(emb) = out.embedding {
-            let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
-            // The embedding is L2-normalised by the encoder.
-            for (s, v) in sum.iter_mut().zip(emb) {
-                *s += v;
-            }
-            frames_in_press += 1;
-            mean.copy_from_slice(&sum);
-            normalise(&mut mean);
-            if let Ok(sent) = state
-                .link
-                .send_latent_timed(press_id, emb, capture_us, false)
-            {
-                let sent_us = now_us();
-                lock(&state.counters).latents_sent += 1;
-                if let Some(t) = &state.trace {
-                    t.tx(
-                        sent.seq,
-                        press_id,
-                        [capture_us, contact_us, encoded_us, sent.encoded_us, sent_us],
-                    );
-                }
-            }
-        }
-    }
-}
-
-fn on_link_event(state: &Arc<State>, rx: &mut Option<RxPress>, ev: LinkEvent) {
-    match ev {
-        LinkEvent::Listening { addr } => say(&format!("Listening on {addr} (UDP/QUIC)")),
-        LinkEvent::Discovered {
-            peer,
-            addrs,
-            paired,
-            pairing,
-        } => {
-            if pairing && !paired && *lock(&state.pairing_pending) {
-                say(&format!(
-                    "Found a device showing a pairing code: {} at {addrs:?}",
-                    peer.short()
-                ));
-            } else if paired {
-                say(&format!(
-                    "Found paired device {} at {addrs:?}",
-                    peer.short()
-                ));
-            }
-        }
-        LinkEvent::Paired { peer, verification } => {
-            *lock(&state.pairing_pending) = false;
-            say(&format!("Paired with {peer}."));
-            say(&format!(
-                "Verification code: {verification}  — the other device shows the same code; if not, run `telextilesd unpair {}`.",
-                peer.short()
-            ));
-            state.pins.insert(peer);
-        }
-        LinkEvent::PeerUp { peer, name, addr } => {
-            say(&format!(
-                "Peer up: {name} ({}) at {addr} — live session running (Ctrl-C to stop)",
-                peer.short()
-            ));
-            lock(&state.peers).insert(
-                peer.to_string(),
-                json!({"id": peer.to_string(), "name": name, "addr": addr.to_string()}),
+            let (what, why) = rx.recv().await.unwrap();
+            assert_eq!(
+                (what, why.as_deref()),
+                ("roller events task", Some("the roller driver stopped"))
             );
-            let _ = state.events.send(Event::PeerUp {
-                peer: name,
-                addr: Some(addr.to_string()),
+            let ended = tx.clone();
+            let t = std::thread::spawn(move || {
+                let _guard = EndGuard::new("sensing thread", ended);
+                panic!("encoder blew up");
             });
-        }
-        LinkEvent::PeerDown { peer, reason } => {
-            say(&format!(
-                "Peer down: {} ({reason}); reconnecting when it is back",
-                peer.short()
-            ));
-            let name = lock(&state.peers)
-                .remove(&peer.to_string())
-                .and_then(|v| v["name"].as_str().map(String::from))
-                .unwrap_or_else(|| peer.to_string());
-            let _ = state.events.send(Event::PeerDown { peer: name, reason });
-        }
-        LinkEvent::Error { kind, message, .. } => {
-            eprintln!("error: {message}");
-            if kind == telextiles_link::ErrorKind::Pairing && *lock(&state.pairing_pending) {
-                *lock(&state.fatal) = Some("pairing failed".into());
-                let _ = state.shutdown.send(true);
-            }
-            if let telextiles_link::ErrorKind::Incompatible(_) = kind {
-                eprintln!("(no streaming with this peer until both devices have the same encoder and index)");
-            }
-            let _ = state.events.send(Event::Error {
-                source: "link".into(),
-                message,
-            });
-        }
-        LinkEvent::Control { peer, msg } => match msg {
-            Control::PressStart {
-                press_id,
-                capture_us,
-            } => {
-                start_rx_press(state, rx, peer.to_string(), press_id, capture_us);
-            }
-            Control::PressStop {
-                press_id,
-                final_latent,
-                ..
-            } => {
-                let peer = peer.to_string();
-                if let Some(l) = final_latent {
-                    let mut v = l.vector.dequantize();
-                    normalise(&mut v);
-                    if rx
-                        .as_ref()
-                        .is_none_or(|p| p.press_id != press_id || p.peer != peer)
-                    {
-                        start_rx_press(state, rx, peer.clone(), press_id, l.capture_us);
-                    }
-                    // The press's own running mean decides the final answer, so
-                    // lost datagrams never change it.
-                    let p = rx.as_mut().expect("press started above");
-                    if let Some(n) = state.index.nearest2(&v) {
-                        let latency = now_us().saturating_sub(l.capture_us.min(now_us()));
-                        decide(state, p, n.best, n.best_dist, latency, l.capture_us, true);
-                    }
-                }
-                *rx = None;
-            }
-            _ => {}
-        },
-        LinkEvent::Latent(l) => {
-            let handled_us = now_us();
-            let peer = l.peer.to_string();
-            lock(&state.counters).latents_received += 1;
-            if rx
-                .as_ref()
-                .is_none_or(|p| p.press_id != l.press_id || p.peer != peer)
-            {
-                start_rx_press(state, rx, peer, l.press_id, l.capture_us);
-            }
-            let p = rx.as_mut().expect("press started above");
-            let mut v = l.vector;
-            normalise(&mut v);
-            if let Some(tx) = &state.map_tx {
-                if l.seq % 6 == 0 {
-                    let _ = tx.send(telextiles_map::MapEvent::Touch {
-                        latent: v.clone(),
-                        peer: Some(peer_name(state, &p.peer)),
-                    });
-                }
-            }
-            let step = p.decider.on_embedding(&*state.index, l.capture_us, &v);
-            let commanded = match step.map(|s| (s.changed, s.decision)) {
-                Some((true, Some(d))) => {
-                    let latency = l.one_way_latency_us.unwrap_or(0).max(0) as u64;
-                    decide(state, p, d.entry, d.distance, latency, l.capture_us, false)
-                }
-                _ => None,
-            };
-            if let Some(t) = &state.trace {
-                t.rx(
-                    l.seq,
-                    l.press_id,
-                    [l.received_us, handled_us, now_us()],
-                    commanded,
-                );
-            }
-        }
-    }
-}
-
-/// A peer's name for people, or its ID when not connected.
-fn peer_name(state: &State, id: &str) -> String {
-    lock(&state.peers)
-        .get(id)
-        .and_then(|v| v["name"].as_str().map(String::from))
-        .unwrap_or_else(|| id.to_string())
-}
-
-fn start_rx_press(
-    state: &Arc<State>,
-    rx: &mut Option<RxPress>,
-    peer: String,
-    press_id: u32,
-    capture_us: u64,
-) {
-    if rx
-        .as_ref()
-        .is_some_and(|p| p.press_id == press_id && p.peer == peer)
-    {
-        return;
-    }
-    let mut decider = Decider::new(DecideConfig::default(), state.index.dim);
-    decider.press_start(capture_us);
-    lock(&state.counters).presses_received += 1;
-    *rx = Some(RxPress {
-        peer,
-        press_id,
-        contact_capture_us: capture_us,
-        decider,
-        decided: None,
-    });
-}
-
-/// Act on a decision: turn the roller (latest target wins) and tell watchers.
-fn decide(
-    state: &Arc<State>,
-    p: &mut RxPress,
-    entry: usize,
-    distance: f32,
-    latency_us: u64,
-    capture_us: u64,
-    final_decision: bool,
-) -> Option<usize> {
-    let changed = p.decided != Some(entry);
-    if !changed && !final_decision {
-        return None;
-    }
-    p.decided = Some(entry);
-    let slot = state.index.slot_of_entry(entry);
-    if changed {
-        if let Some(r) = &state.roller {
-            r.set_target(Target::Slot(slot as u16));
-        }
-    }
-    lock(&state.counters).decisions += 1;
-    let e = &state.index.entries[entry];
-    let _ = state.events.send(Event::Decision {
-        textile: e.id.clone(),
-        name: Some(e.name.clone()),
-        slot: slot as u32,
-        distance,
-        latency_ms: latency_us as f64 / 1000.0,
-        peer: Some(p.peer.clone()),
-        press: Some(p.press_id),
-        final_decision,
-        since_contact_ms: Some(
-            capture_us.saturating_sub(p.contact_capture_us) as f64 / 1000.0
-                + latency_us as f64 / 1000.0,
-        ),
-    });
-    changed.then_some(slot)
-}
-
-fn on_roller_event(state: &Arc<State>, ev: RollerEvent, last_pos: &mut Instant) {
-    let deg = |mdeg: u32| mdeg as f64 / 1000.0;
-    match ev {
-        RollerEvent::Position {
-            mdeg, slot, moving, ..
-        } => {
-            *lock(&state.roller_pos) = Some((mdeg, slot, moving));
-            if last_pos.elapsed() >= Duration::from_millis(100) {
-                *last_pos = Instant::now();
-                let _ = state.events.send(Event::RollerPosition {
-                    angle_deg: deg(mdeg),
-                    target_slot: slot.map(u32::from),
-                });
-            }
-        }
-        RollerEvent::Arrived { target, status } => {
-            let steps_per_rev = state
-                .roller
-                .as_ref()
-                .and_then(|r| r.state().version)
-                .map_or(0, |v| v.steps_per_rev);
-            let mdeg = steps_to_mdeg(status.position, steps_per_rev);
-            let slot = match target {
-                Target::Slot(s) => s as u32,
-                _ => u32::MAX,
-            };
-            *lock(&state.roller_pos) =
-                Some((mdeg, (slot != u32::MAX).then_some(slot as u16), false));
-            let _ = state.events.send(Event::RollerArrived {
-                slot,
-                angle_deg: deg(mdeg),
-            });
-        }
-        RollerEvent::Error { message } => {
-            let _ = state.events.send(Event::Error {
-                source: "roller".into(),
-                message,
-            });
-        }
-        RollerEvent::Disconnected { reason } => {
-            let _ = state.events.send(Event::Error {
-                source: "roller".into(),
-                message: format!("disconnected: {reason}"),
-            });
-        }
-        RollerEvent::Connected { .. } => {}
-        RollerEvent::TargetWritten { target, at } => {
-            if let Some(t) = &state.trace {
-                let slot = match target {
-                    Target::Slot(s) => Some(s),
-                    _ => None,
-                };
-                t.serial(slot, at);
-            }
-        }
-    }
-}
-
-struct Daemon(Arc<State>);
-
-impl Daemon {
-    fn status(&self) -> Value {
-        let s = &self.0;
-        let c = lock(&s.counters);
-        let roller = s.roller.as_ref().map(|r| {
-            let st = r.state();
-            json!({
-                "port": st.port, "connected": st.connected,
-                "position": lock(&s.roller_pos).map(|(mdeg, slot, moving)| json!({"angle_deg": mdeg as f64 / 1000.0, "slot": slot, "moving": moving})),
-                "moving": st.status.map(|x| x.moving()),
-                "target": st.target.map(|t| format!("{t:?}")),
-                "reconnects": st.reconnects,
-            })
+            assert!(t.join().is_err());
+            let (what, why) = rx.recv().await.unwrap();
+            assert_eq!(
+                (what, why.as_deref()),
+                ("sensing thread", Some("it panicked"))
+            );
+            let ended = tx.clone();
+            std::thread::spawn(move || EndGuard::new("sensing thread", ended).done(None))
+                .join()
+                .unwrap();
+            assert_eq!(rx.recv().await.unwrap(), ("sensing thread", None));
         });
-        json!({
-            "name": s.name,
-            "device_id": s.device_id,
-            "version": env!("CARGO_PKG_VERSION"),
-            "uptime_s": s.started.elapsed().as_secs_f64(),
-            "listen": s.link.local_addr().to_string(),
-            "sensor": {"source": s.sensor_desc, "in_contact": *lock(&s.in_contact)},
-            "roller": {"source": s.roller_desc, "state": roller},
-            "peers": lock(&s.peers).values().cloned().collect::<Vec<_>>(),
-            "model": {"path": s.model.path, "sha256": s.model.sha256, "arch": s.model.arch, "dim": s.model.dim},
-            "index": {"fingerprint": s.index.fingerprint(), "textiles": s.index.entries.len(), "slots": s.index.roller.n()},
-            "counters": {
-                "frames": c.frames, "bad_frames": c.bad_frames,
-                "presses_sent": c.presses_sent, "latents_sent": c.latents_sent,
-                "presses_received": c.presses_received, "latents_received": c.latents_received,
-                "decisions": c.decisions,
-            },
-        })
-    }
-
-    fn roller(&self) -> Result<&RollerDriver, CtlError> {
-        self.0
-            .roller
-            .as_ref()
-            .ok_or_else(|| CtlError::unavailable("this daemon drives no roller (roller = none)"))
-    }
-}
-
-impl Handler for Daemon {
-    fn handle(&self, command: Command) -> HandlerFuture<'_> {
-        Box::pin(async move {
-            let s = &self.0;
-            match command {
-                Command::Status => Ok(self.status()),
-                Command::Peers => {
-                    let store = TrustStore::load(&s.state_dir)
-                        .map_err(|e| CtlError::failed(e.to_string()))?;
-                    let connected = lock(&s.peers).clone();
-                    Ok(Value::Array(
-                        store
-                            .peers()
-                            .iter()
-                            .map(|p| {
-                                let id = p.device_id.to_string();
-                                json!({"id": id, "name": p.name, "connected": connected.contains_key(&id)})
-                            })
-                            .collect(),
-                    ))
-                }
-                Command::Pair(_) => Err(CtlError::unavailable(
-                    "pairing runs from the command line: `telextilesd pair` on both devices",
-                )),
-                Command::Unpair(a) => {
-                    let removed = TrustStore::update(&s.state_dir, |st| match st.find(&a.peer) {
-                        Ok(p) => {
-                            let id = p.device_id;
-                            (true, Ok(st.remove(&id)))
-                        }
-                        Err(e) => (false, Err(e)),
-                    })
-                    .map_err(|e| CtlError::failed(e.to_string()))?
-                    .map_err(|e| CtlError::invalid_args(e.to_string()))?
-                    .ok_or_else(|| {
-                        CtlError::invalid_args(format!("no paired peer {:?}", a.peer))
-                    })?;
-                    // Drops the pin and closes the live connection at once.
-                    s.link.unpair(&removed.device_id);
-                    Ok(json!({"unpaired": removed.device_id.to_string(), "name": removed.name}))
-                }
-                Command::SensorRecalibrate => {
-                    s.sensor_tx
-                        .send(SensorCmd::Recapture)
-                        .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
-                    Ok(json!({"recalibrating": true}))
-                }
-                Command::SensorLed(_) => Err(CtlError::unavailable(format!(
-                    "LED control needs a DIGIT; the sensor is the {}",
-                    s.sensor_desc
-                ))),
-                Command::SensorSim(a) => {
-                    if s.sim.is_none() {
-                        return Err(CtlError::unavailable(format!(
-                            "the sensor is not simulated ({})",
-                            s.sensor_desc
-                        )));
-                    }
-                    if a.textile == "none" {
-                        s.sensor_tx
-                            .send(SensorCmd::Sim(SimCommand::Lift))
-                            .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
-                        return Ok(json!({"lifted": true}));
-                    }
-                    if telextiles_sim::catalogue::Catalogue::builtin()
-                        .get(&a.textile)
-                        .is_none()
-                    {
-                        return Err(CtlError::invalid_args(format!(
-                            "unknown textile {:?}: the simulator knows T001..T119 and U01..U20",
-                            a.textile
-                        )));
-                    }
-                    let mut spec =
-                        telextiles_sim::PressSpec::new(a.textile.clone(), a.seed.unwrap_or(1));
-                    spec.jig = a.jig.unwrap_or(true);
-                    spec.person = a.person.unwrap_or(0);
-                    spec.sensor = a.sensor.unwrap_or(0);
-                    spec.rotation_deg = a.rotation_deg.map(|v| v as f32);
-                    spec.force = a.force.map(|v| v as f32);
-                    if let Some(sim) = &s.simulator {
-                        sim.press_meta(&spec)
-                            .map_err(|e| CtlError::invalid_args(e.to_string()))?;
-                    }
-                    s.sensor_tx
-                        .send(SensorCmd::Sim(SimCommand::PressOnce(spec.clone())))
-                        .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
-                    Ok(json!({
-                        "pressing": spec.textile, "person": spec.person, "sensor": spec.sensor,
-                        "jig": spec.jig, "seed": spec.seed,
-                    }))
-                }
-                Command::RollerGoto(t) => {
-                    let r = self.roller()?;
-                    let slot = match t {
-                        GotoTarget::Slot(n) if (n as usize) < s.index.roller.n() => n as usize,
-                        GotoTarget::Slot(n) => {
-                            return Err(CtlError::invalid_args(format!(
-                                "slot {n} is out of range (the roller has {} slots)",
-                                s.index.roller.n()
-                            )))
-                        }
-                        GotoTarget::Textile(id) => {
-                            let e = s.index.entry_by_id(&id).ok_or_else(|| {
-                                CtlError::invalid_args(format!(
-                                    "textile {id:?} is not in the index"
-                                ))
-                            })?;
-                            s.index.slot_of_entry(e)
-                        }
-                    };
-                    r.set_target(Target::Slot(slot as u16));
-                    Ok(json!({"slot": slot}))
-                }
-                Command::RollerHome => {
-                    self.roller()?.set_target(Target::Slot(0));
-                    Ok(json!({"slot": 0}))
-                }
-                Command::RollerJog(j) => {
-                    let r = self.roller()?;
-                    let now = lock(&s.roller_pos).map(|p| p.0 as i64).unwrap_or(0);
-                    let to = (now + (j.degrees * 1000.0).round() as i64).rem_euclid(360_000);
-                    r.set_target(Target::AngleMdeg(to as u32));
-                    Ok(json!({"angle_deg": to as f64 / 1000.0}))
-                }
-                Command::IndexInfo => Ok(json!({
-                    "fingerprint": s.index.fingerprint(),
-                    "encoder": s.index.encoder_hash,
-                    "arch": s.index.encoder_arch,
-                    "dim": s.index.dim,
-                    "textiles": s.index.entries.len(),
-                    "roller": s.index.roller.slots.iter().map(|&i| &s.index.entries[i].id).collect::<Vec<_>>(),
-                    "selection": s.index.roller.method.to_string(),
-                })),
-                Command::Shutdown => {
-                    let _ = s.shutdown.send(true);
-                    Ok(json!({"shutting_down": true}))
-                }
-                Command::Subscribe(_) => {
-                    Err(CtlError::internal("subscribe is handled by the server"))
-                }
-                Command::RecordStart(_) | Command::RecordStop => Err(CtlError::unavailable(
-                    "recording over the control socket is not wired into this daemon yet; use `telextilesd record`",
-                )),
-            }
-        })
     }
 }

@@ -8,6 +8,13 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
 
+/// An empty configuration file in `dir` (so the host's is never read).
+fn none_toml(dir: &std::path::Path) -> std::path::PathBuf {
+    let p = dir.join("none.toml");
+    std::fs::write(&p, "").unwrap();
+    p
+}
+
 struct Proc {
     child: Child,
     rx: mpsc::Receiver<String>,
@@ -26,6 +33,20 @@ impl Proc {
                 "--runtime-dir",
                 dir.to_str().unwrap(),
             ])
+            // Nothing of the host: no configuration file, no camera, no
+            // serial port; the shipped model and index.
+            .arg("--config")
+            .arg(none_toml(dir))
+            .args(["--sensor", "sim", "--roller", "sim", "--map=false"])
+            .args([
+                "--model",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
+            ])
+            .args([
+                "--index",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
+            ])
+            .env_remove("TELEXTILESD_CONFIG")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -6,6 +6,8 @@ use serde_json::Value;
 use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
+const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx");
+const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
 
 fn demo(extra: &[&str]) -> Value {
     let out = Command::new(BIN)
@@ -20,6 +22,7 @@ fn demo(extra: &[&str]) -> Value {
             "1",
         ])
         .args(extra)
+        .args(["--model", MODEL, "--index", INDEX])
         .env("RUST_BACKTRACE", "0")
         .output()
         .expect("run telextilesd demo");

@@ -110,6 +110,14 @@ fn spawn(
         .args(["--sensor", &format!("sim:{textile}")])
         .args(["--roller", "sim", "--map=false", "--mdns=false"])
         .args(["--listen", &listen.to_string()])
+        .args([
+            "--model",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
+        ])
+        .args([
+            "--index",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
+        ])
         .arg("--config")
         .arg(dir.join("none.toml"))
         .arg("--latency-trace")

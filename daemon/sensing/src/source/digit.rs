@@ -272,4 +272,8 @@ impl FrameSource for DigitSource {
     fn describe(&self) -> String {
         format!("DIGIT {} on {}", self.info.serial, self.info.node.display())
     }
+
+    fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
+        DigitSource::set_led(self, LedIntensity { r, g, b })
+    }
 }

@@ -38,6 +38,15 @@ pub trait FrameSource: Send {
     fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError>;
     /// Short human-readable name for logs ("DIGIT D20118 on /dev/video0").
     fn describe(&self) -> String;
+    /// Set the illumination, each colour 0..=15 (a DIGIT's LEDs). Sources
+    /// without LEDs refuse, naming themselves.
+    fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
+        let _ = (r, g, b);
+        Err(SourceError::Unavailable(format!(
+            "{} has no LEDs to control (LED control needs a DIGIT)",
+            self.describe()
+        )))
+    }
 }
 
 impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
@@ -46,6 +55,9 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
     }
     fn describe(&self) -> String {
         (**self).describe()
+    }
+    fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
+        (**self).set_leds(r, g, b)
     }
 }
 
@@ -241,6 +253,15 @@ impl FrameSource for Resilient {
         match &self.current {
             Some(s) => s.describe(),
             None => "(not open)".into(),
+        }
+    }
+
+    fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
+        match &mut self.current {
+            Some(s) => s.set_leds(r, g, b),
+            None => Err(SourceError::Unavailable(
+                "the sensor is not connected right now".into(),
+            )),
         }
     }
 }

@@ -1,0 +1,207 @@
+//! The receiver task: link events → the receiver core (per-peer presses and
+//! decisions, no I/O) → roller targets, control events, map touches.
+
+use std::sync::Arc;
+
+use serde_json::json;
+use telextiles_control::Event;
+use telextiles_link::{now_us, LinkEvent};
+use telextiles_proto::peer::Control;
+use telextiles_roller::Target;
+use telextiles_session::{RxAction, RxInput};
+
+use super::{lock, say, Receiver, State};
+
+/// One link event; the receiver core's actions are carried out here.
+pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent) {
+    let mut actions = Vec::new();
+    match ev {
+        LinkEvent::Listening { addr } => say(&format!("Listening on {addr} (UDP/QUIC)")),
+        LinkEvent::Discovered {
+            peer,
+            addrs,
+            paired,
+            pairing,
+        } => {
+            if pairing && !paired && *lock(&state.pairing_pending) {
+                say(&format!(
+                    "Found a device showing a pairing code: {} at {addrs:?}",
+                    peer.short()
+                ));
+            } else if paired {
+                say(&format!(
+                    "Found paired device {} at {addrs:?}",
+                    peer.short()
+                ));
+            }
+        }
+        LinkEvent::Paired { peer, verification } => {
+            *lock(&state.pairing_pending) = false;
+            say(&format!("Paired with {peer}."));
+            say(&format!(
+                "Verification code: {verification}  — the other device shows the same code; if not, run `telextilesd unpair {}`.",
+                peer.short()
+            ));
+            state.pins.insert(peer);
+        }
+        LinkEvent::PeerUp { peer, name, addr } => {
+            say(&format!(
+                "Peer up: {name} ({}) at {addr} — live session running (Ctrl-C to stop)",
+                peer.short()
+            ));
+            lock(&state.peers).insert(
+                peer.to_string(),
+                json!({"id": peer.to_string(), "name": name, "addr": addr.to_string()}),
+            );
+            let _ = state.events.send(Event::PeerUp {
+                peer: name,
+                addr: Some(addr.to_string()),
+            });
+        }
+        LinkEvent::PeerDown { peer, reason } => {
+            say(&format!(
+                "Peer down: {} ({}); reconnecting when it is back",
+                peer.short(),
+                reason.clone()
+            ));
+            rx.handle(&peer.to_string(), RxInput::PeerDown, &mut actions);
+            let name = lock(&state.peers)
+                .remove(&peer.to_string())
+                .and_then(|v| v["name"].as_str().map(String::from))
+                .unwrap_or_else(|| peer.to_string());
+            let _ = state.events.send(Event::PeerDown {
+                peer: name,
+                reason: reason.clone(),
+            });
+        }
+        LinkEvent::Error { kind, message, .. } => {
+            eprintln!("error: {message}");
+            if kind == telextiles_link::ErrorKind::Pairing && *lock(&state.pairing_pending) {
+                *lock(&state.fatal) = Some("pairing failed".into());
+                let _ = state.shutdown.send(true);
+            }
+            if let telextiles_link::ErrorKind::Incompatible(_) = kind {
+                eprintln!("(no streaming with this peer until both devices have the same encoder and index)");
+            }
+            let _ = state.events.send(Event::Error {
+                source: "link".into(),
+                message,
+            });
+        }
+        LinkEvent::Control { peer, msg } => {
+            let peer = peer.to_string();
+            match msg {
+                Control::PressStart {
+                    press_id,
+                    capture_us,
+                } => rx.handle(
+                    &peer,
+                    RxInput::PressStart {
+                        press_id,
+                        capture_us,
+                    },
+                    &mut actions,
+                ),
+                Control::PressStop {
+                    press_id,
+                    capture_us,
+                    final_latent,
+                } => {
+                    let fin = final_latent.map(|l| (l.vector.dequantize(), l.capture_us));
+                    rx.handle(
+                        &peer,
+                        RxInput::PressStop {
+                            press_id,
+                            capture_us,
+                            final_latent: fin.as_ref().map(|(v, t)| (v.as_slice(), *t)),
+                        },
+                        &mut actions,
+                    );
+                }
+                _ => {}
+            }
+            apply(state, rx, &mut actions);
+        }
+        LinkEvent::Latent(l) => {
+            let handled_us = now_us();
+            lock(&state.counters).latents_received += 1;
+            rx.handle(
+                &l.peer.to_string(),
+                RxInput::Latent {
+                    press_id: l.press_id,
+                    seq: l.seq,
+                    capture_us: l.capture_us,
+                    vector: &l.vector,
+                    one_way_latency_us: l.one_way_latency_us,
+                },
+                &mut actions,
+            );
+            let commanded = apply(state, rx, &mut actions);
+            if let Some(t) = &state.trace {
+                t.rx(
+                    l.seq,
+                    l.press_id,
+                    [l.received_us, handled_us, now_us()],
+                    commanded,
+                );
+            }
+        }
+    }
+    apply(state, rx, &mut actions);
+}
+
+/// Carry out the receiver core's actions; the roller slot commanded, if
+/// any.
+fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Option<usize> {
+    let mut commanded = None;
+    for a in actions.drain(..) {
+        match a {
+            RxAction::PressStarted { .. } => lock(&state.counters).presses_received += 1,
+            RxAction::RollerTarget { slot } => {
+                if let Some(r) = &state.roller {
+                    r.set_target(Target::Slot(slot as u16));
+                }
+                commanded = Some(slot);
+            }
+            RxAction::Touch { peer, latent } => {
+                if let Some(tx) = &state.map_tx {
+                    let _ = tx.send(telextiles_map::MapEvent::Touch {
+                        latent: latent.as_slice().to_vec(),
+                        peer: Some(super::peer_name(state, &peer)),
+                    });
+                }
+            }
+            RxAction::Decision(d) => {
+                lock(&state.counters).decisions += 1;
+                let e = &rx.index().entries[d.entry];
+                let _ = state.events.send(Event::Decision {
+                    textile: e.id.clone(),
+                    name: Some(e.name.clone()),
+                    slot: d.slot as u32,
+                    distance: d.distance,
+                    latency_ms: d.latency_ms.unwrap_or(0.0),
+                    peer: Some(d.peer),
+                    press: Some(d.press_id),
+                    final_decision: d.final_decision,
+                    since_contact_ms: d.since_contact_ms,
+                });
+            }
+            RxAction::Refused { peer, why } => {
+                // Counted always, logged at the 1st, 2nd, 4th, 8th, ...
+                // refusal: a peer cannot flood the log.
+                let n = {
+                    let mut c = lock(&state.counters);
+                    c.refused += 1;
+                    c.refused
+                };
+                if n.is_power_of_two() {
+                    eprintln!(
+                        "refused a message from {} ({n} refused so far): {why}",
+                        super::peer_name(state, &peer)
+                    );
+                }
+            }
+        }
+    }
+    commanded
+}

@@ -1,0 +1,240 @@
+//! The sensing thread: frame source → the front end (contact detection,
+//! the reference, encoding) → the sender core → the peer link. Blocking
+//! (camera reads, ONNX inference), so a thread of its own; it sends
+//! latents straight into the link (a datagram per frame, no queue).
+
+use std::sync::mpsc as std_mpsc;
+use std::sync::Arc;
+
+use anyhow::Result;
+use telextiles_control::{ContactPhase, Event};
+use telextiles_link::now_us;
+use telextiles_proto::peer::Control;
+use telextiles_sensing::contact::{ContactConfig, ContactEvent};
+use telextiles_sensing::encoder::Encoder;
+use telextiles_sensing::frame::Frame;
+use telextiles_sensing::front::FrontEnd;
+use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
+use telextiles_sensing::source::{FrameSource, SourceError};
+use telextiles_session::{SenderCore, TxAction};
+
+use super::{lock, SessionOptions, State};
+use crate::config::{Config, SensorSource};
+
+/// Commands for the sensing thread.
+#[derive(Debug)]
+pub(crate) enum SensorCmd {
+    /// Re-capture every reference the pipeline keeps.
+    Recapture,
+    /// Steer the simulated DIGIT.
+    Sim(SimCommand),
+    /// Set the DIGIT's LEDs (0..=15 each); the answer goes to `reply`.
+    Led {
+        r: u8,
+        g: u8,
+        b: u8,
+        reply: tokio::sync::oneshot::Sender<Result<(), String>>,
+    },
+    /// End the thread.
+    Stop,
+}
+
+/// The frame source, the simulator's handle (when simulated) and a
+/// description for people.
+pub(crate) type OpenedSource = (
+    Box<dyn FrameSource>,
+    Option<(SimHandle, Arc<telextiles_sim::Simulator>)>,
+    String,
+);
+
+pub(crate) fn open_source(cfg: &Config, opts: &SessionOptions) -> Result<OpenedSource> {
+    // A simulated DIGIT: pressing `textile` again and again, or (None)
+    // lifted until `ctl sensor sim <textile>` asks for a press.
+    let sim_source = |textile: Option<&str>, why: &str| -> Result<OpenedSource> {
+        let simulator = Arc::new(telextiles_sim::Simulator::new()?);
+        let spec = telextiles_sim::PressSpec::new(textile.unwrap_or("T001"), 1);
+        let (src, handle) = SimSource::new(
+            simulator.clone(),
+            spec,
+            opts.sim_gap_frames.unwrap_or(60),
+            Pace::RealTime,
+        )?;
+        let (src, desc) = match textile {
+            Some(t) => (src, format!("simulated DIGIT pressing {t} repeatedly{why}")),
+            None => (
+                src.start_idle(),
+                format!(
+                    "simulated DIGIT, lifted until `telextilesd ctl sensor sim <textile>`{why}"
+                ),
+            ),
+        };
+        let src: Box<dyn FrameSource> = Box::new(src);
+        Ok((src, Some((handle, simulator)), desc))
+    };
+    match &cfg.sensor {
+        SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
+        SensorSource::Replay { dir } => {
+            let src = RecordedSource::open(dir, Pace::RealTime)?.looping(true);
+            Ok((Box::new(src), None, format!("replay of {}", dir.display())))
+        }
+        SensorSource::Digit { serial } => {
+            let opts = telextiles_sensing::source::digit::DigitOptions {
+                serial: serial.clone(),
+                ..Default::default()
+            };
+            match telextiles_sensing::source::digit::DigitSource::open(&opts) {
+                Ok(src) => {
+                    let desc = format!(
+                        "DIGIT {} on {}",
+                        src.info().serial,
+                        src.info().node.display()
+                    );
+                    // The first open succeeded; later opens (after an unplug)
+                    // retry with backoff.
+                    let mut first = Some(src);
+                    let src = telextiles_sensing::source::Resilient::new(move || {
+                        if let Some(s) = first.take() {
+                            return Ok(Box::new(s) as Box<dyn FrameSource>);
+                        }
+                        telextiles_sensing::source::digit::DigitSource::open(&opts)
+                            .map(|s| Box::new(s) as Box<dyn FrameSource>)
+                    });
+                    Ok((Box::new(src), None, desc))
+                }
+                Err(e) if serial.is_none() => {
+                    eprintln!("{e}; using the simulated DIGIT");
+                    sim_source(None, " (no DIGIT found)")
+                }
+                Err(e) => Err(e.into()),
+            }
+        }
+    }
+}
+
+/// Run until `SensorCmd::Stop` or shutdown (Ok), or until the source fails
+/// for good (Err: the session ends with it).
+pub(crate) fn sensing_thread(
+    state: Arc<State>,
+    mut source: Box<dyn FrameSource>,
+    encoder: Encoder,
+    cmds: std_mpsc::Receiver<SensorCmd>,
+) -> Result<(), String> {
+    // The one per-frame path (as `classify` and `index build` run it).
+    let mut front = FrontEnd::new(encoder, ContactConfig::default(), None);
+    let mut sender = SenderCore::new(front.encoder().dim());
+    let mut frame = Frame::blank();
+    let mut actions = Vec::new();
+    loop {
+        while let Ok(cmd) = cmds.try_recv() {
+            match cmd {
+                SensorCmd::Recapture => front.recapture(),
+                SensorCmd::Sim(c) => {
+                    if let Some(h) = &state.sim {
+                        h.send(c);
+                    }
+                }
+                SensorCmd::Led { r, g, b, reply } => {
+                    let _ = reply.send(source.set_leds(r, g, b).map_err(|e| e.to_string()));
+                }
+                SensorCmd::Stop => return Ok(()),
+            }
+        }
+        if *state.shutdown.borrow() {
+            return Ok(());
+        }
+        if let Err(e) = source.next_frame(&mut frame) {
+            let _ = state.events.send(Event::Error {
+                source: "sensor".into(),
+                message: e.to_string(),
+            });
+            lock(&state.counters).bad_frames += 1;
+            if matches!(e, SourceError::Fatal(_) | SourceError::Ended) {
+                // Tell the peers the press is over before going.
+                sender.stop(now_us(), &mut actions);
+                let t = now_us();
+                send(&state, &mut actions, [t, t, t]);
+                return Err(format!("sensor: {e}"));
+            }
+            continue;
+        }
+        let capture_us = now_us();
+        lock(&state.counters).frames += 1;
+        let out = match front.process(&frame) {
+            Ok(o) => o,
+            Err(e) => {
+                lock(&state.counters).bad_frames += 1;
+                let _ = state.events.send(Event::Error {
+                    source: "encoder".into(),
+                    message: e.to_string(),
+                });
+                continue;
+            }
+        };
+        let up = out.contact;
+        let contact_us = capture_us + out.contact_ns / 1000;
+        let phase = match up.event {
+            Some(ContactEvent::PressStart { .. }) => Some(ContactPhase::Start),
+            Some(ContactEvent::PressEnd { .. }) => Some(ContactPhase::End),
+            _ => None,
+        };
+        if let Some(phase) = phase {
+            *lock(&state.in_contact) = phase == ContactPhase::Start;
+            let _ = state.events.send(Event::Contact {
+                phase,
+                score: Some(up.score),
+            });
+        }
+        sender.on_frame(capture_us, up.event, out.embedding, &mut actions);
+        let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
+        send(&state, &mut actions, [capture_us, contact_us, encoded_us]);
+    }
+}
+
+/// Carry out the sender core's actions on the link, in order; `stages`
+/// (capture, contact, encoded; local clock) go into the latency trace.
+fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
+    for a in actions.drain(..) {
+        match a {
+            TxAction::PressStart {
+                press_id,
+                capture_us,
+            } => {
+                lock(&state.counters).presses_sent += 1;
+                let _ = state.link.send_control(Control::PressStart {
+                    press_id,
+                    capture_us,
+                });
+            }
+            TxAction::Latent {
+                press_id,
+                capture_us,
+                latent,
+            } => {
+                if let Ok(sent) =
+                    state
+                        .link
+                        .send_latent_timed(press_id, latent.as_slice(), capture_us, false)
+                {
+                    let sent_us = now_us();
+                    lock(&state.counters).latents_sent += 1;
+                    if let Some(t) = &state.trace {
+                        let [c, k, e] = stages;
+                        t.tx(sent.seq, press_id, [c, k, e, sent.encoded_us, sent_us]);
+                    }
+                }
+            }
+            TxAction::PressStop {
+                press_id,
+                capture_us,
+                final_latent,
+            } => {
+                let _ = state.link.send_press_stop(
+                    press_id,
+                    final_latent.as_ref().map(|l| l.as_slice()),
+                    capture_us,
+                );
+            }
+        }
+    }
+}
