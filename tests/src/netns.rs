@@ -23,7 +23,12 @@ fn run(args: &[&str]) -> Result<Output, String> {
 }
 
 /// Whether this process may create namespaces (root with `ip`). If not,
-/// prints a loud SKIP line naming the test and returns `false`.
+/// prints a loud SKIP line naming the test and returns `false` — except
+/// under CI (`CI` set, as `.ci/run` runs), where a test that cannot run is
+/// a failure, never a silent pass.
+///
+/// # Panics
+/// Under CI, when namespaces are not available.
 pub fn available_or_skip(test: &str) -> bool {
     let root = Command::new("id")
         .arg("-u")
@@ -31,11 +36,20 @@ pub fn available_or_skip(test: &str) -> bool {
         .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
         .unwrap_or(false);
     let ip = Command::new("ip").arg("-V").output().is_ok();
-    if root && ip {
+    decide_skip(test, root && ip, std::env::var_os("CI").is_some())
+}
+
+/// The decision of [`available_or_skip`], given what it found.
+pub fn decide_skip(test: &str, available: bool, ci: bool) -> bool {
+    if available {
         // As root a failure to create namespaces is a real error: the test
         // goes on and reports it.
         return true;
     }
+    assert!(
+        !ci,
+        "{test}: cannot create network namespaces (needs root and iproute2); under CI this test must run"
+    );
     eprintln!();
     eprintln!("!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!");
     eprintln!("!!! SKIP {test}: cannot create network namespaces (needs root and iproute2).");
@@ -43,6 +57,17 @@ pub fn available_or_skip(test: &str) -> bool {
     eprintln!("!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!");
     eprintln!();
     false
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_test_that_cannot_run_fails_under_ci_and_skips_loudly_elsewhere() {
+        assert!(super::decide_skip("t", true, true));
+        assert!(!super::decide_skip("t", false, false));
+        let r = std::panic::catch_unwind(|| super::decide_skip("t", false, true));
+        assert!(r.is_err(), "skipped silently under CI");
+    }
 }
 
 /// A network namespace, deleted on drop.
