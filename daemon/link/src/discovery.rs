@@ -171,6 +171,10 @@ pub fn parse_txt(
 pub struct Discovery {
     daemon: ServiceDaemon,
     fullname: String,
+    instance: String,
+    host: String,
+    port: u16,
+    id_text: String,
 }
 
 impl Discovery {
@@ -194,22 +198,21 @@ impl Discovery {
             .map_err(err)?;
 
         let short = my_id.short().to_lowercase();
-        let instance = cfg
-            .instance_name
-            .clone()
-            .unwrap_or_else(|| format!("telextiles-{short}"));
-        let host = format!("telextiles-{short}.local.");
-        let id_text = my_id.to_string();
-        let pv = telextiles_proto::peer::PROTOCOL_VERSION.to_string();
-        let props = [
-            ("id", id_text.as_str()),
-            ("pv", pv.as_str()),
-            ("pair", if pairing { "1" } else { "0" }),
-        ];
-        let info = ServiceInfo::new(SERVICE_TYPE, &instance, &host, (), port, &props[..])
-            .map_err(err)?
-            .enable_addr_auto();
-        let fullname = info.get_fullname().to_string();
+        let mut disc = Discovery {
+            instance: cfg
+                .instance_name
+                .clone()
+                .unwrap_or_else(|| format!("telextiles-{short}")),
+            host: format!("telextiles-{short}.local."),
+            port,
+            id_text: my_id.to_string(),
+            fullname: String::new(),
+            daemon,
+        };
+        let info = disc.service_info(pairing)?;
+        disc.fullname = info.get_fullname().to_string();
+        let daemon = &disc.daemon;
+        let fullname = disc.fullname.clone();
         daemon.register(info).map_err(err)?;
         let events = daemon.browse(SERVICE_TYPE).map_err(err)?;
 
@@ -260,7 +263,35 @@ impl Discovery {
                 }
             })
             .map_err(|e| LinkError::Discovery(format!("cannot start the mDNS thread: {e}")))?;
-        Ok((Discovery { daemon, fullname }, rx))
+        Ok((disc, rx))
+    }
+
+    fn service_info(&self, pairing: bool) -> Result<ServiceInfo, LinkError> {
+        let pv = telextiles_proto::peer::PROTOCOL_VERSION.to_string();
+        let props = [
+            ("id", self.id_text.as_str()),
+            ("pv", pv.as_str()),
+            ("pair", if pairing { "1" } else { "0" }),
+        ];
+        Ok(ServiceInfo::new(
+            SERVICE_TYPE,
+            &self.instance,
+            &self.host,
+            (),
+            self.port,
+            &props[..],
+        )
+        .map_err(|e| LinkError::Discovery(e.to_string()))?
+        .enable_addr_auto())
+    }
+
+    /// Re-announces the advert with `pair=1` or `pair=0`: the pairing flag
+    /// is withdrawn as soon as pairing mode ends.
+    pub fn set_pairing(&self, pairing: bool) -> Result<(), LinkError> {
+        let info = self.service_info(pairing)?;
+        self.daemon
+            .register(info)
+            .map_err(|e| LinkError::Discovery(e.to_string()))
     }
 }
 

@@ -400,6 +400,8 @@ pub(crate) struct Shared {
     /// Rate limit of errors caused by unauthenticated senders (refused
     /// handshakes, failed incoming connections).
     pub refusals: Mutex<RateLimit>,
+    /// The mDNS advert, to withdraw its pairing flag when pairing ends.
+    pub advert: Mutex<Option<std::sync::Weak<discovery::Discovery>>>,
 }
 
 impl Shared {
@@ -575,6 +577,7 @@ impl Link {
             stopped: AtomicBool::new(false),
             conns: Mutex::new(HashMap::new()),
             refusals: Mutex::new(RateLimit::new()),
+            advert: Mutex::new(None),
         });
         shared.emit(LinkEvent::Listening { addr: local_addr }).await;
 
@@ -601,7 +604,13 @@ impl Link {
                 let (d, found) =
                     discovery::Discovery::start(&dcfg, &my_id, local_addr.port(), show_mode)?;
                 tokio::spawn(session::discovery_loop(shared.clone(), found, enter_mode));
-                Some(Arc::new(d))
+                let d = Arc::new(d);
+                *lock(&shared.advert) = Some(Arc::downgrade(&d));
+                if show_mode && !shared.pairing_mode() {
+                    // Pairing already ended while discovery was starting.
+                    let _ = d.set_pairing(false);
+                }
+                Some(d)
             }
             None => None,
         };

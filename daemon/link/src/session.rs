@@ -1109,6 +1109,19 @@ fn finish_pairing_mode(shared: &Arc<Shared>) {
     let was_show = matches!(lock(&shared.pairing).take(), Some(PairingMode::Show(_)));
     if was_show {
         let _ = shared.set_server_policy(PeerPolicy::Pinned(shared.pins.clone()));
+        // Withdraw `pair=1` from the mDNS advert.
+        let advert = lock(&shared.advert).as_ref().and_then(|w| w.upgrade());
+        if let Some(d) = advert {
+            if let Err(e) = d.set_pairing(false) {
+                shared.emit_now(LinkEvent::Error {
+                    peer: None,
+                    kind: ErrorKind::Local,
+                    message: format!(
+                        "could not withdraw the pairing flag from the mDNS advert: {e}"
+                    ),
+                });
+            }
+        }
     }
 }
 
