@@ -1009,6 +1009,75 @@ mod tests {
     }
 
     #[test]
+    fn record_is_deterministic_and_records_hand_held_presses() {
+        let sim = Simulator::new().expect("simulator");
+        let bg = sim.background(0);
+        let run = || {
+            let mut rig = Rig::new(RecorderConfig::default());
+            for person in [0, 3, 7] {
+                let spec = PressSpec {
+                    jig: false,
+                    person,
+                    release: Some(true),
+                    ..PressSpec::new("T080", 10 + person as u64)
+                };
+                let press = sim.render_press(&spec).expect("render");
+                for _ in 0..30 {
+                    rig.feed(&bg);
+                }
+                for f in &press.frames {
+                    rig.feed(f);
+                }
+            }
+            for _ in 0..30 {
+                rig.feed(&bg);
+            }
+            rig.presses().into_iter().cloned().collect::<Vec<_>>()
+        };
+        let a = run();
+        assert_eq!(a.len(), 3, "every hand-held press is recorded");
+        assert_eq!(a, run(), "same frames, same recordings");
+    }
+
+    #[test]
+    fn record_a_second_press_inside_the_margin_ends_the_first() {
+        let (sim, press) = sim_press("T030", 1);
+        let bg = sim.background(0);
+        let touched = press.frames[press.frames.len() / 2].clone();
+        let mut rig = Rig::new(RecorderConfig::default());
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        for _ in 0..40 {
+            rig.feed(&touched);
+        }
+        // Released (5 quiet frames end the press), then pressed again at once.
+        for _ in 0..8 {
+            rig.feed(&bg);
+        }
+        for _ in 0..40 {
+            rig.feed(&touched);
+        }
+        for _ in 0..30 {
+            rig.feed(&bg);
+        }
+        let p = rig.presses();
+        assert_eq!(p.len(), 1);
+        // The first press kept what it had of its margin: fewer than 20 frames.
+        let k = p[0].summary.reference_frames as usize;
+        assert!(
+            p[0].press.frames.len() < k + 40 + 20,
+            "{}",
+            p[0].press.frames.len()
+        );
+        assert!(
+            matches!(rig.rejections()[..], [RecordWarning::NoQuietBefore { .. }]),
+            "{:?}",
+            rig.rejections()
+        );
+    }
+
+    #[test]
     fn record_given_fps_and_measured_fps() {
         assert_eq!(measured_fps(26, 1_000_000), 25.0);
         assert_eq!(measured_fps(1, 0), 60.0);
