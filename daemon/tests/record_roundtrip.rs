@@ -315,3 +315,61 @@ fn record_errors_say_what_to_do() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be a directory name"));
 }
+
+#[test]
+fn record_ctrl_c_leaves_only_complete_presses() {
+    use std::io::{BufRead, BufReader};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let mut child = Command::new(BIN)
+        .current_dir(d)
+        .env("RUST_BACKTRACE", "0")
+        .args([
+            "record",
+            "--textile",
+            "T030",
+            "--presses",
+            "1000",
+            "--out",
+            "rec",
+            "--sensor",
+            "sim",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let mut err = BufReader::new(child.stderr.take().expect("stderr"));
+    let mut seen = String::new();
+    let mut line = String::new();
+    while !seen.contains("saved press 2/1000") {
+        line.clear();
+        if err.read_line(&mut line).expect("read") == 0 {
+            panic!("record ended early: {seen}");
+        }
+        seen.push_str(&line);
+    }
+    let pid = child.id().to_string();
+    let killed = Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).expect("read");
+    let status = child.wait().expect("wait");
+    assert!(!status.success(), "interrupted is not success");
+    assert!(
+        rest.contains("interrupted:") && rest.contains("presses saved"),
+        "{seen}{rest}"
+    );
+    let mut n = 0;
+    for e in std::fs::read_dir(d.join("rec/T030")).expect("dir") {
+        let e = e.expect("entry");
+        let name = e.file_name().to_string_lossy().into_owned();
+        assert!(!name.contains(".tmp-"), "half-written press left: {name}");
+        telextiles_sim::recording::read_press(&e.path()).expect("a complete press");
+        n += 1;
+    }
+    assert!(n >= 2, "{n} presses");
+}
