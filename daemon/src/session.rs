@@ -503,7 +503,7 @@ mod tests {
             .unwrap();
         rt.block_on(async {
             let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-            let _ = supervise("receiver task", &tx, async {
+            let _task = supervise("receiver task", &tx, async {
                 if std::hint::black_box(true) {
                     panic!("peer sent something odd");
                 }
@@ -514,7 +514,7 @@ mod tests {
                 (what, why.as_deref()),
                 ("receiver task", Some("it panicked"))
             );
-            let _ = supervise("roller events task", &tx, async {
+            let _task = supervise("roller events task", &tx, async {
                 Some("the roller driver stopped".to_string())
             });
             let (what, why) = rx.recv().await.unwrap();

@@ -38,8 +38,12 @@ impl Latent {
             return Err(LatentError::NonFinite);
         }
         // In f64: a finite f32 vector's squared norm cannot overflow.
-        let n = v.iter().map(|&x| (x as f64) * (x as f64)).sum::<f64>().sqrt();
-        if !(n > 0.0) {
+        let n = v
+            .iter()
+            .map(|&x| (x as f64) * (x as f64))
+            .sum::<f64>()
+            .sqrt();
+        if n.is_nan() || n <= 0.0 {
             return Err(LatentError::Zero);
         }
         let out: Box<[f32]> = v.iter().map(|&x| (x as f64 / n) as f32).collect();
@@ -96,9 +100,18 @@ mod tests {
             Latent::new(&[1.0; 3], 2),
             Err(LatentError::Dimension { got: 3, want: 2 })
         );
-        assert_eq!(Latent::new(&[], 2), Err(LatentError::Dimension { got: 0, want: 2 }));
-        assert_eq!(Latent::new(&[f32::NAN, 1.0], 2), Err(LatentError::NonFinite));
-        assert_eq!(Latent::new(&[f32::INFINITY, 1.0], 2), Err(LatentError::NonFinite));
+        assert_eq!(
+            Latent::new(&[], 2),
+            Err(LatentError::Dimension { got: 0, want: 2 })
+        );
+        assert_eq!(
+            Latent::new(&[f32::NAN, 1.0], 2),
+            Err(LatentError::NonFinite)
+        );
+        assert_eq!(
+            Latent::new(&[f32::INFINITY, 1.0], 2),
+            Err(LatentError::NonFinite)
+        );
         assert_eq!(Latent::new(&[0.0, 0.0], 2), Err(LatentError::Zero));
         // Extremes of f32 neither overflow nor underflow to garbage.
         let big = Latent::new(&[f32::MAX, f32::MAX], 2).unwrap();

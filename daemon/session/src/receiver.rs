@@ -243,12 +243,16 @@ impl<I: TextileIndex> ReceiverCore<I> {
                         latent: latent.clone(),
                     });
                 }
-                let Some(step) = p.decider.on_embedding(&*index, capture_us, latent.as_slice())
+                let Some(step) = p
+                    .decider
+                    .on_embedding(&*index, capture_us, latent.as_slice())
                 else {
                     return;
                 };
                 if let (true, Some(d)) = (step.changed, step.decision) {
-                    Self::decide(&*index, peer, p, d.entry, d.distance, capture_us, false, out);
+                    Self::decide(
+                        &*index, peer, p, d.entry, d.distance, capture_us, false, out,
+                    );
                 }
             }
             RxInput::PressStop {

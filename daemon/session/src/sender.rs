@@ -164,9 +164,19 @@ mod tests {
         s.on_frame(40, end(40), None, &mut out);
         s.on_frame(50, None, Some(&[1.0, 0.0]), &mut out);
         assert_eq!(out.len(), 4, "{out:?}");
-        assert!(matches!(out[0], TxAction::PressStart { press_id: 1, capture_us: 20 }));
+        assert!(matches!(
+            out[0],
+            TxAction::PressStart {
+                press_id: 1,
+                capture_us: 20
+            }
+        ));
         match &out[2] {
-            TxAction::Latent { press_id: 1, capture_us: 30, latent } => {
+            TxAction::Latent {
+                press_id: 1,
+                capture_us: 30,
+                latent,
+            } => {
                 assert_eq!(latent.as_slice(), &[0.0, 1.0])
             }
             other => panic!("{other:?}"),
@@ -190,8 +200,15 @@ mod tests {
         assert_eq!(
             out,
             [
-                TxAction::PressStart { press_id: 2, capture_us: 60 },
-                TxAction::PressStop { press_id: 2, capture_us: 70, final_latent: None }
+                TxAction::PressStart {
+                    press_id: 2,
+                    capture_us: 60
+                },
+                TxAction::PressStop {
+                    press_id: 2,
+                    capture_us: 70,
+                    final_latent: None
+                }
             ]
         );
     }
@@ -211,6 +228,15 @@ mod tests {
                 TxAction::PressStop { press_id, .. } => ("stop", *press_id),
             })
             .collect();
-        assert_eq!(ids, [("start", 0), ("latent", 0), ("stop", 0), ("start", 1), ("latent", 1)]);
+        assert_eq!(
+            ids,
+            [
+                ("start", 0),
+                ("latent", 0),
+                ("stop", 0),
+                ("start", 1),
+                ("latent", 1)
+            ]
+        );
     }
 }

@@ -31,7 +31,9 @@ fn index() -> Arc<FlatIndex> {
 /// A frame of textile `k` under noise.
 fn embedding(idx: &FlatIndex, k: usize, noise: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
     let c = centroid(idx, k);
-    c.iter().map(|x| x + noise * rng.gen_range(-1.0f32..1.0)).collect()
+    c.iter()
+        .map(|x| x + noise * rng.gen_range(-1.0f32..1.0))
+        .collect()
 }
 
 fn centroid(idx: &FlatIndex, k: usize) -> Vec<f32> {
@@ -135,7 +137,12 @@ impl Net {
         }
     }
     /// Deliver everything due by `now`.
-    fn deliver(&mut self, now: u64, rx: &mut ReceiverCore<FlatIndex>, out: &mut Vec<(usize, RxAction)>) {
+    fn deliver(
+        &mut self,
+        now: u64,
+        rx: &mut ReceiverCore<FlatIndex>,
+        out: &mut Vec<(usize, RxAction)>,
+    ) {
         while self.queue.peek().is_some_and(|m| m.at <= now) {
             let m = self.queue.pop().unwrap();
             let peer = format!("peer{}", m.peer);
@@ -143,12 +150,22 @@ impl Net {
             let Msg::Tx(a) = &m.msg;
             let latency = Some((m.at - sent_at(a)) as i64);
             match a {
-                TxAction::PressStart { press_id, capture_us } => rx.handle(
+                TxAction::PressStart {
+                    press_id,
+                    capture_us,
+                } => rx.handle(
                     &peer,
-                    RxInput::PressStart { press_id: *press_id, capture_us: *capture_us },
+                    RxInput::PressStart {
+                        press_id: *press_id,
+                        capture_us: *capture_us,
+                    },
                     &mut acts,
                 ),
-                TxAction::Latent { press_id, capture_us, latent } => rx.handle(
+                TxAction::Latent {
+                    press_id,
+                    capture_us,
+                    latent,
+                } => rx.handle(
                     &peer,
                     RxInput::Latent {
                         press_id: *press_id,
@@ -159,7 +176,11 @@ impl Net {
                     },
                     &mut acts,
                 ),
-                TxAction::PressStop { press_id, capture_us, final_latent } => rx.handle(
+                TxAction::PressStop {
+                    press_id,
+                    capture_us,
+                    final_latent,
+                } => rx.handle(
                     &peer,
                     RxInput::PressStop {
                         press_id: *press_id,
@@ -200,7 +221,11 @@ impl Presser {
                 event = Some(ContactEvent::PressStart { t_us: t });
             }
             if f == start + len {
-                event = Some(ContactEvent::PressEnd { start_us: start * PERIOD, t_us: t, reason: EndReason::Released });
+                event = Some(ContactEvent::PressEnd {
+                    start_us: start * PERIOD,
+                    t_us: t,
+                    reason: EndReason::Released,
+                });
             }
             if f >= start && f < start + len {
                 emb = Some(embedding(idx, k, 0.35, rng));
@@ -210,14 +235,24 @@ impl Presser {
     }
 }
 
+/// (sender, press, decided entry).
+type Final = (usize, u32, usize);
+
 /// Run `senders` pressing their plans through `net`; the final decisions
 /// per (peer, press) and every action.
-fn run(plans: Vec<Vec<(u64, usize, u64)>>, mut net: Net, frames: u64) -> (Vec<(usize, u32, usize)>, Vec<(usize, RxAction)>) {
+fn run(
+    plans: Vec<Vec<(u64, usize, u64)>>,
+    mut net: Net,
+    frames: u64,
+) -> (Vec<Final>, Vec<(usize, RxAction)>) {
     let idx = index();
     let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
     let mut senders: Vec<Presser> = plans
         .into_iter()
-        .map(|plan| Presser { core: SenderCore::new(DIM), plan })
+        .map(|plan| Presser {
+            core: SenderCore::new(DIM),
+            plan,
+        })
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     let mut acts = Vec::new();
@@ -273,8 +308,14 @@ fn loss_reordering_duplicates_and_delay_do_not_change_the_final_decisions() {
     for seed in 0..8 {
         let net = Net::new(1, 0.3, 0.2, 20_000, 60_000, seed);
         let (finals, acts) = run(vec![plan.clone()], net, 360);
-        assert_eq!(finals, [(0, 1, 2), (0, 2, 6), (0, 3, 0), (0, 4, 7)], "seed {seed}: {acts:?}");
-        assert!(!acts.iter().any(|(_, a)| matches!(a, RxAction::Refused { .. })));
+        assert_eq!(
+            finals,
+            [(0, 1, 2), (0, 2, 6), (0, 3, 0), (0, 4, 7)],
+            "seed {seed}: {acts:?}"
+        );
+        assert!(!acts
+            .iter()
+            .any(|(_, a)| matches!(a, RxAction::Refused { .. })));
     }
 }
 
@@ -283,7 +324,12 @@ fn two_and_three_peers_pressing_at_once_each_get_their_own_right_decisions() {
     for peers in [2usize, 3] {
         // Overlapping presses of different textiles.
         let plans: Vec<Vec<(u64, usize, u64)>> = (0..peers)
-            .map(|p| vec![(10 + 7 * p as u64, p + 1, 80), (120 + 11 * p as u64, 7 - p, 60)])
+            .map(|p| {
+                vec![
+                    (10 + 7 * p as u64, p + 1, 80),
+                    (120 + 11 * p as u64, 7 - p, 60),
+                ]
+            })
             .collect();
         let net = Net::new(peers, 0.1, 0.05, 10_000, 20_000, 3);
         let (finals, _) = run(plans, net, 260);
@@ -315,26 +361,58 @@ fn malformed_messages_are_refused_and_decisions_go_on() {
             v
         },
     ];
-    rx.handle("p", RxInput::PressStart { press_id: 7, capture_us: 0 }, &mut out);
+    rx.handle(
+        "p",
+        RxInput::PressStart {
+            press_id: 7,
+            capture_us: 0,
+        },
+        &mut out,
+    );
     for (k, v) in bad.iter().enumerate() {
         rx.handle(
             "p",
-            RxInput::Latent { press_id: 7, seq: k as u64, capture_us: k as u64 * PERIOD, vector: v, one_way_latency_us: Some(-5) },
+            RxInput::Latent {
+                press_id: 7,
+                seq: k as u64,
+                capture_us: k as u64 * PERIOD,
+                vector: v,
+                one_way_latency_us: Some(-5),
+            },
             &mut out,
         );
     }
-    assert_eq!(out.iter().filter(|a| matches!(a, RxAction::Refused { .. })).count(), bad.len());
+    assert_eq!(
+        out.iter()
+            .filter(|a| matches!(a, RxAction::Refused { .. }))
+            .count(),
+        bad.len()
+    );
     // An empty or NaN final latent: refused, and the press still ends with
     // this side's own running decision.
     for k in 0..20u64 {
         rx.handle(
             "p",
-            RxInput::Latent { press_id: 7, seq: 100 + k, capture_us: (10 + k) * PERIOD, vector: &good, one_way_latency_us: None },
+            RxInput::Latent {
+                press_id: 7,
+                seq: 100 + k,
+                capture_us: (10 + k) * PERIOD,
+                vector: &good,
+                one_way_latency_us: None,
+            },
             &mut out,
         );
     }
     out.clear();
-    rx.handle("p", RxInput::PressStop { press_id: 7, capture_us: 40 * PERIOD, final_latent: Some((&[], 40 * PERIOD)) }, &mut out);
+    rx.handle(
+        "p",
+        RxInput::PressStop {
+            press_id: 7,
+            capture_us: 40 * PERIOD,
+            final_latent: Some((&[], 40 * PERIOD)),
+        },
+        &mut out,
+    );
     assert!(matches!(out[0], RxAction::Refused { .. }), "{out:?}");
     let fin = out.iter().find_map(|a| match a {
         RxAction::Decision(d) if d.final_decision => Some(d.clone()),
@@ -346,15 +424,56 @@ fn malformed_messages_are_refused_and_decisions_go_on() {
     assert_eq!((fin.latency_ms, fin.since_contact_ms), (None, None));
     // Extreme numbers: ids and timestamps at the limits.
     out.clear();
-    rx.handle("p", RxInput::PressStart { press_id: u32::MAX, capture_us: u64::MAX }, &mut out);
-    rx.handle("p", RxInput::Latent { press_id: u32::MAX, seq: u64::MAX, capture_us: 0, vector: &good, one_way_latency_us: Some(i64::MIN) }, &mut out);
-    rx.handle("p", RxInput::PressStop { press_id: u32::MAX, capture_us: 0, final_latent: Some((&good, u64::MAX)) }, &mut out);
-    assert!(out.iter().any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 4)), "{out:?}");
+    rx.handle(
+        "p",
+        RxInput::PressStart {
+            press_id: u32::MAX,
+            capture_us: u64::MAX,
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::Latent {
+            press_id: u32::MAX,
+            seq: u64::MAX,
+            capture_us: 0,
+            vector: &good,
+            one_way_latency_us: Some(i64::MIN),
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::PressStop {
+            press_id: u32::MAX,
+            capture_us: 0,
+            final_latent: Some((&good, u64::MAX)),
+        },
+        &mut out,
+    );
+    assert!(
+        out.iter()
+            .any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 4)),
+        "{out:?}"
+    );
     // A later press of the same peer is still decided, even when its
     // number starts again from 0 (the peer restarted).
     out.clear();
-    rx.handle("p", RxInput::PressStop { press_id: 0, capture_us: 50, final_latent: Some((&centroid(&idx, 2), 50)) }, &mut out);
-    assert!(out.iter().any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 2)), "{out:?}");
+    rx.handle(
+        "p",
+        RxInput::PressStop {
+            press_id: 0,
+            capture_us: 50,
+            final_latent: Some((&centroid(&idx, 2), 50)),
+        },
+        &mut out,
+    );
+    assert!(
+        out.iter()
+            .any(|a| matches!(a, RxAction::Decision(d) if d.final_decision && d.entry == 2)),
+        "{out:?}"
+    );
 }
 
 #[test]
@@ -363,18 +482,75 @@ fn late_and_duplicated_messages_of_finished_presses_are_ignored() {
     let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
     let mut out = Vec::new();
     let a = centroid(&idx, 1);
-    rx.handle("p", RxInput::PressStart { press_id: 1, capture_us: 0 }, &mut out);
-    rx.handle("p", RxInput::PressStop { press_id: 1, capture_us: 9, final_latent: Some((&a, 9)) }, &mut out);
+    rx.handle(
+        "p",
+        RxInput::PressStart {
+            press_id: 1,
+            capture_us: 0,
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::PressStop {
+            press_id: 1,
+            capture_us: 9,
+            final_latent: Some((&a, 9)),
+        },
+        &mut out,
+    );
     let n = out.len();
     // A late datagram and a duplicated stop of press 1 start nothing.
-    rx.handle("p", RxInput::Latent { press_id: 1, seq: 3, capture_us: 5, vector: &a, one_way_latency_us: None }, &mut out);
-    rx.handle("p", RxInput::PressStop { press_id: 1, capture_us: 9, final_latent: Some((&a, 9)) }, &mut out);
-    rx.handle("p", RxInput::PressStart { press_id: 1, capture_us: 0 }, &mut out);
+    rx.handle(
+        "p",
+        RxInput::Latent {
+            press_id: 1,
+            seq: 3,
+            capture_us: 5,
+            vector: &a,
+            one_way_latency_us: None,
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::PressStop {
+            press_id: 1,
+            capture_us: 9,
+            final_latent: Some((&a, 9)),
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::PressStart {
+            press_id: 1,
+            capture_us: 0,
+        },
+        &mut out,
+    );
     assert_eq!(out.len(), n, "{out:?}");
     assert_eq!(rx.press_of("p"), None);
     // Press 3 is under way; a late datagram of press 2 does not reset it.
-    rx.handle("p", RxInput::PressStart { press_id: 3, capture_us: 100 }, &mut out);
-    rx.handle("p", RxInput::Latent { press_id: 2, seq: 1, capture_us: 50, vector: &a, one_way_latency_us: None }, &mut out);
+    rx.handle(
+        "p",
+        RxInput::PressStart {
+            press_id: 3,
+            capture_us: 100,
+        },
+        &mut out,
+    );
+    rx.handle(
+        "p",
+        RxInput::Latent {
+            press_id: 2,
+            seq: 1,
+            capture_us: 50,
+            vector: &a,
+            one_way_latency_us: None,
+        },
+        &mut out,
+    );
     assert_eq!(rx.press_of("p"), Some(3));
     // A peer that goes down leaves nothing behind.
     rx.handle("p", RxInput::PeerDown, &mut out);
@@ -384,10 +560,23 @@ fn late_and_duplicated_messages_of_finished_presses_are_ignored() {
 #[test]
 fn peers_are_bounded() {
     let idx = index();
-    let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig { max_peers: 4, ..Default::default() });
+    let mut rx = ReceiverCore::new(
+        idx.clone(),
+        ReceiverConfig {
+            max_peers: 4,
+            ..Default::default()
+        },
+    );
     let mut out = Vec::new();
     for k in 0..100u32 {
-        rx.handle(&format!("peer{k}"), RxInput::PressStart { press_id: 1, capture_us: 0 }, &mut out);
+        rx.handle(
+            &format!("peer{k}"),
+            RxInput::PressStart {
+                press_id: 1,
+                capture_us: 0,
+            },
+            &mut out,
+        );
         assert!(rx.peers() <= 4);
     }
     assert_eq!(rx.press_of("peer99"), Some(1));
