@@ -45,6 +45,9 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
             state.pins.insert(peer);
         }
         LinkEvent::PeerUp { peer, name, addr } => {
+            // A new connection is a new session with that peer (its capture
+            // clock may have restarted with its process): forget its presses.
+            rx.handle(&peer.to_string(), RxInput::PeerDown, &mut actions);
             say(&format!(
                 "Peer up: {name} ({}) at {addr} — live session running (Ctrl-C to stop)",
                 peer.short()
