@@ -430,6 +430,7 @@ mod tests {
     use serde_json::json;
     use std::path::Path;
     use std::sync::Arc;
+    use telextiles_control::RecordPhase;
     use telextiles_control::{
         Access, CtlError, Event, Handler, HandlerFuture, Server, ServerConfig, SocketSpec,
     };
@@ -614,6 +615,96 @@ mod tests {
                 }
             })
         }
+    }
+
+    /// Answers record.start and then plays a recording's events.
+    struct Recorder(tokio::sync::broadcast::Sender<Event>, RecordPhase);
+    impl Handler for Recorder {
+        fn handle(&self, command: Command) -> HandlerFuture<'_> {
+            Box::pin(async move {
+                let Command::RecordStart(a) = command else {
+                    return Err(CtlError::unavailable("only record.start"));
+                };
+                let (tx, end) = (self.0.clone(), self.1);
+                let textile = a.textile.clone();
+                tokio::spawn(async move {
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    let state = |state, reason: Option<&str>| Event::Record {
+                        state,
+                        textile: textile.clone(),
+                        press: 1,
+                        presses: 1,
+                        held_ms: None,
+                        score: None,
+                        reason: reason.map(String::from),
+                    };
+                    let _ = tx.send(state(RecordPhase::Ready, None));
+                    let _ = tx.send(Event::RollerArrived {
+                        slot: 1,
+                        angle_deg: 1.0,
+                    });
+                    let _ = tx.send(state(end, Some("record.stop (0 of 1 presses saved)")));
+                });
+                Ok(json!({"first": "0001"}))
+            })
+        }
+    }
+
+    #[test]
+    fn record_start_follow_prints_the_recording_until_it_ends() {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            for end in [RecordPhase::Done, RecordPhase::Stopped] {
+                let dir = tempfile::tempdir().unwrap();
+                let spec = SocketSpec::in_dir(&dir.path().join("rt"), Access::User);
+                let server = Server::bind(ServerConfig::new(spec)).unwrap();
+                let sock = server.path().to_path_buf();
+                let (events, _) = tokio::sync::broadcast::channel(16);
+                let stop = Arc::new(tokio::sync::Notify::new());
+                let stop2 = stop.clone();
+                let served = tokio::spawn(server.serve(
+                    Arc::new(Recorder(events.clone(), end)),
+                    events,
+                    async move { stop2.notified().await },
+                ));
+                let a = parse(&[
+                    "record",
+                    "start",
+                    "--textile",
+                    "T030",
+                    "--presses",
+                    "1",
+                    "--out",
+                    "/r",
+                    "--follow",
+                ]);
+                let mut out = Vec::new();
+                let r = execute(&a, &sock, &mut out).await;
+                let out = String::from_utf8(out).unwrap();
+                // Only record events are followed.
+                assert!(!out.contains("roller"), "{out}");
+                assert!(
+                    out.starts_with("first: 0001\nrecord    T030 1/1: press now\n"),
+                    "{out}"
+                );
+                match end {
+                    RecordPhase::Done => {
+                        r.unwrap();
+                        assert!(out.ends_with("record    T030: done, 1 presses\n"), "{out}");
+                    }
+                    _ => assert_eq!(
+                        r.unwrap_err().to_string(),
+                        "the recording stopped: record.stop (0 of 1 presses saved)"
+                    ),
+                }
+                stop.notify_one();
+                served.await.unwrap();
+            }
+        });
     }
 
     /// The real CLI code path against a real server on a real socket.
