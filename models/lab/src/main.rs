@@ -620,7 +620,11 @@ fn eval(a: EvalArgs) -> Result<()> {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.threads = a.ort_threads;
-        cfg.time_threads = vec![a.ort_threads];
+        cfg.time_threads = if a.ort_threads > 1 {
+            vec![1, a.ort_threads]
+        } else {
+            vec![1]
+        };
         cfg.runs = 100;
         let r = recorded::run(&cfg, std::slice::from_ref(&m), None)?;
         println!("{}", recorded::markdown(&r));

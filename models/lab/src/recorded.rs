@@ -603,7 +603,11 @@ pub fn embed_all(
     let refs = list_recordings(&cfg.dir)?;
     let mut proc = Processor::new(methods, cfg.threads, cfg.contact.clone())?;
     let progress = telextiles_progress::Progress::new(
-        &format!("embedding with {} methods", methods.len()),
+        &format!(
+            "embedding with {} method{}",
+            methods.len(),
+            if methods.len() == 1 { "" } else { "s" }
+        ),
         refs.len() as u64,
         "recordings",
     );
