@@ -21,6 +21,11 @@
 //! Events go out on a `broadcast` channel ([`RollerDriver::subscribe`]); the
 //! current state is a `watch` ([`RollerDriver::state`]).
 //!
+//! The protocol itself is the sans-IO state machine [`link::RollerLink`]
+//! (fed explicit time and bytes, returning [`link::Action`]s); the task is
+//! wiring: it opens the port, writes the frames, reads into the link, sleeps
+//! until [`link::RollerLink::poll_timeout`] and publishes events and state.
+//!
 //! For demos and tests without hardware, [`SimRoller`] runs the real
 //! firmware core on a pseudo-terminal in-process:
 //!
@@ -38,15 +43,16 @@
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use telextiles_proto::roller::{
-    self as wire, Command, ErrorCode, FrameDecoder, Reply, PROTOCOL_VERSION,
-};
+use telextiles_proto::roller::{self as wire, Command};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialPortType, SerialStream};
 
+pub mod link;
+
+pub use link::{Action, LinkConfig, RollerLink};
 pub use roller_firmware::sim::{Noise, SimConfig, SimRoller};
 pub use telextiles_proto::roller::{Status, Version};
 
@@ -122,7 +128,8 @@ pub enum Target {
 }
 
 impl Target {
-    fn command(self) -> Command {
+    /// The command that asks the firmware for this target.
+    pub fn command(self) -> Command {
         match self {
             Target::Slot(slot) => Command::GotoSlot { slot },
             Target::AngleMdeg(mdeg) => Command::GotoAngle {
@@ -387,421 +394,86 @@ async fn driver_task(
     events: broadcast::Sender<RollerEvent>,
     state_tx: watch::Sender<RollerState>,
 ) {
-    let mut backoff = cfg.reconnect_min;
-    let mut last_open_error: Option<String> = None;
+    // The link's clock: microseconds since the task started.
+    let epoch = Instant::now();
+    let now = || epoch.elapsed().as_micros() as u64;
+    let mut link = RollerLink::new(LinkConfig::from(&cfg));
+    let mut port: Option<SerialStream> = None;
+    let mut buf = [0u8; 256];
+    if let Some(t) = *target_rx.borrow_and_update() {
+        link.set_target(t, now());
+    }
     loop {
-        match open_port(&cfg) {
-            Err(e) => {
-                let msg = format!("{e}; retrying in {backoff:?}");
-                // Report a persistent failure once, not on every retry.
-                if last_open_error.as_deref() != Some(&e.to_string()) {
-                    tracing::warn!("{msg}");
-                    let _ = events.send(RollerEvent::Error { message: msg });
-                    last_open_error = Some(e.to_string());
-                }
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(cfg.reconnect_max);
-            }
-            Ok((name, port)) => {
-                last_open_error = None;
-                let mut s = Session {
-                    cfg: &cfg,
-                    name: name.clone(),
-                    port,
-                    dec: FrameDecoder::new(),
-                    seq: 0,
-                    events: &events,
-                    state_tx: &state_tx,
-                    target_rx: &mut target_rx,
-                    version: None,
-                    rejected: None,
-                };
-                let reason = s.run(&mut backoff).await;
-                state_tx.send_modify(|st| {
-                    if st.connected {
-                        st.reconnects += 1;
+        while let Some(action) = link.poll() {
+            match action {
+                Action::Open => match open_port(&cfg) {
+                    Ok((name, p)) => {
+                        port = Some(p);
+                        link.handle_opened(name, now());
                     }
-                    st.connected = false;
-                });
-                match reason {
-                    SessionEnd::Shutdown => return,
-                    SessionEnd::Lost(reason) => {
-                        let reason = format!("roller link {name} lost: {reason}");
-                        tracing::warn!("{reason}");
-                        let _ = events.send(RollerEvent::Disconnected { reason });
-                    }
-                }
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(cfg.reconnect_max);
-            }
-        }
-    }
-}
-
-enum SessionEnd {
-    Shutdown,
-    Lost(String),
-}
-
-struct Outstanding {
-    seq: u8,
-    cmd: Command,
-    target: Option<Target>,
-    deadline: Instant,
-    tries: u32,
-}
-
-struct Session<'a> {
-    cfg: &'a DriverConfig,
-    name: String,
-    port: SerialStream,
-    dec: FrameDecoder,
-    seq: u8,
-    events: &'a broadcast::Sender<RollerEvent>,
-    state_tx: &'a watch::Sender<RollerState>,
-    target_rx: &'a mut watch::Receiver<Option<Target>>,
-    version: Option<Version>,
-    /// A target the firmware refused (not re-sent by the resync).
-    rejected: Option<Target>,
-}
-
-impl Session<'_> {
-    fn next_seq(&mut self) -> u8 {
-        self.seq = self.seq.wrapping_add(1);
-        self.seq
-    }
-
-    async fn write(&mut self, seq: u8, cmd: &Command) -> Result<(), String> {
-        let f = cmd.encode(seq);
-        self.port
-            .write_all(f.as_bytes())
-            .await
-            .map_err(|e| format!("write failed: {e}"))
-    }
-
-    /// Sends `cmd` and waits for its answer (same `SEQ`), retrying; other
-    /// frames meanwhile go to `on_other`.
-    async fn request(&mut self, cmd: Command) -> Result<Reply, String> {
-        let seq = self.next_seq();
-        for _ in 0..self.cfg.max_tries {
-            self.write(seq, &cmd).await?;
-            let deadline = Instant::now() + self.cfg.ack_timeout;
-            loop {
-                let mut buf = [0u8; 256];
-                let n = match tokio::time::timeout_at(deadline, self.port.read(&mut buf)).await {
-                    Err(_) => break,
-                    Ok(Ok(0)) => return Err("end of file on the port".into()),
-                    Ok(Ok(n)) => n,
-                    Ok(Err(e)) => return Err(format!("read failed: {e}")),
-                };
-                let frames: Vec<_> = self.dec.feed(&buf[..n]).filter_map(Result::ok).collect();
-                for f in frames {
-                    if let Ok(r) = Reply::from_frame(&f) {
-                        if f.seq == seq && !matches!(r, Reply::Arrived(_)) {
-                            return Ok(r);
-                        }
-                    }
-                }
-            }
-        }
-        Err(format!(
-            "no answer to {cmd:?} after {} tries of {:?}",
-            self.cfg.max_tries, self.cfg.ack_timeout
-        ))
-    }
-
-    fn position_event(&self, s: &Status) {
-        let (slots, spr) = self
-            .version
-            .map(|v| (s.slots.max(1), v.steps_per_rev))
-            .unwrap_or((s.slots.max(1), 3200));
-        let _ = self.events.send(RollerEvent::Position {
-            steps: s.position,
-            mdeg: wire::steps_to_mdeg(s.position, spr),
-            slot: wire::steps_to_slot(s.position, slots, spr),
-            moving: s.moving(),
-        });
-        let st = *s;
-        self.state_tx.send_modify(|x| x.status = Some(st));
-    }
-
-    async fn run(&mut self, backoff: &mut Duration) -> SessionEnd {
-        // Hello and version check.
-        let version = match self
-            .request(Command::Hello {
-                protocol: PROTOCOL_VERSION,
-            })
-            .await
-        {
-            Ok(Reply::Version(v)) => v,
-            Ok(other) => return SessionEnd::Lost(format!("unexpected answer to Hello: {other:?}")),
-            Err(e) => return SessionEnd::Lost(e),
-        };
-        if version.protocol != PROTOCOL_VERSION {
-            let message = format!(
-                "roller on {} speaks protocol {} (firmware {}.{}.{}); this driver speaks {PROTOCOL_VERSION}: update the firmware",
-                self.name,
-                version.protocol,
-                version.firmware[0],
-                version.firmware[1],
-                version.firmware[2]
-            );
-            let _ = self.events.send(RollerEvent::Error {
-                message: message.clone(),
-            });
-            return SessionEnd::Lost(message);
-        }
-        self.version = Some(version);
-        if let Some(slots) = self.cfg.slots {
-            match self.request(Command::SetSlots { slots }).await {
-                Ok(Reply::Ack(_)) => {}
-                Ok(Reply::Error { code, .. }) => {
-                    self.error(format!("roller refused {slots} slots: {code}"))
-                }
-                Ok(other) => return SessionEnd::Lost(format!("unexpected answer: {other:?}")),
-                Err(e) => return SessionEnd::Lost(e),
-            }
-        }
-        if let Some((max_speed, accel)) = self.cfg.motion {
-            match self.request(Command::SetMotion { max_speed, accel }).await {
-                Ok(Reply::Ack(_)) => {}
-                Ok(Reply::Error { code, .. }) => self.error(format!(
-                    "roller refused speed {max_speed}/s, acceleration {accel}/s^2: {code}"
-                )),
-                Ok(other) => return SessionEnd::Lost(format!("unexpected answer: {other:?}")),
-                Err(e) => return SessionEnd::Lost(e),
-            }
-        }
-        // Position resync.
-        let status = match self.request(Command::QueryStatus).await {
-            Ok(Reply::Status(s)) => s,
-            Ok(other) => return SessionEnd::Lost(format!("unexpected answer: {other:?}")),
-            Err(e) => return SessionEnd::Lost(e),
-        };
-        let version = Version {
-            slots: self.cfg.slots.unwrap_or(version.slots),
-            ..version
-        };
-        self.version = Some(version);
-        *backoff = self.cfg.reconnect_min;
-        self.state_tx.send_modify(|st| {
-            st.connected = true;
-            st.port = Some(self.name.clone());
-            st.version = Some(version);
-        });
-        tracing::info!(
-            "roller on {}: firmware {:?}, {} slots, {} steps/rev",
-            self.name,
-            version.firmware,
-            version.slots,
-            version.steps_per_rev
-        );
-        let _ = self.events.send(RollerEvent::Connected {
-            port: self.name.clone(),
-            version,
-        });
-        self.position_event(&status);
-        self.main_loop().await
-    }
-
-    fn error(&self, message: String) {
-        tracing::warn!("{message}");
-        let _ = self.events.send(RollerEvent::Error { message });
-    }
-
-    async fn main_loop(&mut self) -> SessionEnd {
-        // The target the firmware acknowledged (and the SEQ it acknowledged),
-        // or rejected (then it is not re-sent until a new target comes).
-        let mut sent: Option<(Target, u8)> = None;
-        let mut outstanding: Option<Outstanding> = None;
-        let mut next_keepalive = Instant::now() + self.cfg.keepalive;
-        let mut buf = [0u8; 256];
-        loop {
-            // Send what is due: the latest target first, else a keepalive.
-            if outstanding.is_none() {
-                let latest = *self.target_rx.borrow_and_update();
-                self.state_tx.send_if_modified(|st| {
-                    let changed = st.target != latest;
-                    st.target = latest;
-                    changed
-                });
-                let cmd = match latest {
-                    Some(t) if sent.map(|s| s.0) != Some(t) => {
-                        self.state_tx.send_if_modified(|st| {
-                            let changed = st.arrived.is_some();
-                            st.arrived = None;
-                            changed
-                        });
-                        Some((t.command(), Some(t)))
-                    }
-                    _ if Instant::now() >= next_keepalive => Some((Command::QueryStatus, None)),
-                    _ => None,
-                };
-                if let Some((cmd, target)) = cmd {
-                    let seq = self.next_seq();
-                    if let Err(e) = self.write(seq, &cmd).await {
-                        return SessionEnd::Lost(e);
-                    }
-                    if let Some(target) = target {
-                        let _ = self.events.send(RollerEvent::TargetWritten {
-                            target,
-                            at: std::time::Instant::now(),
-                        });
-                    }
-                    next_keepalive = Instant::now() + self.cfg.keepalive;
-                    outstanding = Some(Outstanding {
-                        seq,
-                        cmd,
-                        target,
-                        deadline: Instant::now() + self.cfg.ack_timeout,
-                        tries: 1,
-                    });
-                }
-            }
-            let wake = outstanding
-                .as_ref()
-                .map(|o| o.deadline)
-                .unwrap_or(next_keepalive);
-            tokio::select! {
-                changed = self.target_rx.changed(), if outstanding.is_none() => {
-                    if changed.is_err() {
-                        return SessionEnd::Shutdown;
-                    }
-                }
-                r = self.port.read(&mut buf) => {
-                    let n = match r {
-                        Ok(0) => return SessionEnd::Lost("end of file on the port".into()),
-                        Ok(n) => n,
-                        Err(e) => return SessionEnd::Lost(format!("read failed: {e}")),
-                    };
-                    let frames: Vec<_> = self.dec.feed(&buf[..n]).collect();
-                    for f in frames {
-                        let Ok(f) = f else {
-                            tracing::debug!("roller: dropped a corrupted frame");
-                            continue;
-                        };
-                        let Ok(reply) = Reply::from_frame(&f) else {
-                            continue;
-                        };
-                        self.on_reply(f.seq, reply, &mut outstanding, &mut sent);
-                    }
-                }
-                _ = tokio::time::sleep_until(wake) => {
-                    if let Some(o) = outstanding.as_mut() {
-                        if Instant::now() >= o.deadline {
-                            if o.tries >= self.cfg.max_tries {
-                                return SessionEnd::Lost(format!(
-                                    "no answer to {:?} after {} tries of {:?}",
-                                    o.cmd, o.tries, self.cfg.ack_timeout
-                                ));
-                            }
-                            o.tries += 1;
-                            o.deadline = Instant::now() + self.cfg.ack_timeout;
-                            let (seq, cmd) = (o.seq, o.cmd);
-                            tracing::debug!("roller: resending {cmd:?} (seq {seq})");
-                            if let Err(e) = self.write(seq, &cmd).await {
-                                return SessionEnd::Lost(e);
+                    Err(e) => link.handle_open_failed(e.to_string(), now()),
+                },
+                Action::Transmit { frame, target } => {
+                    let Some(p) = port.as_mut() else { continue };
+                    match p.write_all(frame.as_bytes()).await {
+                        Ok(()) => {
+                            if let Some(target) = target {
+                                let at = std::time::Instant::now();
+                                let _ = events.send(RollerEvent::TargetWritten { target, at });
                             }
                         }
+                        Err(e) => link.handle_port_error(format!("write failed: {e}"), now()),
                     }
                 }
+                Action::Close => port = None,
+                Action::Event(e) => {
+                    let _ = events.send(e);
+                }
             }
+        }
+        // Events first, then state: whoever waits on the state finds the
+        // events already in the channel.
+        state_tx.send_if_modified(|st| {
+            let changed = st != link.state();
+            if changed {
+                *st = link.state().clone();
+            }
+            changed
+        });
+        let wake = link
+            .poll_timeout()
+            .map(|t| epoch + Duration::from_micros(t));
+        tokio::select! {
+            changed = target_rx.changed() => {
+                if changed.is_err() {
+                    return;
+                }
+                if let Some(t) = *target_rx.borrow_and_update() {
+                    link.set_target(t, now());
+                }
+            }
+            r = read_some(port.as_mut(), &mut buf) => match r {
+                Ok(0) => link.handle_port_error("end of file on the port", now()),
+                Ok(n) => link.handle_bytes(&buf[..n], now()),
+                Err(e) => link.handle_port_error(format!("read failed: {e}"), now()),
+            },
+            _ = sleep_until(wake) => link.handle_timeout(now()),
         }
     }
+}
 
-    /// Records arrival at `t` (once), if `t` is still the latest target.
-    fn mark_arrived(&self, t: Target, s: Status) {
-        if *self.target_rx.borrow() != Some(t) {
-            return;
-        }
-        if self.state_tx.borrow().arrived == Some(t) {
-            return;
-        }
-        // Event first, then state: whoever waits on the state finds the
-        // event already in the channel.
-        let _ = self.events.send(RollerEvent::Arrived {
-            target: t,
-            status: s,
-        });
-        self.state_tx.send_modify(|st| {
-            st.arrived = Some(t);
-            st.status = Some(s);
-        });
+/// Reads from the port; never completes without one.
+async fn read_some(port: Option<&mut SerialStream>, buf: &mut [u8]) -> std::io::Result<usize> {
+    match port {
+        Some(p) => p.read(buf).await,
+        None => std::future::pending().await,
     }
+}
 
-    fn on_reply(
-        &mut self,
-        seq: u8,
-        reply: Reply,
-        outstanding: &mut Option<Outstanding>,
-        sent: &mut Option<(Target, u8)>,
-    ) {
-        let answers = outstanding.as_ref().is_some_and(|o| o.seq == seq);
-        match reply {
-            Reply::Ack(s) | Reply::Status(s) => {
-                if answers
-                    && !matches!(reply, Reply::Status(_) if outstanding.as_ref().is_some_and(|o| o.cmd != Command::QueryStatus))
-                {
-                    let o = outstanding.take().expect("answers implies outstanding");
-                    if let Some(t) = o.target {
-                        *sent = Some((t, seq));
-                    }
-                    // Resync: a firmware whose target is not ours (it was
-                    // restarted, or its watchdog stopped it) gets ours again.
-                    if o.cmd == Command::QueryStatus {
-                        if let (Some((t, _)), Some(v)) = (*sent, self.version) {
-                            let arrived = self.state_tx.borrow().arrived == Some(t);
-                            let want = t.steps(s.slots, v.steps_per_rev);
-                            let off_course = s.target != want
-                                || (!s.moving() && s.position != want)
-                                || (s.watchdog_tripped() && !arrived);
-                            if off_course && self.rejected != Some(t) {
-                                tracing::info!(
-                                    "roller: target lost on the firmware, re-sending {t:?}"
-                                );
-                                *sent = None;
-                            }
-                        }
-                    }
-                }
-                self.position_event(&s);
-                // The status is authoritative: at rest on our target is
-                // arrived, even if the Arrived frame itself was lost.
-                if let (Some((t, _)), Some(v)) = (*sent, self.version) {
-                    let want = t.steps(s.slots, v.steps_per_rev);
-                    if !s.moving() && s.position == want && s.target == want {
-                        self.mark_arrived(t, s);
-                    }
-                }
-            }
-            Reply::Arrived(s) => {
-                self.position_event(&s);
-                if let Some((t, acked_seq)) = *sent {
-                    if acked_seq == seq {
-                        self.mark_arrived(t, s);
-                    }
-                }
-            }
-            Reply::Error { code, command } => {
-                if answers {
-                    let o = outstanding.take().expect("answers implies outstanding");
-                    if let Some(t) = o.target {
-                        // Do not re-send a target the firmware refuses.
-                        *sent = Some((t, seq));
-                        self.rejected = Some(t);
-                    }
-                    self.error(format!(
-                        "roller refused {:?} (kind {command:#04x}): {code}{}",
-                        o.cmd,
-                        if code == ErrorCode::BadArgument {
-                            " (check the slot count and the target)"
-                        } else {
-                            ""
-                        }
-                    ));
-                }
-            }
-            Reply::Version(_) => {}
-        }
+/// Sleeps until `at`; forever without one.
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
     }
 }
