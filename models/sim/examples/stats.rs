@@ -37,6 +37,19 @@ fn main() {
             let r: Vec<f32> = bg.as_raw().iter().map(|v| *v as f32).collect();
             stats::centre_difference(&f, &r)
         };
+        let sig = stats::centre_difference(
+            &sim.render_frame(s, mid).unwrap(),
+            &sim.background_of(v, s.sensor)
+                .as_raw()
+                .iter()
+                .map(|v| *v as f32)
+                .collect::<Vec<_>>(),
+        );
+        println!(
+            "   {} peak at {:?}",
+            s.textile,
+            stats::peak_to_median_at(&sig)
+        );
         println!(
             "   quiet: abs-sum peak/med {:.0}, signed {:.0}",
             stats::peak_to_median(&crop),

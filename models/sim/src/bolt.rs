@@ -12,7 +12,7 @@
 //! never straight over centimetres) with per-yarn spacing, thickness, wander
 //! and slubs, so the lattice's spectral peaks smear as on real cloth.
 
-use crate::catalogue::{mix64, Structure, Textile};
+use crate::catalogue::{mix64, Family, Structure, Textile};
 use crate::fabric::{blur, crown, fbm, hash2, smooth, warp_up, HeightField, MM_PER_PX};
 use std::f32::consts::{PI, TAU};
 
@@ -135,13 +135,29 @@ pub fn window(t: &Textile, sw: &Swatch, ox: i64, oy: i64, size: usize) -> Height
     if sw.pilling > 0.01 {
         pills(t, &g, &mut h, sw.pilling);
     }
+    // Irregular mm-scale relief of wovens and knits (uneven yarn packing,
+    // fibre bundles, cockling): on real cloth it outweighs the lattice.
+    if matches!(
+        t.structure.family(),
+        Family::Plain
+            | Family::Twill
+            | Family::Satin
+            | Family::Basket
+            | Family::Crepe
+            | Family::Knit
+            | Family::Rib
+    ) {
+        let a = t.relief_mm * (0.3 + 0.4 * t.irregularity);
+        let field = coarse(&g, 2, |bx, by| fbm(g.seed ^ 79, bx, by, 28.0, 3));
+        for (o, f) in h.iter_mut().zip(&field) {
+            *o += a * f;
+        }
+    }
     // irregular low-frequency relief of the cloth lying on the gel
     let und = 0.12 * t.relief_mm;
-    for y in 0..size {
-        for x in 0..size {
-            let (bx, by) = g.at(x, y);
-            h[y * size + x] += und * fbm(g.seed ^ 77, bx, by, 110.0, 3);
-        }
+    let field = coarse(&g, 8, |bx, by| fbm(g.seed ^ 77, bx, by, 110.0, 3));
+    for (o, f) in h.iter_mut().zip(&field) {
+        *o += und * f;
     }
     HeightField { size, h }
 }
@@ -217,6 +233,35 @@ impl Grid {
     }
 }
 
+/// A smooth field evaluated every `step` px of the raster and interpolated
+/// bilinearly (the low-frequency fields cost little this way).
+fn coarse(g: &Grid, step: usize, f: impl Fn(f32, f32) -> f32) -> Vec<f32> {
+    let n = g.n;
+    let m = n / step + 2;
+    let grid: Vec<f32> = (0..m * m)
+        .map(|k| {
+            let (i, j) = (k % m, k / m);
+            f(
+                (g.ox + (i * step) as i64) as f32,
+                (g.oy + (j * step) as i64) as f32,
+            )
+        })
+        .collect();
+    let mut out = vec![0f32; n * n];
+    let inv = 1.0 / step as f32;
+    for y in 0..n {
+        let (j, fy) = (y / step, (y % step) as f32 * inv);
+        for x in 0..n {
+            let (i, fx) = (x / step, (x % step) as f32 * inv);
+            let a = grid[j * m + i] + (grid[j * m + i + 1] - grid[j * m + i]) * fx;
+            let b =
+                grid[(j + 1) * m + i] + (grid[(j + 1) * m + i + 1] - grid[(j + 1) * m + i]) * fx;
+            out[y * n + x] = a + (b - a) * fy;
+        }
+    }
+    out
+}
+
 /// Woven cloth with irregular yarns (also gauze, ripstop, crepe, satin ...).
 fn woven(t: &Textile, g: &Grid, relief: f32) -> Vec<f32> {
     let n = g.n;
@@ -236,17 +281,27 @@ fn woven(t: &Textile, g: &Grid, relief: f32) -> Vec<f32> {
     let open = if gauze { 0.35 } else { 1.0 };
     let bow_x = (sx * (0.5 + 1.5 * irr) * open + 2.0).min(14.0);
     let bow_y = (sy * (0.5 + 1.5 * irr) * open + 2.0).min(14.0);
-    let sp_sd = 0.06 + 0.16 * irr;
+    let sp_sd = 0.1 + 0.2 * irr;
     let th_sd = 0.08 + 0.25 * irr;
     let wander = 0.08 + 0.15 * irr;
+    // yarn height varies from crossing to crossing (tension, packing)
+    let cross_sd = if gauze { 0.1 } else { 0.25 + 0.35 * irr };
     let twist = if crepe { 0.9 } else { 0.35 };
     let floor = if gauze { -1.6 * relief } else { -relief };
     let mut h = vec![0f32; n * n];
+    let mid_x = sx * (0.3 + 0.4 * irr) * open;
+    let mid_y = sy * (0.3 + 0.4 * irr) * open;
+    let bxf = coarse(g, 4, |bx, by| {
+        bow_x * fbm(seed ^ 21, bx, by, 170.0, 2) + mid_x * fbm(seed ^ 23, bx, by, 45.0, 2)
+    });
+    let byf = coarse(g, 4, |bx, by| {
+        bow_y * fbm(seed ^ 22, bx, by, 170.0, 2) + mid_y * fbm(seed ^ 24, bx, by, 45.0, 2)
+    });
     for y in 0..n {
         for x in 0..n {
             let (bx, by) = g.at(x, y);
-            let xw = bx + bow_x * fbm(seed ^ 21, bx, by, 170.0, 2);
-            let yw = by + bow_y * fbm(seed ^ 22, bx, by, 170.0, 2);
+            let xw = bx + bxf[y * n + x];
+            let yw = by + byf[y * n + x];
             let gi = xw / sx;
             let gj = yw / sy;
             let (i0, j0) = (gi.floor() as i64, gj.floor() as i64);
@@ -282,7 +337,9 @@ fn woven(t: &Textile, g: &Grid, relief: f32) -> Vec<f32> {
                 let up = up_here + (up_next - up_here) * tv;
                 let tw = 1.0
                     - 0.12 * (1.0 + ((yw + (xw - ci) * twist) / (dw * 0.45).max(0.8)).sin()) * 0.5;
-                let hw = relief * (0.5 * (2.0 * up - 1.0)) + relief * 0.5 * crown(d) * th * tw;
+                let cross = 1.0 + cross_sd * (hash2(seed ^ 35, i, j0) * 2.0 - 1.0);
+                let hw =
+                    relief * (0.5 * (2.0 * up - 1.0)) + relief * 0.5 * crown(d) * th * tw * cross;
                 best_w = best_w.max(hw);
             }
             let mut best_f = f32::MIN;
@@ -315,7 +372,9 @@ fn woven(t: &Textile, g: &Grid, relief: f32) -> Vec<f32> {
                 let up = fup_here + (fup_next - fup_here) * tu;
                 let tw = 1.0
                     - 0.12 * (1.0 + ((xw + (yw - cj) * twist) / (dw * 0.45).max(0.8)).sin()) * 0.5;
-                let hf = relief * (0.5 * (2.0 * up - 1.0)) + relief * 0.5 * crown(d) * th * tw;
+                let cross = 1.0 + cross_sd * (hash2(seed ^ 45, i0, j) * 2.0 - 1.0);
+                let hf =
+                    relief * (0.5 * (2.0 * up - 1.0)) + relief * 0.5 * crown(d) * th * tw * cross;
                 best_f = best_f.max(hf);
             }
             let mut z = best_w.max(best_f).max(floor);
@@ -341,31 +400,41 @@ fn knit(t: &Textile, g: &Grid) -> Vec<f32> {
     };
     let seed = g.seed;
     let irr = t.irregularity;
-    let bow = (sw * (0.4 + 1.2 * irr) + 2.0).min(16.0);
-    let loop_sd = 0.1 + 0.3 * irr;
+    let bow = (sw * (0.8 + 1.5 * irr) + 3.0).min(20.0);
+    let loop_sd = 0.15 + 0.35 * irr;
     let mut h = vec![0f32; n * n];
+    let mid_w = sw * (0.35 + 0.5 * irr);
+    let mid_c = sc * (0.35 + 0.5 * irr);
+    let bxf = coarse(g, 4, |bx, by| {
+        bow * fbm(seed ^ 5, bx, by, 150.0, 2) + mid_w * fbm(seed ^ 7, bx, by, 40.0, 2)
+    });
+    let byf = coarse(g, 4, |bx, by| {
+        bow * fbm(seed ^ 6, bx, by, 150.0, 2) + mid_c * fbm(seed ^ 8, bx, by, 40.0, 2)
+    });
     for y in 0..n {
         for x in 0..n {
             let (bx, by) = g.at(x, y);
-            let xw = bx + bow * fbm(seed ^ 5, bx, by, 150.0, 2);
-            let yw = by + bow * fbm(seed ^ 6, bx, by, 150.0, 2);
+            let xw = bx + bxf[y * n + x];
+            let yw = by + byf[y * n + x];
             let gi = xw / sw;
             let i = gi.floor() as i64;
             let u =
                 gi - i as f32 + 0.12 * noise1(seed ^ 51 ^ (i as u64).wrapping_mul(7919), yw / 30.0);
-            let gj = yw / sc;
+            let gj =
+                yw / sc + 0.15 * noise1(seed ^ 55 ^ (i as u64).wrapping_mul(104_729), yw / 25.0);
             let j = gj.floor() as i64;
             let v = gj - j as f32;
             let period = knit_n + purl_n;
             let is_purl = purl_n > 0 && i.rem_euclid(period) >= knit_n;
             let stitch = hash2(seed ^ 52, i, j) * 2.0 - 1.0;
             let ls = 1.0 + loop_sd * stitch;
-            let hf = 1.0 + 0.2 * (0.3 + irr) * (hash2(seed ^ 53, i, j) * 2.0 - 1.0);
+            let hf = 1.0 + 0.35 * (0.5 + irr) * (hash2(seed ^ 53, i, j) * 2.0 - 1.0);
+            let shift = 0.15 * (hash2(seed ^ 56, i, j) * 2.0 - 1.0);
             let thick =
                 1.0 + irr * 0.3 * noise1(seed ^ 54 ^ (j as u64).wrapping_mul(13), xw / 20.0);
             let z = if !is_purl {
                 let off = (0.23 - 0.16 * v) * ls;
-                let (ul, ur) = (0.5 - off, 0.5 + off);
+                let (ul, ur) = (0.5 + shift - off, 0.5 + shift + off);
                 let dl = (u - ul).abs() * sw / (hw * thick).max(0.5);
                 let dr = (u - ur).abs() * sw / (hw * thick).max(0.5);
                 let leg = crown(dl).max(crown(dr));
@@ -434,16 +503,18 @@ fn pile(t: &Textile, g: &Grid) -> Vec<f32> {
         Structure::Corduroy { wale_mm } => Some(wale_mm / MM_PER_PX),
         _ => None,
     };
+    let napf = coarse(g, 8, |bx, by| nap0 + 0.8 * fbm(seed ^ 35, bx, by, 200.0, 2));
+    let walef = coarse(g, 8, |bx, by| fbm(seed ^ 36, bx, by, 200.0, 2));
     for y in 0..n {
         for x in 0..n {
             let (bx, by) = g.at(x, y);
-            let nap_dir = nap0 + 0.8 * fbm(seed ^ 35, bx, by, 200.0, 2);
+            let nap_dir = napf[y * n + x];
             let along = bx * nap_dir.cos() + by * nap_dir.sin();
             let across = -bx * nap_dir.sin() + by * nap_dir.cos();
             let nap = 0.35 * relief * fbm(seed ^ 9, along / 6.0, across, 8.0, 3);
             let mut z = tips[y * n + x] + nap;
             if let Some(w) = wale {
-                let xw = bx + 0.15 * w * fbm(seed ^ 36, bx, by, 200.0, 2);
+                let xw = bx + 0.15 * w * walef[y * n + x];
                 let k = (xw / w).floor() as i64;
                 let ww = 1.0 + 0.1 * dev(seed ^ 37, k);
                 let p = (xw / w).fract();
@@ -464,10 +535,11 @@ fn terry(t: &Textile, g: &Grid, loop_mm: f32) -> Vec<f32> {
     let seed = g.seed;
     let mut h = vec![0f32; n * n];
     let gs = 10.0 / 25.0 / MM_PER_PX;
+    let wf = coarse(g, 8, |bx, by| 4.0 * fbm(seed ^ 61, bx, by, 120.0, 2));
     for y in 0..n {
         for x in 0..n {
             let (bx, by) = g.at(x, y);
-            let xw = bx + 4.0 * fbm(seed ^ 61, bx, by, 120.0, 2);
+            let xw = bx + wf[y * n + x];
             let u = (xw / gs).fract() - 0.5;
             let v = (by / gs).fract() - 0.5;
             h[y * n + x] = -relief
@@ -645,7 +717,7 @@ fn felt(t: &Textile, g: &Grid) -> Vec<f32> {
     }
     let cell = 48.0;
     let per = cell * cell * MM_PER_PX * MM_PER_PX * 10.0 * (0.4 + t.warp_per_cm / 100.0);
-    for (cx, cy) in g.cells(cell, 80.0) {
+    for (cx, cy) in g.cells(cell, 40.0) {
         let mut r = cell_rng(seed, 0xfe17, cx, cy);
         for _ in 0..r.count(per) {
             let x = (cx as f32 + r.f()) * cell;
@@ -702,12 +774,11 @@ fn padded(t: &Textile, g: &Grid) -> Vec<f32> {
     let n = g.n;
     let mut h = woven(t, g, t.relief_mm);
     let seed = g.seed;
-    for y in 0..n {
-        for x in 0..n {
-            let (bx, by) = g.at(x, y);
-            h[y * n + x] += 0.6 * t.relief_mm * fbm(seed ^ 95, bx, by, 60.0, 3);
-        }
+    let f = coarse(g, 4, |bx, by| fbm(seed ^ 95, bx, by, 60.0, 3));
+    for (o, v) in h.iter_mut().zip(&f) {
+        *o += 0.6 * t.relief_mm * v;
     }
+    let _ = n;
     h
 }
 

@@ -118,7 +118,7 @@ fn spots(g: &Grid, out: &mut [f32], r_px: f32, per_mm2: f32, salt: u64) {
             let ang = r.range(0.0, PI);
             let hgt = r.range(0.4, 1.0);
             let (sn, cs) = ang.sin_cos();
-            let ext = (2.0 * rr).ceil() as i64;
+            let ext = (1.6 * rr).ceil() as i64;
             for yy in (y as i64 - ext).max(0)..=(y as i64 + ext).min(n - 1) {
                 for xx in (x as i64 - ext).max(0)..=(x as i64 + ext).min(n - 1) {
                     let (dx, dy) = (xx as f32 - x, yy as f32 - y);

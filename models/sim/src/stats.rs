@@ -51,8 +51,15 @@ pub fn std(v: &[f32]) -> f32 {
 
 /// Spectral peak-to-median ratio of a `CROP` x `CROP` signal: the 2D power
 /// spectrum (mean removed, Hann window), its largest value outside the
-/// lowest frequencies (radius > 2 bins) over its median.
+/// lowest frequencies (radius > 4 bins, i.e. periods up to 32 px = 2.6 mm:
+/// the yarn, loop and stitch scales, not the shape of the contact patch or
+/// a crease) over its median.
 pub fn peak_to_median(sig: &[f32]) -> f64 {
+    peak_to_median_at(sig).0
+}
+
+/// `peak_to_median` and the peak's frequency (cycles per crop along x, y).
+pub fn peak_to_median_at(sig: &[f32]) -> (f64, (i32, i32)) {
     let n = CROP;
     assert_eq!(sig.len(), n * n);
     let m = sig.iter().map(|v| *v as f64).sum::<f64>() / (n * n) as f64;
@@ -82,6 +89,7 @@ pub fn peak_to_median(sig: &[f32]) -> f64 {
     }
     let mut power = Vec::with_capacity(n * n);
     let mut peak = 0f64;
+    let mut at = (0, 0);
     for k in 0..n {
         for l in 0..n {
             let (mut sr, mut si) = (0.0, 0.0);
@@ -95,14 +103,25 @@ pub fn peak_to_median(sig: &[f32]) -> f64 {
             power.push(p);
             let fk = if k > n / 2 { n - k } else { k } as f64;
             let fl = if l > n / 2 { n - l } else { l } as f64;
-            if (fk * fk + fl * fl).sqrt() > 2.0 {
-                peak = peak.max(p);
+            if (fk * fk + fl * fl).sqrt() > 4.0 && p > peak {
+                peak = p;
+                let sk = if k > n / 2 {
+                    k as i32 - n as i32
+                } else {
+                    k as i32
+                };
+                let sl = if l > n / 2 {
+                    l as i32 - n as i32
+                } else {
+                    l as i32
+                };
+                at = (sk, sl);
             }
         }
     }
     power.sort_by(|a, b| a.total_cmp(b));
     let med = power[power.len() / 2];
-    peak / med.max(1e-12)
+    (peak / med.max(1e-12), at)
 }
 
 /// Lag-1 spatial autocorrelation (mean of horizontal and vertical, over
@@ -185,7 +204,7 @@ pub fn unit_background_difference(sim: &Simulator, version: u32, units: u32) -> 
 pub struct PressStats {
     pub textile: String,
     pub family: Family,
-    /// Std of frame minus reference in the centre crop at mid-hold, DN.
+    /// Std of the mid-hold frame minus the reference in the centre crop, DN.
     pub contact_std: f32,
     pub peak_to_median: f64,
     /// Lag-1 autocorrelation of the difference of the first two frames.
@@ -193,8 +212,9 @@ pub struct PressStats {
     pub noise_colour: f32,
 }
 
-/// Measure one press: mid-hold frame against the mean of its reference
-/// frames (up to 8), noise from frames 0 and 1.
+/// Measure one press: its mid-hold frame against the mean of its reference
+/// frames (up to 8), as one would measure a recorded press; noise from
+/// frames 0 and 1.
 pub fn press_stats(sim: &Simulator, spec: &PressSpec) -> Result<PressStats, SimError> {
     let meta = sim.press_meta(spec)?;
     let p = meta.params.as_ref().expect("simulated press has params");
