@@ -196,7 +196,8 @@ struct DataArgs {
     /// Cache directory.
     #[arg(long, default_value = "target/telextiles-lab/cache")]
     cache_dir: PathBuf,
-    /// Render threads.
+    /// Render threads (presses:<dir>: recordings embedded at once, with
+    /// one ONNX Runtime thread each).
     #[arg(long, default_value_t = 2)]
     threads: usize,
 }
@@ -321,7 +322,8 @@ struct EvalArgs {
     model: PathBuf,
     #[command(flatten)]
     data: DataArgs,
-    /// ONNX Runtime threads.
+    /// ONNX Runtime threads (presses:<dir>: recordings embedded at once,
+    /// one thread each).
     #[arg(long, default_value_t = 2)]
     ort_threads: usize,
     /// Write the results as JSON here.
@@ -619,7 +621,8 @@ fn eval(a: EvalArgs) -> Result<()> {
     if let Source::Presses(dir) = &a.data.source {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
-        cfg.threads = a.ort_threads;
+        cfg.threads = 1;
+        cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
             vec![1, a.ort_threads]
         } else {
@@ -682,7 +685,8 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     if let Source::Presses(dir) = &a.data.source {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
-        cfg.threads = a.data.threads;
+        cfg.threads = 1;
+        cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();
         cfg.runs = a.runs;
         let out = a

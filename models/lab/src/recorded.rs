@@ -476,8 +476,11 @@ pub struct StudyConfig {
     /// Frames in contact per recording used as index frames and as
     /// per-frame queries (spread evenly; 0: all).
     pub frames_per_press: usize,
-    /// ONNX Runtime threads while embedding.
+    /// ONNX Runtime threads per session while embedding.
     pub threads: usize,
+    /// Recordings embedded at once (each worker with its own sessions; the
+    /// results do not depend on it).
+    pub workers: usize,
     /// Thread counts to time ONNX models with.
     pub time_threads: Vec<usize>,
     /// Timed frames per method and thread count (0: no timing).
@@ -496,6 +499,7 @@ impl StudyConfig {
             split,
             frames_per_press: 30,
             threads: 1,
+            workers: 1,
             time_threads: vec![1],
             runs: 200,
             times_ms: vec![
@@ -601,7 +605,6 @@ pub fn embed_all(
     methods: &[Method],
 ) -> Result<(Vec<RecordingRef>, Vec<Processed>)> {
     let refs = list_recordings(&cfg.dir)?;
-    let mut proc = Processor::new(methods, cfg.threads, cfg.contact.clone())?;
     let progress = telextiles_progress::Progress::new(
         &format!(
             "embedding with {} method{}",
@@ -611,20 +614,48 @@ pub fn embed_all(
         refs.len() as u64,
         "recordings",
     );
-    let mut out = Vec::with_capacity(refs.len());
-    for r in &refs {
-        progress.set_message(&r.path.display().to_string());
-        let press = r
-            .load()
-            .with_context(|| format!("cannot read {}", r.path.display()))?;
-        let p = proc.process(&r.path.display().to_string(), press)?;
-        if let Some(why) = &p.skipped {
-            progress.println(&format!("skipping {}: {why}", r.path.display()));
+    let workers = cfg.workers.clamp(1, refs.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let slots: std::sync::Mutex<Vec<Option<Processed>>> =
+        std::sync::Mutex::new(vec![None; refs.len()]);
+    // Each worker takes the next recording; every recording is processed
+    // alone (see the module docs), so the order does not matter.
+    let work = || -> Result<()> {
+        let mut proc = Processor::new(methods, cfg.threads, cfg.contact.clone())?;
+        loop {
+            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let Some(r) = refs.get(i) else {
+                return Ok(());
+            };
+            progress.set_message(&r.path.display().to_string());
+            let press = r
+                .load()
+                .with_context(|| format!("cannot read {}", r.path.display()))?;
+            let p = proc.process(&r.path.display().to_string(), press)?;
+            if let Some(why) = &p.skipped {
+                progress.println(&format!("skipping {}: {why}", r.path.display()));
+            }
+            slots.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(p);
+            progress.inc(1);
         }
-        out.push(p);
-        progress.inc(1);
-    }
+    };
+    std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..workers).map(|_| sc.spawn(work)).collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a worker panicked")))
+            })
+            .collect::<Result<Vec<()>>>()
+    })?;
     progress.finish();
+    let out = slots
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|p| p.context("a recording was not processed"))
+        .collect::<Result<Vec<_>>>()?;
     Ok((refs, out))
 }
 
