@@ -4,7 +4,7 @@
 //! decision and per-stage timings.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
@@ -58,23 +58,6 @@ pub struct Args {
     /// One JSON object per press on its own line.
     #[arg(long)]
     pub json: bool,
-}
-
-fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
-    if root.join("press.json").is_file() {
-        out.push(root.to_path_buf());
-        return Ok(());
-    }
-    let rd = std::fs::read_dir(root)
-        .with_context(|| format!("cannot read press directory {}", root.display()))?;
-    let mut entries: Vec<_> = rd.collect::<Result<_, _>>()?;
-    entries.sort_by_key(|e| e.file_name());
-    for e in entries {
-        if e.file_type()?.is_dir() {
-            find_presses(&e.path(), out)?;
-        }
-    }
-    Ok(())
 }
 
 fn print(
@@ -218,7 +201,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     }
     let mut dirs = Vec::new();
     for p in &args.press {
-        find_presses(p, &mut dirs)?;
+        dirs.extend(telextiles_sim::recording::find_presses(p)?);
     }
     if dirs.is_empty() {
         bail!(
@@ -255,6 +238,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
     use telextiles_index::{IndexBuilder, TextileRecord};
     use telextiles_sensing::encoder::file_sha256;
 

@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args as ClapArgs, Subcommand};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
 use telextiles_sensing::contact::ContactConfig;
@@ -49,9 +49,15 @@ pub struct BuildArgs {
     /// that unseen textiles stay unknown to the index).
     #[arg(long)]
     pub include_unseen: bool,
-    /// Keep every press's mean embedding as an exemplar.
-    #[arg(long)]
+    /// Keep every press's mean embedding as an exemplar (a textile is then
+    /// as near as its nearest press: different presses of a fabric see
+    /// different cloth). The default with --presses (your own recordings);
+    /// off by default with --sim.
+    #[arg(long, conflicts_with = "no_exemplars")]
     pub exemplars: bool,
+    /// One centroid per textile only, also with --presses.
+    #[arg(long)]
+    pub no_exemplars: bool,
     /// Use every n-th contact frame.
     #[arg(long, default_value_t = 4)]
     pub stride: usize,
@@ -123,23 +129,6 @@ pub fn press_embeddings(
         }
     }
     Ok(out)
-}
-
-fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
-    if root.join("press.json").is_file() {
-        out.push(root.to_path_buf());
-        return Ok(());
-    }
-    let mut entries: Vec<_> = std::fs::read_dir(root)
-        .with_context(|| format!("cannot read {}", root.display()))?
-        .collect::<Result<_, _>>()?;
-    entries.sort_by_key(|e| e.file_name());
-    for e in entries {
-        if e.file_type()?.is_dir() {
-            find_presses(&e.path(), out)?;
-        }
-    }
-    Ok(())
 }
 
 fn record(
@@ -217,8 +206,7 @@ fn build(a: BuildArgs) -> Result<()> {
     };
     let mut presses = 0usize;
     if let Some(root) = &a.presses {
-        let mut dirs = Vec::new();
-        find_presses(root, &mut dirs)?;
+        let dirs = telextiles_sim::recording::find_presses(root)?;
         if dirs.is_empty() {
             bail!(
                 "no presses (folders with press.json) under {}",
@@ -274,7 +262,11 @@ fn build(a: BuildArgs) -> Result<()> {
             &cat,
             &id,
             embs,
-            if a.exemplars { means } else { Vec::new() },
+            if keep_exemplars(&a) {
+                means
+            } else {
+                Vec::new()
+            },
         ))?;
     }
     let index = builder.build()?;
@@ -310,6 +302,11 @@ fn build(a: BuildArgs) -> Result<()> {
 }
 
 /// The L2-normalised mean of L2-normalised vectors (None when empty).
+/// Whether the index keeps per-press exemplars (see `--exemplars`).
+fn keep_exemplars(a: &BuildArgs) -> bool {
+    a.exemplars || (a.presses.is_some() && !a.no_exemplars)
+}
+
 /// The simulated presses of `--sim`: every person (0..people) on every
 /// sensor unit, jig, one press per textile of `book` (both books: None).
 fn sim_protocol(a: &BuildArgs, book: Option<Book>) -> Result<Protocol> {
@@ -513,6 +510,39 @@ mod tests {
             .all(|s| s.textile.starts_with('U') && s.sensor == 0));
         let none = parse(&["--people", "0"]);
         assert!(sim_protocol(&none, None).is_err());
+    }
+
+    #[test]
+    fn own_recordings_keep_per_press_exemplars_by_default() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            b: BuildArgs,
+        }
+        use clap::Parser;
+        let parse = |args: &[&str]| {
+            Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
+                .unwrap()
+                .b
+        };
+        assert!(keep_exemplars(&parse(&["--presses", "r"])));
+        assert!(!keep_exemplars(&parse(&[
+            "--presses",
+            "r",
+            "--no-exemplars"
+        ])));
+        assert!(!keep_exemplars(&parse(&["--sim"])));
+        assert!(keep_exemplars(&parse(&["--sim", "--exemplars"])));
+        assert!(Cli::try_parse_from([
+            "index-build",
+            "--model",
+            "m",
+            "--presses",
+            "r",
+            "--exemplars",
+            "--no-exemplars"
+        ])
+        .is_err());
     }
 
     #[test]

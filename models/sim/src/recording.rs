@@ -147,6 +147,41 @@ pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
     result
 }
 
+/// Every press directory (one holding `press.json`) at or under `root`,
+/// in sorted path order. Symbolic links to directories are followed (each
+/// directory is read once, so link loops end); unfinished writes
+/// (`<name>.tmp-<pid>-<n>`) are not presses.
+pub fn find_presses(root: &Path) -> Result<Vec<PathBuf>, RecordingError> {
+    fn walk(
+        dir: &Path,
+        depth: u32,
+        seen: &mut std::collections::HashSet<PathBuf>,
+        out: &mut Vec<PathBuf>,
+    ) -> Result<(), RecordingError> {
+        // A directory reached twice (through links) is read once.
+        if !seen.insert(std::fs::canonicalize(dir).map_err(io_err(dir))?) {
+            return Ok(());
+        }
+        if dir.join(META_FILE).is_file() {
+            out.push(dir.to_path_buf());
+            return Ok(());
+        }
+        if depth == 0 {
+            return Ok(());
+        }
+        for p in sorted_dir(dir)? {
+            let name = p.file_name().unwrap_or_default().to_string_lossy();
+            if p.is_dir() && !name.contains(".tmp-") {
+                walk(&p, depth - 1, seen, out)?;
+            }
+        }
+        Ok(())
+    }
+    let mut out = Vec::new();
+    walk(root, 32, &mut Default::default(), &mut out)?;
+    Ok(out)
+}
+
 /// Read only the metadata of a press directory.
 pub fn read_meta(dir: &Path) -> Result<PressMeta, RecordingError> {
     Ok(read_file(dir)?.meta)

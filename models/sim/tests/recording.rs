@@ -170,3 +170,42 @@ fn pytouch_layout_reads_and_names_bad_files() {
     assert!(read_pytouch(empty.path()).is_err());
     assert!(recording::pytouch_index(&root.join("missing")).is_err());
 }
+
+/// `find_presses`: recursive, sorted, follows symlinked directories (a
+/// user's split of recordings into index and query sets), skips unfinished
+/// writes, and survives a link loop.
+#[test]
+fn find_presses_follows_links_and_skips_unfinished_writes() {
+    use telextiles_sim::recording::{find_presses, write_press};
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let press = sim
+        .render_press(&telextiles_sim::PressSpec {
+            frames: 3,
+            ..telextiles_sim::PressSpec::new("T030", 1)
+        })
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    for p in ["T030/0002", "T030/0001", "T110/0001"] {
+        write_press(&rec.join(p), &press).unwrap();
+    }
+    std::fs::create_dir_all(rec.join("T030/0003.tmp-1-0")).unwrap();
+    std::fs::write(rec.join("T030/0003.tmp-1-0/press.json"), "{}").unwrap();
+    let split = dir.path().join("split/T030");
+    std::fs::create_dir_all(&split).unwrap();
+    std::os::unix::fs::symlink(rec.join("T030/0001"), split.join("a")).unwrap();
+    std::os::unix::fs::symlink(dir.path().join("split"), split.join("loop")).unwrap();
+    let found = find_presses(&rec).unwrap();
+    let rel: Vec<_> = found
+        .iter()
+        .map(|p| p.strip_prefix(&rec).unwrap().to_path_buf())
+        .collect();
+    assert_eq!(
+        rel,
+        ["T030/0001", "T030/0002", "T110/0001"].map(std::path::PathBuf::from)
+    );
+    let linked = find_presses(&dir.path().join("split")).unwrap();
+    assert_eq!(linked.len(), 1, "{linked:?}");
+    assert!(linked[0].ends_with("T030/a"), "{linked:?}");
+    assert!(find_presses(&dir.path().join("nope")).is_err());
+}
