@@ -1566,3 +1566,94 @@ fn confusion_chart(r: &StudyReport, m: &RecordedMethod, svg: &Path) -> Result<()
     root.present().map_err(e)?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::SourceKind;
+
+    #[test]
+    fn sources_parse() {
+        assert_eq!(
+            "sim".parse::<Source>().unwrap(),
+            Source::Builtin(SourceKind::Sim)
+        );
+        assert_eq!(
+            "presses:rec/a".parse::<Source>().unwrap(),
+            Source::Presses(PathBuf::from("rec/a"))
+        );
+        assert!("presses:".parse::<Source>().is_err());
+        assert!("digit"
+            .parse::<Source>()
+            .unwrap_err()
+            .contains("presses:<dir>"));
+    }
+
+    #[test]
+    fn frame_rate_comes_from_the_timestamps() {
+        let t25: Vec<u64> = (0..50).map(|i| i * 40_000).collect();
+        assert!((fps_of(&t25) - 25.0).abs() < 1e-9);
+        // A dropped frame does not move the median interval.
+        let mut t60: Vec<u64> = (0..60).map(|i| (i * 1_000_000 + 30) / 60).collect();
+        t60.remove(30);
+        assert!((fps_of(&t60) - 60.0).abs() < 0.1, "{}", fps_of(&t60));
+        assert!(fps_of(&[0]).is_nan());
+    }
+
+    fn processed(textile: &str, skipped: bool) -> Processed {
+        Processed {
+            path: String::new(),
+            textile: textile.into(),
+            sensor: String::new(),
+            frames: 0,
+            fps: 60.0,
+            contact_frames: 0,
+            own_reference: true,
+            skipped: skipped.then(|| "no frame in contact".into()),
+            methods: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn the_first_k_usable_recordings_of_each_textile_build_the_index() {
+        let p: Vec<Processed> = [
+            ("a", false),
+            ("b", false),
+            ("a", true),
+            ("a", false),
+            ("a", false),
+            ("b", false),
+        ]
+        .iter()
+        .map(|&(t, s)| processed(t, s))
+        .collect();
+        let class: Vec<u32> = p.iter().map(|x| (x.textile == "b") as u32).collect();
+        use Role::*;
+        assert_eq!(
+            roles(&p, &class, Split::IndexPresses(2)),
+            [Index, Index, Skipped, Index, Query, Index]
+        );
+        assert_eq!(
+            roles(&p, &class, Split::Lopo),
+            [Both, Both, Skipped, Both, Both, Both]
+        );
+        assert_eq!(sample(5, 0), [0, 1, 2, 3, 4]);
+        assert_eq!(sample(3, 30), [0, 1, 2]);
+        assert_eq!(sample(100, 4).len(), 4);
+    }
+
+    #[test]
+    fn confusion_tables_list_the_worst_pairs_when_large() {
+        let small = vec!["a".to_string(), "b".to_string()];
+        let t = confusion_markdown(&small, &[vec![3, 1], vec![0, 2]]);
+        assert!(t.contains("| a | **3** | 1 | 4 |"), "{t}");
+        assert!(t.contains("| b | · | **2** | 2 |"), "{t}");
+        let many: Vec<String> = (0..21).map(|i| format!("t{i}")).collect();
+        let mut m = vec![vec![0; 21]; 21];
+        m[3][7] = 2;
+        m[5][5] = 4;
+        let t = confusion_markdown(&many, &m);
+        assert!(t.contains("| t3 | t7 | 2 |"), "{t}");
+        assert!(!t.contains("| t5 | t5 |"), "{t}");
+    }
+}
