@@ -58,6 +58,17 @@ struct PressArgs {
     /// Turn camera noise off.
     #[arg(long)]
     no_noise: bool,
+    /// Catalogue version: 1 (the original) or 2 (bolts, 16+ sensor units,
+    /// camera chain, 25-60 fps; docs/simulator.md).
+    #[arg(long, default_value_t = 1)]
+    catalogue: u32,
+    /// Texture generator of catalogue 2: 1, or 2 (the independent Gabor
+    /// generator of the cross-generator test set).
+    #[arg(long, default_value_t = 1)]
+    generator: u32,
+    /// Frame rate (catalogue 2 only, 25..60; default: drawn per press).
+    #[arg(long)]
+    fps: Option<f32>,
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -71,7 +82,36 @@ enum SimCmd {
         out: PathBuf,
     },
     /// List the textile catalogue.
-    List,
+    List {
+        /// Catalogue version (1 or 2).
+        #[arg(long, default_value_t = 1)]
+        catalogue: u32,
+    },
+    /// Print the validation statistics of a catalogue (docs/simulator.md).
+    Stats(StatsArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct StatsArgs {
+    /// Catalogue version (1 or 2).
+    #[arg(long, default_value_t = 2)]
+    catalogue: u32,
+    /// Texture generator (catalogue 2: 1 or 2).
+    #[arg(long, default_value_t = 1)]
+    generator: u32,
+    /// Training textiles per family in the sample (one jig press each).
+    #[arg(long, default_value_t = 3)]
+    per_family: usize,
+    /// Sensor units the sample cycles through and the background difference
+    /// averages over.
+    #[arg(long, default_value_t = 16)]
+    units: u32,
+    /// Whole presses (150 frames) rendered for the speed figure (0: skip).
+    #[arg(long, default_value_t = 6)]
+    speed_presses: usize,
+    /// Print one line per press too.
+    #[arg(long)]
+    verbose: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -109,6 +149,12 @@ struct DatasetArgs {
     /// Frames per press.
     #[arg(long, default_value_t = telextiles_sim::PRESS_FRAMES)]
     frames: usize,
+    /// Catalogue version (1 or 2).
+    #[arg(long, default_value_t = 1)]
+    catalogue: u32,
+    /// Texture generator of catalogue 2 (1 or 2).
+    #[arg(long, default_value_t = 1)]
+    generator: u32,
     /// Stop after this many presses.
     #[arg(long)]
     limit: Option<usize>,
@@ -118,7 +164,8 @@ pub fn run(args: Args) -> Result<()> {
     match args.cmd {
         Some(SimCmd::Dataset(d)) => dataset_cmd(d),
         Some(SimCmd::ContactSheet { out }) => contact_sheet(&out),
-        Some(SimCmd::List) => list(),
+        Some(SimCmd::List { catalogue }) => list(catalogue),
+        Some(SimCmd::Stats(s)) => stats_cmd(s),
         None => press(args.press),
     }
 }
@@ -132,8 +179,9 @@ fn press(a: PressArgs) -> Result<()> {
         Some(&[x, y]) => Some([x, y]),
         Some(t) => bail!("--tilt takes two angles, x,y in degrees (got {t:?})"),
     };
-    let sim = Simulator::new()?;
+    let sim = Simulator::with_options(a.catalogue, a.generator)?;
     let spec = PressSpec {
+        fps: a.fps,
         person: a.person,
         sensor: a.sensor,
         jig: !a.no_jig,
@@ -180,10 +228,14 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
         seed: d.seed,
         frames: d.frames,
     };
-    let sim = Simulator::new()?;
+    let sim = Simulator::with_options(d.catalogue, d.generator)?;
     let cat = sim.catalogue();
     let total = protocol.len(cat).min(d.limit.unwrap_or(usize::MAX));
-    let specs = protocol.specs(cat).take(total);
+    let generator = (d.catalogue == 2 && d.generator != 1).then_some(d.generator);
+    let specs = protocol
+        .specs(cat)
+        .take(total)
+        .map(move |s| PressSpec { generator, ..s });
     if d.stream {
         let stdout = std::io::stdout();
         let mut w = std::io::BufWriter::new(stdout.lock());
@@ -226,8 +278,8 @@ fn image_png() -> telextiles_sim::ImageFormat {
     telextiles_sim::ImageFormat::Png
 }
 
-fn list() -> Result<()> {
-    let sim = Simulator::new()?;
+fn list(catalogue: u32) -> Result<()> {
+    let sim = Simulator::with_catalogue(catalogue)?;
     for t in &sim.catalogue().textiles {
         println!(
             "{}\t{:?}\t{:?}\t{}{}",
@@ -241,6 +293,67 @@ fn list() -> Result<()> {
                 .unwrap_or_default()
         );
     }
+    Ok(())
+}
+
+fn stats_cmd(a: StatsArgs) -> Result<()> {
+    use telextiles_sim::stats;
+    let sim = Simulator::with_options(a.catalogue, a.generator)?;
+    let specs = stats::sample_specs(&sim, a.catalogue, a.generator, a.per_family, a.units);
+    let mut rows = Vec::with_capacity(specs.len());
+    for s in &specs {
+        let r = stats::press_stats(&sim, s)?;
+        if a.verbose {
+            println!(
+                "{} {:?} sensor {}: contact std {:.2} DN, peak/median {:.0}, noise lag-1 {:.2}, colour {:.2}",
+                r.textile, r.family, s.sensor, r.contact_std, r.peak_to_median, r.noise_lag1, r.noise_colour
+            );
+        }
+        rows.push(r);
+    }
+    let units = stats::unit_background_difference(&sim, a.catalogue, a.units);
+    let sum = stats::summarise(&rows, units);
+    let speed = if a.speed_presses > 0 {
+        let sp: Vec<PressSpec> = specs
+            .iter()
+            .step_by((specs.len() / a.speed_presses).max(1))
+            .take(a.speed_presses)
+            .enumerate()
+            .map(|(k, s)| PressSpec {
+                jig: k % 2 == 0,
+                seed: s.seed + 7,
+                ..s.clone()
+            })
+            .collect();
+        Some(stats::render_speed(&sim, &sp)?)
+    } else {
+        None
+    };
+    let opt = |v: Option<f32>| v.map_or("-".to_string(), |v| format!("{v:.2}"));
+    let label = if a.catalogue == 2 {
+        format!("catalogue 2, generator {}", a.generator)
+    } else {
+        "catalogue 1".to_string()
+    };
+    println!("| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | unit-to-unit background (DN) | frames/s/core |");
+    println!("|---|---|---|---|---|---|---|");
+    println!(
+        "| {label} | {} | {:.2} / {} / {} | {:.0} ({:.0}), n = {} | {:.2} / {:.2} | {:.1} (units 0..{}) | {} |",
+        sum.presses,
+        sum.contact_std_median,
+        opt(sum.contact_std_soft),
+        opt(sum.contact_std_rough),
+        sum.peak_wovens_knits_median,
+        sum.peak_wovens_knits_max,
+        sum.peak_presses,
+        sum.noise_lag1,
+        sum.noise_colour,
+        sum.unit_bg_difference,
+        a.units,
+        speed.map_or("-".to_string(), |s| format!("{s:.0}")),
+    );
+    let real = stats::background_difference(sim.real_background(), sim.real_background_tvl());
+    println!("| real: tacto vs tvl no-contact frames | - | - | - | - | {real:.1} | - |");
     Ok(())
 }
 

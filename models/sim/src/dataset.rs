@@ -66,6 +66,7 @@ impl Protocol {
     }
 
     /// Stream the press specs (sensor, jig, person, textile, press order).
+    /// Specs of a catalogue other than version 1 carry its version.
     pub fn specs<'a>(&'a self, cat: &'a Catalogue) -> impl Iterator<Item = PressSpec> + 'a {
         let textiles: Vec<&'a str> = cat
             .textiles
@@ -96,6 +97,9 @@ impl Protocol {
                                 sensor,
                                 jig,
                                 frames: self.frames,
+                                // a version-2 catalogue's specs name it (v1
+                                // specs stay as they were)
+                                catalogue: (cat.version != 1).then_some(cat.version),
                                 ..PressSpec::new(id, seed)
                             }
                         })

@@ -281,6 +281,12 @@ impl Simulator {
         &self.background
     }
 
+    /// The second real no-contact frame (another DIGIT unit, Max-Fu/tvl,
+    /// Apache-2.0), a base of the catalogue-2 sensor units.
+    pub fn real_background_tvl(&self) -> &image::RgbImage {
+        &self.background_tvl
+    }
+
     /// The no-contact frame of sensor `sensor` (no noise) in the default
     /// catalogue version (its sensor units).
     pub fn background(&self, sensor: u32) -> image::RgbImage {

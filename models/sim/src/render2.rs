@@ -124,30 +124,30 @@ pub fn sensor_model_v2(id: u32) -> SensorModelV2 {
     let layout_amp = if nominal {
         [0.0; 3]
     } else {
-        g3(&mut r, 0.0, 0.3)
+        g3(&mut r, 0.0, 0.2)
     };
     let layout_dir_deg = g3(&mut r, -180.0, 180.0);
     let layout_radial = if nominal {
         [0.0; 3]
     } else {
-        g3(&mut r, -0.25, 0.25)
+        g3(&mut r, -0.15, 0.15)
     };
     let bg_gain = if nominal {
         [1.0; 3]
     } else {
-        g3(&mut r, 0.85, 1.15)
+        g3(&mut r, 0.9, 1.1)
     };
     let bg_offset = if nominal {
         [0.0; 3]
     } else {
-        g3(&mut r, -12.0, 12.0)
+        g3(&mut r, -8.0, 8.0)
     };
     let bg_shift = if nominal {
         (0, 0)
     } else {
         (r.gen_range(-8..=8), r.gen_range(-8..=8))
     };
-    let vignette = if nominal { 0.0 } else { r.gen_range(0.0..0.35) };
+    let vignette = if nominal { 0.0 } else { r.gen_range(0.0..0.3) };
     let led_gain = if nominal {
         [1.0; 3]
     } else {

@@ -210,6 +210,20 @@ pub struct PressStats {
     /// Lag-1 autocorrelation of the difference of the first two frames.
     pub noise_lag1: f32,
     pub noise_colour: f32,
+    /// Catalogue 2's press features (crease, seam, edge, ...).
+    pub features: Vec<String>,
+}
+
+impl PressStats {
+    /// No crease, fold, seam, hem or cloth edge in the window: the spectrum
+    /// is the fabric's own (a line across the window puts a ridge through
+    /// the spectrum that has nothing to do with the weave).
+    pub fn plain_cloth(&self) -> bool {
+        !self
+            .features
+            .iter()
+            .any(|f| matches!(f.as_str(), "crease" | "fold" | "seam" | "hem" | "edge"))
+    }
 }
 
 /// Measure one press: its mid-hold frame against the mean of its reference
@@ -245,6 +259,7 @@ pub fn press_stats(sim: &Simulator, spec: &PressSpec) -> Result<PressStats, SimE
         peak_to_median: peak_to_median(&d),
         noise_lag1: noise_lag1(&ref_frames[0], &f1),
         noise_colour: noise_colour_correlation(&ref_frames[0], &f1),
+        features: p.features.clone(),
     })
 }
 
@@ -292,8 +307,10 @@ pub struct Summary {
     pub contact_std_median: f32,
     pub contact_std_soft: Option<f32>,
     pub contact_std_rough: Option<f32>,
+    /// Over woven and knit presses without a crease, fold, seam, hem or edge.
     pub peak_wovens_knits_median: f64,
     pub peak_wovens_knits_max: f64,
+    pub peak_presses: usize,
     pub noise_lag1: f32,
     pub noise_colour: f32,
     pub unit_bg_difference: f32,
@@ -327,7 +344,7 @@ pub fn summarise(rows: &[PressStats], unit_bg_difference: f32) -> Summary {
     };
     let peaks: Vec<f64> = rows
         .iter()
-        .filter(|r| woven_knit(r))
+        .filter(|r| woven_knit(r) && r.plain_cloth())
         .map(|r| r.peak_to_median)
         .collect();
     Summary {
@@ -344,6 +361,7 @@ pub fn summarise(rows: &[PressStats], unit_bg_difference: f32) -> Summary {
         .map(|v| v as f32),
         peak_wovens_knits_median: median(peaks.clone()),
         peak_wovens_knits_max: peaks.iter().cloned().fold(f64::NAN, f64::max),
+        peak_presses: peaks.len(),
         noise_lag1: med(&|r| Some(r.noise_lag1 as f64)).unwrap_or(f64::NAN) as f32,
         noise_colour: med(&|r| Some(r.noise_colour as f64)).unwrap_or(f64::NAN) as f32,
         unit_bg_difference,
