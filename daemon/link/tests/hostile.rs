@@ -104,9 +104,18 @@ fn rss_mib() -> f64 {
 
 /// A quinn client endpoint with quinn's default (generous) limits.
 fn attacker_endpoint(me: &Identity, policy: PeerPolicy) -> quinn::Endpoint {
+    attacker_endpoint_at(me, policy, std::net::Ipv4Addr::LOCALHOST)
+}
+
+/// The same, bound to a given loopback address.
+fn attacker_endpoint_at(
+    me: &Identity,
+    policy: PeerPolicy,
+    ip: std::net::Ipv4Addr,
+) -> quinn::Endpoint {
     let tls = client_config(me, policy).unwrap();
     let quic = quinn::crypto::rustls::QuicClientConfig::try_from(tls).unwrap();
-    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut ep = quinn::Endpoint::client(SocketAddr::from((ip, 0))).unwrap();
     ep.set_default_client_config(quinn::ClientConfig::new(Arc::new(quic)));
     ep
 }
@@ -144,32 +153,48 @@ async fn paired_attacker(
     (ep, conn, send, recv)
 }
 
-/// An unpaired client against a device showing a pairing code opens
-/// connections, starts a control stream it never finishes, and fills
-/// further streams the link never accepts. With quinn's defaults (100 streams x 1.25 MB per connection, no
-/// connection limit) this grew RSS by > 100 MiB; with the link's limits
-/// the growth stays under 40 MiB and the excess connections are refused.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
+struct Flood {
+    connected: usize,
+    before: f64,
+    during: f64,
+    after: f64,
+}
+
+/// 24 attacker connections from `sources` loopback addresses (127.0.0.1,
+/// .2, ...), each with a control stream left unfinished (two bytes of a
+/// length prefix) and 99 more streams filled with 1.25 MiB each, for 8 s;
+/// then the attacker leaves. `paired`: the attacker's key is pinned (a
+/// paired peer turned hostile), else the device shows a pairing code and
+/// the attacker is an unpaired client.
+async fn stream_flood(paired: bool, sources: u8, what: &str) -> Flood {
     let ia = Identity::generate().unwrap();
+    let evil = Identity::generate().unwrap();
     let mut ca = config("alice");
-    ca.pairing = Some(PairingMode::Show(CodeOffer::new(
-        &mut rand::rngs::OsRng,
-        std::time::Instant::now(),
-        DEFAULT_CODE_TTL,
-    )));
+    if !paired {
+        ca.pairing = Some(PairingMode::Show(CodeOffer::new(
+            &mut rand::rngs::OsRng,
+            std::time::Instant::now(),
+            DEFAULT_CODE_TTL,
+        )));
+    }
     ca.timing.handshake_timeout = Duration::from_secs(30);
-    let (a, _ra) = start(ca, &ia, &[]).await;
+    let pins: Vec<&Identity> = if paired { vec![&evil] } else { vec![] };
+    let (a, _ra) = start(ca, &ia, &pins).await;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let before = rss_mib();
 
-    let evil = Identity::generate().unwrap();
+    let policy = if paired {
+        PeerPolicy::Expect(ia.device_id())
+    } else {
+        PeerPolicy::AnyForPairing
+    };
     let chunk = bytes::Bytes::from(vec![0x55u8; 64 * 1024]);
     let mut tasks = Vec::new();
     let mut connected = 0;
     let mut eps = Vec::new();
-    for _ in 0..24 {
-        let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
+    for i in 0..24u8 {
+        let ip = std::net::Ipv4Addr::new(127, 0, 0, 1 + i % sources);
+        let ep = attacker_endpoint_at(&evil, policy.clone(), ip);
         let conn = match tokio::time::timeout(
             Duration::from_secs(2),
             ep.connect(a.local_addr(), SERVER_NAME).unwrap(),
@@ -179,14 +204,20 @@ async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
             Ok(Ok(c)) => c,
             _ => continue,
         };
-        connected += 1;
         // The first stream is the control stream: two bytes of a length
         // prefix, then silence, so the link waits for the rest.
-        let (mut first, _r) = conn.open_bi().await.unwrap();
-        first.write_all(&[1, 0]).await.unwrap();
+        let Ok(Ok((mut first, first_r))) =
+            tokio::time::timeout(Duration::from_secs(2), conn.open_bi()).await
+        else {
+            continue;
+        };
+        if first.write_all(&[1, 0]).await.is_err() {
+            continue;
+        }
+        connected += 1;
         tasks.push(tokio::spawn(async move {
             tokio::time::sleep(Duration::from_secs(60)).await;
-            drop((first, _r));
+            drop((first, first_r));
         }));
         for _ in 0..99 {
             let conn = conn.clone();
@@ -223,13 +254,9 @@ async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
     tokio::time::sleep(Duration::from_secs(3)).await;
     let after = rss_mib();
     println!(
-        "unpaired stream flood (pairing mode): {connected} of 24 connections accepted; RSS before {before:.1} MiB, during {during:.1} MiB (+{:.1}), after {after:.1} MiB (+{:.1})",
+        "{what}: {connected} of 24 connections accepted; RSS before {before:.1} MiB, during {during:.1} MiB (+{:.1}), after {after:.1} MiB (+{:.1})",
         during - before,
         after - before
-    );
-    assert!(
-        connected <= limits::MAX_CONNECTIONS_PER_IP,
-        "{connected} connections from one address were accepted"
     );
     assert!(
         during - before < 40.0,
@@ -242,6 +269,60 @@ async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
         after - before
     );
     a.shutdown().await;
+    Flood {
+        connected,
+        before,
+        during,
+        after,
+    }
+}
+
+/// An unpaired client against a device showing a pairing code opens
+/// connections and streams. With quinn's defaults (100 streams x 1.25 MB
+/// per connection, no connection limit) this grew RSS by 3 GiB; with the
+/// link's limits the growth stays under 40 MiB and connections beyond 4
+/// from one address are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unpaired_stream_flood_in_pairing_mode_stays_bounded() {
+    let f = stream_flood(
+        false,
+        1,
+        "unpaired stream flood (pairing mode, one address)",
+    )
+    .await;
+    assert!(
+        f.connected <= limits::MAX_CONNECTIONS_PER_IP,
+        "{} connections from one address were accepted",
+        f.connected
+    );
+}
+
+/// The same flood from a paired peer turned hostile (its key is pinned, no
+/// pairing mode): only one stream per connection, bounded windows.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn paired_stream_flood_stays_bounded() {
+    let f = stream_flood(true, 1, "paired stream flood (one address)").await;
+    assert!(
+        f.connected <= limits::MAX_CONNECTIONS_PER_IP,
+        "{}",
+        f.connected
+    );
+}
+
+/// Attackers on 24 different addresses: the overall limit holds.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_from_many_addresses_are_capped_overall() {
+    let f = stream_flood(false, 24, "unpaired stream flood (24 addresses)").await;
+    assert!(
+        f.connected >= limits::MAX_CONNECTIONS_PER_IP,
+        "{}",
+        f.connected
+    );
+    assert!(
+        f.connected <= limits::MAX_CONNECTIONS,
+        "{} connections were accepted",
+        f.connected
+    );
 }
 
 /// A paired peer floods pings and never reads its pongs. The old unbounded
