@@ -578,6 +578,7 @@ pub fn chart(results: &[MethodResult], speed_svg: &std::path::Path) -> Result<()
         speed_svg,
         "Accuracy against speed (held-out people, kNN top-1 per press)",
         FRAME_BUDGET_MS,
+        "knee of the frontier (shipped default)",
     )
 }
 
@@ -588,6 +589,7 @@ pub fn chart_with(
     speed_svg: &std::path::Path,
     caption: &str,
     budget_ms: f64,
+    knee_label: &str,
 ) -> Result<()> {
     use plotters::prelude::*;
     let e = chart_err;
@@ -648,7 +650,7 @@ pub fn chart_with(
             let p = (results[k].ms(), 100.0 * results[k].press_top1);
             c.draw_series(std::iter::once(Circle::new(p, 11, GREEN.stroke_width(3))))
                 .map_err(e)?
-                .label("knee of the frontier (shipped default)")
+                .label(knee_label)
                 .legend(|(x, y)| Circle::new((x + 10, y), 5, GREEN.stroke_width(3)));
         }
         for (i, r) in results.iter().enumerate() {

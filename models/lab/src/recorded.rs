@@ -1175,6 +1175,7 @@ pub fn write(r: &StudyReport, out: &Path) -> Result<()> {
             &out.join("speed-accuracy.svg"),
             "Accuracy against speed (recorded presses, kNN top-1 per press)",
             r.frame_budget_ms,
+            "knee of the frontier",
         )?;
     }
     time_chart(r, &out.join("decision-time.svg"))?;
@@ -1517,9 +1518,13 @@ fn time_chart(r: &StudyReport, svg: &Path) -> Result<()> {
 
 /// The confusion matrix as a heat map (row-normalised).
 fn confusion_chart(r: &StudyReport, m: &RecordedMethod, svg: &Path) -> Result<()> {
+    use plotters::coord::ranged1d::SegmentValue;
     use plotters::prelude::*;
     let e = chart_err;
-    let n = r.textiles.len().max(1);
+    let n = r.textiles.len();
+    if n < 2 {
+        return Ok(());
+    }
     let side = (60 + 28 * n as u32).clamp(400, 1400);
     let root = SVGBackend::new(svg, (side + 120, side + 60)).into_drawing_area();
     root.fill(&WHITE).map_err(e)?;
@@ -1531,33 +1536,43 @@ fn confusion_chart(r: &StudyReport, m: &RecordedMethod, svg: &Path) -> Result<()
         .margin(10)
         .x_label_area_size(70)
         .y_label_area_size(90)
-        .build_cartesian_2d(0..n, 0..n)
+        // A segmented 0..k has k + 1 segments.
+        .build_cartesian_2d((0..n - 1).into_segmented(), (0..n - 1).into_segmented())
         .map_err(e)?;
-    let names = r.textiles.clone();
-    let names2 = r.textiles.clone();
+    // Row 0 (the first textile) at the top.
+    let label = |v: &SegmentValue<usize>, flip: bool| match v {
+        SegmentValue::CenterOf(i) => {
+            let k = if flip {
+                (n - 1).checked_sub(*i)
+            } else {
+                Some(*i)
+            };
+            k.and_then(|k| r.textiles.get(k))
+                .cloned()
+                .unwrap_or_default()
+        }
+        _ => String::new(),
+    };
     c.configure_mesh()
         .disable_mesh()
         .x_labels(n)
         .y_labels(n)
-        .x_label_formatter(&|i| names.get(*i).cloned().unwrap_or_default())
-        .y_label_formatter(&|i| {
-            (n - 1)
-                .checked_sub(*i)
-                .and_then(|k| names2.get(k))
-                .cloned()
-                .unwrap_or_default()
-        })
+        .x_label_formatter(&|v| label(v, false))
+        .y_label_formatter(&|v| label(v, true))
         .x_desc("decided")
         .y_desc("true")
         .draw()
         .map_err(e)?;
     for (i, row) in m.confusion.iter().enumerate() {
         let total = row.iter().sum::<usize>().max(1) as f64;
+        let y = n - 1 - i;
         for (j, &v) in row.iter().enumerate() {
             let share = v as f64 / total;
-            let y = n - 1 - i;
             c.draw_series(std::iter::once(Rectangle::new(
-                [(j, y), (j + 1, y + 1)],
+                [
+                    (SegmentValue::Exact(j), SegmentValue::Exact(y)),
+                    (SegmentValue::Exact(j + 1), SegmentValue::Exact(y + 1)),
+                ],
                 BLUE.mix(share.max(0.02)).filled(),
             )))
             .map_err(e)?;
