@@ -662,6 +662,16 @@ fn a_silent_firmware_is_declared_dead_after_max_tries_and_reopened_with_backoff(
     p.go(Target::Slot(2));
     assert!(p.link.state().connected);
     assert_eq!(p.link.state().reconnects, 1, "never connected in between");
+    // A good connection resets the backoff: the next loss reopens after
+    // 50 ms again.
+    p.faults.mute = true;
+    let n = p.opens.len();
+    let (at, _) = p
+        .run_until_event(10 * S, |e| matches!(e, RollerEvent::Disconnected { .. }))
+        .unwrap();
+    p.run_for(100 * MS);
+    assert_eq!(p.opens[n].0 - at, 50 * MS);
+    assert_eq!(p.link.state().reconnects, 2);
 }
 
 #[test]
@@ -855,6 +865,48 @@ fn a_firmware_with_another_protocol_is_refused_with_a_clear_error() {
     assert_eq!(link.poll_timeout(), Some(52 * MS));
     link.handle_timeout(52 * MS);
     assert!(matches!(link.poll(), Some(Action::Open)));
+}
+
+/// During the handshake only the expected answer counts: a periodic
+/// `Status` or an `Arrived` from a move of an earlier connection that
+/// happens to carry the Hello's SEQ is not taken for the answer.
+#[test]
+fn an_unsolicited_frame_with_the_hellos_seq_is_not_the_answer() {
+    use telextiles_roller::link::{Phase, Step};
+    let mut link = RollerLink::new(link_config());
+    assert!(matches!(link.poll(), Some(Action::Open)));
+    link.handle_opened(PORT, 0);
+    let Some(Action::Transmit { frame, .. }) = link.poll() else {
+        panic!("no Hello")
+    };
+    let seq = FrameDecoder::new()
+        .feed(frame.as_bytes())
+        .next()
+        .unwrap()
+        .unwrap()
+        .seq;
+    let moving = telextiles_proto::roller::Status {
+        position: 100,
+        target: 800,
+        speed: 1000,
+        slots: 16,
+        flags: 3,
+    };
+    link.handle_bytes(Reply::Status(moving).encode(seq).as_bytes(), MS);
+    link.handle_bytes(Reply::Arrived(moving).encode(seq).as_bytes(), MS);
+    assert_eq!(link.phase(), Phase::Handshake(Step::Hello));
+    assert!(link.poll().is_none());
+    let v = Version {
+        protocol: 1,
+        firmware: [0, 1, 0],
+        steps_per_rev: 3200,
+        slots: 16,
+        watchdog_ms: 2000,
+        max_speed: 3200,
+        accel: 6400,
+    };
+    link.handle_bytes(Reply::Version(v).encode(seq).as_bytes(), 2 * MS);
+    assert_eq!(link.phase(), Phase::Handshake(Step::Resync));
 }
 
 #[test]
