@@ -493,6 +493,78 @@ mod tests {
         assert_eq!(img, (6 * 240, 2 * (320 + 22)));
     }
 
+    #[test]
+    fn catalogue_2_presses_and_stats() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("v2");
+        run(parse(&[
+            "--textile",
+            "T090",
+            "--seed",
+            "3",
+            "--catalogue",
+            "2",
+            "--generator",
+            "2",
+            "--fps",
+            "25",
+            "--sensor",
+            "7",
+            "--frames",
+            "5",
+            "--out",
+            out.to_str().unwrap(),
+        ]))
+        .unwrap();
+        let p = recording::read_press(&out).unwrap();
+        assert_eq!(p.meta.fps, 25.0);
+        assert_eq!(p.meta.timestamps_us[1], 40_000);
+        let params = p.meta.params.unwrap();
+        assert_eq!((params.catalogue_version, params.generator), (2, 2));
+        // the same press from the library
+        let sim = Simulator::with_options(2, 2).unwrap();
+        let spec = PressSpec {
+            sensor: 7,
+            frames: 5,
+            fps: Some(25.0),
+            ..PressSpec::new("T090", 3)
+        };
+        assert_eq!(sim.render_press(&spec).unwrap().frames, p.frames);
+        // generator 2 needs catalogue 2
+        let e = run(parse(&[
+            "--textile",
+            "T090",
+            "--generator",
+            "2",
+            "--out",
+            tmp.path().join("x").to_str().unwrap(),
+        ]))
+        .unwrap_err();
+        assert!(e.to_string().contains("generator"), "{e}");
+        run(parse(&[
+            "dataset",
+            "--stream",
+            "--limit",
+            "2",
+            "--catalogue",
+            "2",
+        ]))
+        .unwrap();
+        run(parse(&["list", "--catalogue", "2"])).unwrap();
+        run(parse(&[
+            "stats",
+            "--catalogue",
+            "2",
+            "--per-family",
+            "1",
+            "--units",
+            "2",
+            "--speed-presses",
+            "1",
+        ]))
+        .unwrap();
+    }
+
     fn image_dims(p: &Path) -> (u32, u32) {
         let bytes = std::fs::read(p).unwrap();
         // PNG IHDR: width and height at bytes 16..24

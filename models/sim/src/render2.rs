@@ -479,8 +479,10 @@ impl Simulator {
             features.push("fast-ramp".to_string());
             (person.ramp_frames / 60.0 * rng.gen_range(0.4..1.0)).max(0.05)
         };
-        let contact_frame = ((contact_s * fps).round() as u32)
-            .clamp(3.min(frames as u32 - 1), (frames as f32 * 0.4) as u32);
+        // at least 3 untouched frames (fewer only in very short presses)
+        let lo = 3.min(frames as u32 - 1);
+        let hi = ((frames as f32 * 0.4) as u32).max(lo);
+        let contact_frame = ((contact_s * fps).round() as u32).clamp(lo, hi);
         let hold_frame = (contact_frame as f32 + (ramp_s * fps).max(1.0)).round() as u32;
         let releases = spec.release.unwrap_or(
             rng.gen::<f32>()
