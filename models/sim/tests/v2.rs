@@ -286,7 +286,7 @@ fn sixteen_sensor_units_with_their_own_colour_layout() {
         tvl += (s.base_mix > 0.5) as u32;
     }
     assert!(
-        turned >= 2 && tvl >= 4 && tvl <= 12,
+        turned >= 2 && (4..=12).contains(&tvl),
         "{turned} turned, {tvl} tvl-based"
     );
     // the unit-to-unit difference is of the order of the two real units'
