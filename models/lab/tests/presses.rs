@@ -347,3 +347,72 @@ fn presses_in_the_pytouch_layout() {
     assert_eq!(m.summary.presses, 2);
     assert_eq!(m.confusion.iter().flatten().sum::<usize>(), 2);
 }
+
+#[test]
+fn presses_front_end_embeddings_match_the_lab_embedder() {
+    // The recorded study runs ONNX models through the daemon's front end;
+    // the simulator study through the lab's own preprocessing. On the same
+    // frames in contact and the same reference they agree.
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Simulator::new().unwrap();
+    let p = sim
+        .render_press(&PressSpec {
+            sensor: 4,
+            frames: FRAMES,
+            ..PressSpec::new("T040", 7)
+        })
+        .unwrap();
+    let path = dir.path().join("press");
+    write_press(&path, &p).unwrap();
+    let methods: Vec<Method> = telextiles_lab::report::descriptor_methods()
+        .unwrap()
+        .into_iter()
+        .filter(|m| ["fft-radial-c64-bg", "pixels16-c64"].contains(&m.name().as_str()))
+        .collect();
+    assert_eq!(methods.len(), 2);
+    let press = telextiles_sim::recording::read_press(&path).unwrap();
+    let seg = telextiles_sensing::front::segment(&press, &Default::default()).unwrap();
+    let mut proc = recorded::Processor::new(&methods, 1, Default::default()).unwrap();
+    let got = proc.process("press", press.clone()).unwrap();
+    let reference: Vec<u8> = seg
+        .reference
+        .iter()
+        .map(|v| v.round().clamp(0.0, 255.0) as u8)
+        .collect();
+    let reference = image::RgbImage::from_raw(240, 320, reference).unwrap();
+    for (m, e) in methods.iter().zip(&got.methods) {
+        let (crop, input) = m.view();
+        let frames: Vec<usize> = seg.contact.iter().map(|c| c.index).collect();
+        assert_eq!(e.frames, frames, "{}", m.name());
+        let mut set = telextiles_lab::data::ImageSet {
+            kind: telextiles_lab::data::ImageKind::Input,
+            side: input as usize,
+            crop,
+            classes: vec!["T040".into()],
+            items: Vec::new(),
+            pixels: Vec::new(),
+            source: "test".into(),
+        };
+        for &i in &frames {
+            let v = telextiles_lab::preprocess::centre_crop_resize(&press.frames[i], crop, input)
+                .unwrap();
+            set.pixels.extend_from_slice(v.as_raw());
+            set.items.push(telextiles_lab::data::FrameMeta {
+                class: 0,
+                press: 0,
+                person: 0,
+                sensor: 4,
+                jig: true,
+                frame: i as u32,
+            });
+        }
+        let rv = telextiles_lab::preprocess::centre_crop_resize(&reference, crop, input).unwrap();
+        let mut emb = telextiles_lab::methods::Embedder::new(m, 1).unwrap();
+        let (want, dim) = emb.embed(&set, |_| Some(rv.as_raw())).unwrap();
+        assert_eq!(dim, e.dim);
+        for (k, (a, b)) in want.chunks(dim).zip(e.rows.chunks(dim)).enumerate() {
+            let cos: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+            assert!(cos > 0.999, "{} frame {k}: cosine {cos}", m.name());
+        }
+    }
+}
