@@ -128,8 +128,7 @@ pub enum Target {
 }
 
 impl Target {
-    /// The command that asks the firmware for this target.
-    pub fn command(self) -> Command {
+    fn command(self) -> Command {
         match self {
             Target::Slot(slot) => Command::GotoSlot { slot },
             Target::AngleMdeg(mdeg) => Command::GotoAngle {

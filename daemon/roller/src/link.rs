@@ -457,30 +457,23 @@ impl RollerLink {
         }
     }
 
+    /// Sends the handshake's next request after `done`: `SetSlots` and
+    /// `SetMotion` when configured, then the `QueryStatus` resync.
     fn next_step(&mut self, done: Step, now: u64) {
-        let after_slots = |s: &Self| {
-            if s.cfg.motion.is_some() {
-                Step::Motion
-            } else {
-                Step::Resync
+        let slots = match (done, self.cfg.slots) {
+            (Step::Hello, Some(slots)) => Some((Step::Slots, Command::SetSlots { slots })),
+            _ => None,
+        };
+        let motion = match (done, self.cfg.motion) {
+            (Step::Hello | Step::Slots, Some((max_speed, accel))) => {
+                Some((Step::Motion, Command::SetMotion { max_speed, accel }))
             }
+            _ => None,
         };
-        let step = match done {
-            Step::Hello if self.cfg.slots.is_some() => Step::Slots,
-            Step::Hello | Step::Slots => after_slots(self),
-            Step::Motion | Step::Resync => Step::Resync,
-        };
+        let (step, cmd) = slots
+            .or(motion)
+            .unwrap_or((Step::Resync, Command::QueryStatus));
         self.phase = Phase::Handshake(step);
-        let cmd = match step {
-            Step::Slots => Command::SetSlots {
-                slots: self.cfg.slots.unwrap_or(1),
-            },
-            Step::Motion => {
-                let (max_speed, accel) = self.cfg.motion.unwrap_or((1, 1));
-                Command::SetMotion { max_speed, accel }
-            }
-            Step::Hello | Step::Resync => Command::QueryStatus,
-        };
         self.request(cmd, None, now);
     }
 
