@@ -6,6 +6,7 @@
 //!
 //! Input: records `peer: u8 | kind: u8 | len: u16 LE | bytes`; an even
 //! kind is a latent datagram, an odd one a control payload.
+#[allow(clippy::type_complexity)]
 #[path = "../../../proto/fuzz/harness.rs"]
 mod harness;
 
@@ -55,7 +56,7 @@ fn decisions(data: &[u8]) -> usize {
         let take = len.min(rest.len() - 4);
         let bytes = &rest[4..4 + take];
         rest = &rest[4 + take..];
-        if kind % 2 == 0 {
+        if kind.is_multiple_of(2) {
             let Ok(f) = LatentFrame::decode(bytes) else {
                 continue;
             };
