@@ -50,10 +50,11 @@ pub fn std(v: &[f32]) -> f32 {
 }
 
 /// Spectral peak-to-median ratio of a `CROP` x `CROP` signal: the 2D power
-/// spectrum (mean removed, Hann window), its largest value outside the
-/// lowest frequencies (radius > 4 bins, i.e. periods up to 32 px = 2.6 mm:
-/// the yarn, loop and stitch scales, not the shape of the contact patch or
-/// a crease) over its median.
+/// spectrum (mean removed, Hann window) in the texture band, 4 < radius <=
+/// 32 bins (periods 4..32 px = 0.3..2.6 mm: yarns, loops, stitches; not
+/// the shape of the contact patch or a crease, not the pixel-scale noise
+/// and blur), its largest value over its median. A lattice gives a sharp
+/// peak over a low floor; irregular relief spreads the power.
 pub fn peak_to_median(sig: &[f32]) -> f64 {
     peak_to_median_at(sig).0
 }
@@ -100,10 +101,13 @@ pub fn peak_to_median_at(sig: &[f32]) -> (f64, (i32, i32)) {
                 si += a * sin[t] + b * cos[t];
             }
             let p = sr * sr + si * si;
-            power.push(p);
             let fk = if k > n / 2 { n - k } else { k } as f64;
             let fl = if l > n / 2 { n - l } else { l } as f64;
-            if (fk * fk + fl * fl).sqrt() > 4.0 && p > peak {
+            let r = (fk * fk + fl * fl).sqrt();
+            if r > 4.0 && r <= 32.0 {
+                power.push(p);
+            }
+            if r > 4.0 && r <= 32.0 && p > peak {
                 peak = p;
                 let sk = if k > n / 2 {
                     k as i32 - n as i32
