@@ -293,6 +293,13 @@ impl Simulator {
         self.background_of(self.default_catalogue, sensor)
     }
 
+    /// The no-contact frame (no noise) of the unit and catalogue version a
+    /// spec renders with (what to subtract from that spec's frames).
+    pub fn background_for(&self, spec: &PressSpec) -> Result<image::RgbImage, SimError> {
+        let (version, _) = self.resolve(spec)?;
+        Ok(self.background_of(version, spec.sensor))
+    }
+
     /// The no-contact frame of sensor unit `sensor` of catalogue `version`
     /// (version 2: through the unit's camera chain, without noise or drift).
     pub fn background_of(&self, version: u32, sensor: u32) -> image::RgbImage {

@@ -201,6 +201,7 @@ fn fps_is_honoured_and_drawn_from_the_choices() {
 #[test]
 fn reference_frames_are_the_untouched_frames_before_contact() {
     let sim = Simulator::with_catalogue(2).unwrap();
+    let other = Simulator::new().unwrap();
     for (k, (id, jig, sensor)) in [("T005", true, 0u32), ("T082", false, 3), ("T109", false, 9)]
         .into_iter()
         .enumerate()
@@ -220,6 +221,11 @@ fn reference_frames_are_the_untouched_frames_before_contact() {
         assert_eq!(r, p.contact_frame as usize);
         assert!(r >= 3, "{r}");
         let bg = sim.background(sensor);
+        let spec2 = PressSpec {
+            catalogue: Some(2),
+            ..spec.clone()
+        };
+        assert_eq!(other.background_for(&spec2).unwrap(), bg);
         for i in 0..r {
             assert_eq!(sim.render_frame(&spec, i).unwrap(), bg, "{id} frame {i}");
         }
