@@ -25,11 +25,11 @@
 //!   the full-resolution copy every `full_every` quiet frames), absorbing
 //!   LED warm-up and temperature drift;
 //! - after every release it is re-established: once the gel has settled
-//!   (`settle_frames` quiet frames), the mean of the next `reference_frames`
+//!   (`settle_ms` of quiet frames), the mean of the next `reference_frames`
 //!   quiet frames replaces it (`renew_after_release`);
 //! - a reference gone stale while "in contact" (the gel settled, the LEDs
 //!   changed) shows as a contact whose score stays flat for
-//!   `stale_after_frames`; then the reference is re-captured from the
+//!   `stale_after_ms`; then the reference is re-captured from the
 //!   current frames and the press ends with [`EndReason::StaleReference`].
 //!
 //! A reference captured while something touched the sensor (a press that
@@ -71,9 +71,10 @@ pub struct ContactConfig {
     pub min_exit_frames: u32,
     /// Weight of a no-contact frame in the slowly updated reference (0 = frozen).
     pub background_alpha: f32,
-    /// A contact whose score varies by less than `stale_band` for this many
-    /// frames is taken as a stale reference (0 = never).
-    pub stale_after_frames: u32,
+    /// A contact whose score varies by less than `stale_band` for this
+    /// long (milliseconds of frame time) is taken as a stale reference
+    /// (0 = never).
+    pub stale_after_ms: f32,
     /// Score band for the stale test.
     pub stale_band: f32,
     /// A reference capture restarts when a frame's score against the first
@@ -83,8 +84,9 @@ pub struct ContactConfig {
     pub max_capture_restarts: u32,
     /// Re-establish the reference after each release.
     pub renew_after_release: bool,
-    /// Quiet frames after a release before the new reference is averaged.
-    pub settle_frames: u32,
+    /// Milliseconds of quiet frames after a release before the new
+    /// reference is averaged (the gel relaxes).
+    pub settle_ms: f32,
     /// The full-resolution reference follows every n-th quiet frame.
     pub full_every: u32,
     /// A press start whose frame has less fine detail than the reference
@@ -107,12 +109,12 @@ impl Default for ContactConfig {
             min_enter_frames: 3,
             min_exit_frames: 5,
             background_alpha: 0.01,
-            stale_after_frames: 1800,
+            stale_after_ms: 30_000.0,
             stale_band: 0.3,
             capture_motion: 1.2,
             max_capture_restarts: 240,
             renew_after_release: true,
-            settle_frames: 15,
+            settle_ms: 250.0,
             full_every: 4,
             touched_reference_ratio: 1.3,
             lighting_check: true,
@@ -186,17 +188,35 @@ enum State {
     Idle {
         run: u32,
         run_start: u64,
-        /// Quiet frames since the last release while the reference is
-        /// being re-established (None: not renewing).
-        renew: Option<u32>,
+        /// The reference is being re-established after a release (None:
+        /// not renewing).
+        renew: Option<Renew>,
     },
     Contact {
         start: u64,
         run: u32,
-        flat: u32,
+        /// When the score entered its current flat band.
+        flat_since: u64,
         lo: f32,
         hi: f32,
     },
+}
+
+/// Re-establishing the reference after a release.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Renew {
+    /// Timestamp of the first of the quiet frames in a row (None: the last
+    /// frame was not quiet).
+    quiet_since: Option<u64>,
+    /// Frames averaged into the new reference so far.
+    collected: u32,
+}
+
+impl Renew {
+    const START: Renew = Renew {
+        quiet_since: None,
+        collected: 0,
+    };
 }
 
 /// The contact detector (see the module docs).
@@ -483,7 +503,7 @@ impl ContactDetector {
                             State::Contact {
                                 start: run_start,
                                 run: 0,
-                                flat: 0,
+                                flat_since: t_us,
                                 lo: score,
                                 hi: score,
                             }
@@ -498,29 +518,39 @@ impl ContactDetector {
                 } else if score < exit {
                     quiet = true;
                     self.floor = (self.floor + 0.05 * (score - self.floor)).min(cfg.max_floor);
-                    let settle = cfg.settle_frames;
+                    let settle_us = (cfg.settle_ms.max(0.0) * 1000.0) as u64;
                     let frames = cfg.reference_frames.max(1);
                     let renew = match renew {
-                        Some(k) if k >= settle => {
-                            // Averaging the new reference.
-                            let n = k - settle;
-                            if n == 0 {
-                                self.acc.copy_from_slice(&self.samples);
-                            } else {
-                                for (a, s) in self.acc.iter_mut().zip(&self.samples) {
-                                    *a += s;
+                        Some(r) => {
+                            let since = r.quiet_since.unwrap_or(t_us);
+                            if t_us.saturating_sub(since) >= settle_us {
+                                // Settled: averaging the new reference.
+                                let n = r.collected;
+                                if n == 0 {
+                                    self.acc.copy_from_slice(&self.samples);
+                                } else {
+                                    for (a, s) in self.acc.iter_mut().zip(&self.samples) {
+                                        *a += s;
+                                    }
                                 }
-                            }
-                            self.accumulate_full(image, n);
-                            if n + 1 >= frames {
-                                self.commit_reference(n + 1);
-                                event = Some(ContactEvent::ReferenceCaptured { t_us });
-                                None
+                                self.accumulate_full(image, n);
+                                if n + 1 >= frames {
+                                    self.commit_reference(n + 1);
+                                    event = Some(ContactEvent::ReferenceCaptured { t_us });
+                                    None
+                                } else {
+                                    Some(Renew {
+                                        quiet_since: Some(since),
+                                        collected: n + 1,
+                                    })
+                                }
                             } else {
-                                Some(k + 1)
+                                Some(Renew {
+                                    quiet_since: Some(since),
+                                    collected: 0,
+                                })
                             }
                         }
-                        Some(k) => Some(k + 1),
                         None => {
                             self.follow(image);
                             None
@@ -536,23 +566,24 @@ impl ContactDetector {
                     State::Idle {
                         run: 0,
                         run_start,
-                        renew: renew.map(|_| 0),
+                        renew: renew.map(|_| Renew::START),
                     }
                 }
             }
             State::Contact {
                 start,
                 run,
-                flat,
+                flat_since,
                 lo,
                 hi,
             } => {
                 let (lo, hi) = (lo.min(score), hi.max(score));
-                let (flat, lo, hi) = if hi - lo > cfg.stale_band {
-                    (0, score, score)
+                let (flat_since, lo, hi) = if hi - lo > cfg.stale_band {
+                    (t_us, score, score)
                 } else {
-                    (flat + 1, lo, hi)
+                    (flat_since, lo, hi)
                 };
+                let flat_us = t_us.saturating_sub(flat_since);
                 if score < exit {
                     if run + 1 >= cfg.min_exit_frames.max(1) {
                         event = Some(ContactEvent::PressEnd {
@@ -563,20 +594,23 @@ impl ContactDetector {
                         State::Idle {
                             run: 0,
                             run_start: t_us,
-                            renew: cfg.renew_after_release.then_some(0),
+                            renew: cfg.renew_after_release.then_some(Renew::START),
                         }
                     } else {
                         State::Contact {
                             start,
                             run: run + 1,
-                            flat,
+                            flat_since,
                             lo,
                             hi,
                         }
                     }
-                } else if cfg.stale_after_frames > 0 && flat >= cfg.stale_after_frames {
+                } else if cfg.stale_after_ms > 0.0
+                    && flat_us as f64 >= cfg.stale_after_ms as f64 * 1000.0
+                {
                     tracing::warn!(
-                        "contact score stayed at {score:.1} for {flat} frames: taking the reference as stale and re-capturing it"
+                        "contact score stayed at {score:.1} for {:.1} s: taking the reference as stale and re-capturing it",
+                        flat_us as f64 / 1e6
                     );
                     event = Some(ContactEvent::PressEnd {
                         start_us: start,
@@ -593,7 +627,7 @@ impl ContactDetector {
                     State::Contact {
                         start,
                         run: 0,
-                        flat,
+                        flat_since,
                         lo,
                         hi,
                     }

@@ -108,7 +108,7 @@ fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
     // like, so the lighting check is off to test the hysteresis alone.
     let cfg = ContactConfig {
         reference_frames: 2,
-        stale_after_frames: 0,
+        stale_after_ms: 0.0,
         lighting_check: false,
         ..Default::default()
     };
@@ -155,23 +155,30 @@ fn a_stale_reference_is_recaptured_and_recapture_works_on_command() {
     // test the slower stale-score path that catches what it does not.)
     let cfg = ContactConfig {
         reference_frames: 2,
-        stale_after_frames: 50,
+        // 50 frames at 60 fps.
+        stale_after_ms: 833.0,
         lighting_check: false,
         ..Default::default()
     };
     let mut det = ContactDetector::new(cfg);
+    const P: u64 = 16_667;
     det.update(&base, 0);
-    det.update(&base, 1);
+    det.update(&base, P);
     // The gel/LEDs changed: a flat "contact" that never varies.
     let mut ended = None;
     for i in 0..80 {
-        if let Some(ContactEvent::PressEnd { reason, .. }) = det.update(&shifted, 10 + i).event {
+        if let Some(ContactEvent::PressEnd { reason, .. }) = det.update(&shifted, (2 + i) * P).event
+        {
             ended = Some((i, reason));
         }
     }
-    assert_eq!(ended.map(|e| e.1), Some(EndReason::StaleReference));
+    // Stale after 833 ms of frame time: the press started on the third
+    // shifted frame, so about 50 frames after that.
+    let (at, reason) = ended.expect("ended");
+    assert_eq!(reason, EndReason::StaleReference);
+    assert!((50..=56).contains(&at), "ended at frame {at}");
     assert!(!det.in_contact(), "the new reference absorbed the change");
-    assert!(det.update(&shifted, 200).score < 0.5);
+    assert!(det.update(&shifted, 200 * P).score < 0.5);
     // On command, while touching: the press ends, the next frames are the reference.
     let mut det = ContactDetector::new(ContactConfig {
         reference_frames: 2,
