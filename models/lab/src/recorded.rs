@@ -47,6 +47,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use telextiles_sensing::contact::{ContactConfig, ContactEvent};
+use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, TextileIndex};
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{self, FrontEnd};
@@ -547,6 +548,10 @@ pub struct PressDecision {
     pub knn: String,
     /// Nearest textile centroid.
     pub centroid: String,
+    /// The daemon's decider at the end of the press ("-": undecided).
+    pub decider: String,
+    /// When its first decision came, ms since the press started.
+    pub first_decision_ms: Option<f64>,
     /// Per-frame top-1 within this press.
     pub frame_top1: f64,
 }
@@ -559,6 +564,17 @@ pub struct RecordedMethod {
     pub summary: MethodResult,
     /// Per press, nearest textile centroid.
     pub press_top1_centroid: f64,
+    /// Per press, the daemon's decider (running mean against the
+    /// centroids with its hysteresis, `telextiles_sensing::decide`) at the
+    /// end of the press; an undecided press counts as wrong.
+    pub press_top1_decider: f64,
+    /// Median time of the decider's first decision, ms since the press
+    /// started (decided presses).
+    pub first_decision_ms: f64,
+    /// Query presses the decider decided at all.
+    pub decided_presses: usize,
+    /// Changes of decision after the first, over all query presses.
+    pub switches: usize,
     /// (ms since the press started, top-1 per press of the running mean).
     pub by_time: Vec<(f64, f64)>,
     /// Median over query presses of the time of their first embedded frame
@@ -713,6 +729,51 @@ impl Bank {
     }
 }
 
+/// The daemon's index of the given presses: one centroid per textile (the
+/// normalised mean of all their frames' embeddings, as `index build`
+/// makes it).
+fn flat_index(
+    processed: &[Processed],
+    m: usize,
+    class_of: &[u32],
+    textiles: &[String],
+    presses: impl Iterator<Item = usize>,
+) -> Option<FlatIndex> {
+    let mut per: Vec<Vec<Vec<f32>>> = vec![Vec::new(); textiles.len()];
+    for i in presses {
+        let e = &processed[i].methods[m];
+        per[class_of[i] as usize].extend((0..e.len()).map(|k| e.row(k).to_vec()));
+    }
+    let entries: Vec<(String, Vec<Vec<f32>>)> = textiles
+        .iter()
+        .cloned()
+        .zip(per)
+        .filter(|(_, v)| !v.is_empty())
+        .collect();
+    FlatIndex::from_embeddings(&entries).ok()
+}
+
+/// The daemon's decider over one press's frames (running mean against
+/// the centroids, with its hysteresis): the final decision and when the
+/// first one came (ms since the press started).
+fn decide_press(index: &FlatIndex, e: &PressEmbedding) -> (Option<String>, Option<f64>, u32) {
+    let mut d = Decider::new(DecideConfig::default(), index.dim());
+    d.press_start(0);
+    for k in 0..e.len() {
+        let t_us = (e.t_ms[k] * 1000.0).round().max(0.0) as u64;
+        d.on_embedding(index, t_us, e.row(k));
+    }
+    let end = e.t_ms.last().map_or(0, |t| (t * 1000.0).round() as u64);
+    match d.press_end(end) {
+        Some(o) => (
+            o.decision.map(|x| index.id(x.entry).to_string()),
+            o.first_decision_us.map(|t| t as f64 / 1e3),
+            o.switches,
+        ),
+        None => (None, None, 0),
+    }
+}
+
 /// Score one method's embeddings under a split.
 fn score(
     m: usize,
@@ -774,6 +835,13 @@ fn score(
         c
     };
     let fixed = centroids(None);
+    let index_presses = |except: Option<usize>| {
+        usable
+            .iter()
+            .copied()
+            .filter(move |&i| roles[i] != Role::Query && Some(i) != except)
+    };
+    let fixed_flat = flat_index(processed, m, class_of, textiles, index_presses(None));
     let mut sc = Score {
         per_class: textiles
             .iter()
@@ -831,6 +899,25 @@ fn score(
             }
         }
         first_ms.push(e.t_ms.first().copied().unwrap_or(f64::NAN));
+        // The daemon's decider.
+        let own;
+        let flat = if lopo {
+            own = flat_index(processed, m, class_of, textiles, index_presses(Some(q)));
+            own.as_ref()
+        } else {
+            fixed_flat.as_ref()
+        };
+        let (decided, first_decision, switches) = match flat {
+            Some(f) => decide_press(f, e),
+            None => (None, None, 0),
+        };
+        if decided.as_deref() == Some(textiles[truth as usize].as_str()) {
+            sc.decider_correct += 1;
+        }
+        if let Some(t) = first_decision {
+            sc.first_decision_ms.push(t);
+        }
+        sc.switches += switches as usize;
         let pc = &mut sc.per_class[truth as usize];
         pc.query_presses += 1;
         pc.query_frames += fr.len();
@@ -854,6 +941,8 @@ fn score(
             truth: textiles[truth as usize].clone(),
             knn: name(knn),
             centroid: name(cent),
+            decider: decided.unwrap_or_else(|| "-".into()),
+            first_decision_ms: first_decision,
             frame_top1: fc as f64 / fr.len().max(1) as f64,
         });
         sc.nonfinite += crate::methods::nonfinite_rows(&e.rows, dim);
@@ -877,6 +966,9 @@ struct Score {
     confusion: Vec<Vec<usize>>,
     decisions: Vec<PressDecision>,
     nonfinite: usize,
+    decider_correct: usize,
+    first_decision_ms: Vec<f64>,
+    switches: usize,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1053,6 +1145,10 @@ pub fn score_all(
                 nonfinite_frames: s.nonfinite,
             },
             press_top1_centroid: ratio(s.centroid_correct, s.presses),
+            press_top1_decider: ratio(s.decider_correct, s.presses),
+            first_decision_ms: crate::bench::median(&s.first_decision_ms),
+            decided_presses: s.first_decision_ms.len(),
+            switches: s.switches,
             by_time,
             first_frame_ms: s.first_frame_ms,
             per_class: s.per_class,
@@ -1278,14 +1374,23 @@ pub fn markdown(r: &StudyReport) -> String {
             .map_or(0, |m| m.summary.presses)
             .to_string(),
     );
-    s.push_str(").\n\n| method | top-1 per frame | per press, nearest index frame | per press, nearest textile centroid |\n|---|---:|---:|---:|\n");
+    s.push_str("). \"decider\": the daemon's decider (`telextiles-sensing`: running mean against the centroids, with its hysteresis) at the end of the press, an undecided press counted wrong; \"first decision\": median ms from the press start to its first decision.\n\n| method | top-1 per frame | per press, nearest index frame | per press, nearest textile centroid | decider | first decision | decided | switches |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for m in &r.methods {
         s.push_str(&format!(
-            "| {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {}/{} | {} |\n",
             m.summary.name,
             pct(m.summary.frame_top1),
             pct(m.summary.press_top1),
-            pct(m.press_top1_centroid)
+            pct(m.press_top1_centroid),
+            pct(m.press_top1_decider),
+            if m.first_decision_ms.is_finite() {
+                format!("{:.0} ms", m.first_decision_ms)
+            } else {
+                "-".into()
+            },
+            m.decided_presses,
+            m.summary.presses,
+            m.switches
         ));
     }
     // Against time.

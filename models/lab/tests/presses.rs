@@ -84,6 +84,18 @@ fn check(r: &StudyReport, queries: usize, min_press: f64) {
         assert!(last.0 * 1e-3 > (FRAMES as f64) / 25.0);
         assert!((last.1 - s.press_top1).abs() < 1e-12, "{}", s.name);
         assert!(m.first_frame_ms > 0.0 && m.first_frame_ms < 500.0);
+        // The daemon's decider: decides most presses, not before its
+        // 50 ms minimum, at frame times of each recording's own clock
+        // (40 ms apart at 25 fps).
+        assert!(m.decided_presses <= queries && m.decided_presses * 2 > queries);
+        assert!(m.first_decision_ms >= 50.0, "{}", m.first_decision_ms);
+        let right = m.decisions.iter().filter(|d| d.decider == d.truth).count();
+        assert!((m.press_top1_decider - right as f64 / queries as f64).abs() < 1e-12);
+        for d in m.decisions.iter().filter(|d| d.truth == "T090") {
+            if let Some(t) = d.first_decision_ms {
+                assert!((t / 40.0 - (t / 40.0).round()).abs() < 1e-6, "{t}");
+            }
+        }
     }
     // The power spectrum and the shipped model tell three textiles apart
     // well above chance (1/3) on presses by other people on other units.
@@ -91,6 +103,7 @@ fn check(r: &StudyReport, queries: usize, min_press: f64) {
         let m = r.methods.iter().find(|m| m.summary.name == name).unwrap();
         assert!(m.summary.press_top1 >= min_press, "{name}: {:?}", m.summary);
         assert!(m.summary.frame_top1 >= 0.8, "{name}: {:?}", m.summary);
+        assert!(m.press_top1_decider >= min_press, "{name}: {m:?}");
     }
     for m in &r.methods {
         assert!(m.summary.frame_top1 > 0.5, "{:?}", m.summary);
@@ -200,8 +213,16 @@ fn presses_one_run_equals_each_recording_alone() {
     let a = recorded::score_all(&cfg, &methods, &refs, &together).unwrap();
     let b = recorded::score_all(&cfg, &methods, &refs, &alone).unwrap();
     for (x, y) in a.methods.iter().zip(&b.methods) {
-        let dx: Vec<_> = x.decisions.iter().map(|d| (&d.knn, &d.centroid)).collect();
-        let dy: Vec<_> = y.decisions.iter().map(|d| (&d.knn, &d.centroid)).collect();
+        let dx: Vec<_> = x
+            .decisions
+            .iter()
+            .map(|d| (&d.knn, &d.centroid, &d.decider, d.first_decision_ms))
+            .collect();
+        let dy: Vec<_> = y
+            .decisions
+            .iter()
+            .map(|d| (&d.knn, &d.centroid, &d.decider, d.first_decision_ms))
+            .collect();
         assert_eq!(dx, dy);
     }
 }
