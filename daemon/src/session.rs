@@ -24,11 +24,16 @@
 //!   local clients.
 
 mod control;
+mod map;
+mod models;
 mod receive;
 mod roller;
 mod sensing;
+mod supervise;
 
-use anyhow::{anyhow, bail, Context, Result};
+use supervise::{supervise, EndGuard};
+
+use anyhow::{anyhow, Context, Result};
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -41,7 +46,7 @@ use telextiles_control::{Event, Server, ServerConfig};
 use telextiles_index::Index;
 use telextiles_link::{HelloInfo, LinkConfig, LinkHandle, PairingMode};
 use telextiles_roller::RollerDriver;
-use telextiles_sensing::encoder::{Encoder, EncoderOptions, ModelInfo};
+use telextiles_sensing::encoder::ModelInfo;
 use telextiles_sensing::source::sim::SimHandle;
 use telextiles_session::{ReceiverConfig, ReceiverCore};
 use tokio::sync::{broadcast, watch};
@@ -130,52 +135,13 @@ fn peer_name(state: &State, id: &str) -> String {
         .unwrap_or_else(|| id.to_string())
 }
 
-/// Load encoder and index (from the configured paths: `--model`/`--index`,
-/// `TELEXTILESD_MODEL`/`_INDEX`, the configuration file, else the data
-/// directory) and check they belong together.
-pub fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index)> {
-    let (model, index_path) = (&cfg.model, &cfg.index);
-    for (p, what, flag) in [
-        (model, "encoder model", "--model"),
-        (index_path, "textile index", "--index"),
-    ] {
-        if !p.is_file() {
-            bail!(
-                "{what} {} not found: put the shipped models/encoder.onnx and models/index.tlxi in {}, or pass {flag}",
-                p.display(),
-                cfg.data_dir.display()
-            );
-        }
-    }
-    let enc = Encoder::open(
-        model,
-        &EncoderOptions {
-            threads,
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("cannot load the encoder {}", model.display()))?;
-    let index = Index::read(index_path)?;
-    index.check_encoder(&enc.info().sha256)?;
-    if index.dim != enc.dim() {
-        bail!(
-            "{} holds {}-d embeddings but {} produces {}-d ones",
-            index_path.display(),
-            index.dim,
-            model.display(),
-            enc.dim()
-        );
-    }
-    Ok((enc, index))
-}
-
 /// Run a session until shutdown (control `shutdown`, SIGINT or SIGTERM).
 pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     let trace = match &opts.latency_trace {
         Some(p) => Some(crate::trace::Trace::create(p)?),
         None => None,
     };
-    let (encoder, index) = load_model(&cfg, 1)?;
+    let (encoder, index) = models::load_model(&cfg, 1)?;
     let index = Arc::new(index);
     let model = encoder.info().clone();
 
@@ -320,7 +286,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
 
     // Map.
     let map = match &map_tx {
-        Some(tx) => Some(spawn_map(&cfg, index.clone(), tx.clone(), &events, &state).await?),
+        Some(tx) => Some(map::spawn_map(&cfg, index.clone(), tx.clone(), &events, &state).await?),
         None => None,
     };
 
@@ -380,48 +346,6 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     }
 }
 
-/// Serve the map until shutdown; control events are forwarded to it.
-async fn spawn_map(
-    cfg: &Config,
-    index: Arc<Index>,
-    tx: broadcast::Sender<telextiles_map::MapEvent>,
-    events: &broadcast::Sender<Event>,
-    state: &Arc<State>,
-) -> Result<tokio::task::JoinHandle<()>> {
-    let server = telextiles_map::MapServer::bind(
-        cfg.map_bind,
-        index,
-        telextiles_map::TextureSource::Simulated,
-        &tx,
-    )
-    .await?;
-    println!("map: http://{}/", server.local_addr());
-    let mut sub = events.subscribe();
-    let forward = tokio::spawn(async move {
-        loop {
-            match sub.recv().await {
-                Ok(ev) => {
-                    if let Ok(m) = telextiles_map::MapEvent::from_control_json(&ev.to_line()) {
-                        let _ = tx.send(m);
-                    }
-                }
-                Err(broadcast::error::RecvError::Lagged(_)) => continue,
-                Err(broadcast::error::RecvError::Closed) => break,
-            }
-        }
-    });
-    let mut sd = state.shutdown.subscribe();
-    Ok(tokio::spawn(async move {
-        let stop = async move {
-            let _ = sd.wait_for(|v| *v).await;
-        };
-        if let Err(e) = server.serve_until(stop).await {
-            eprintln!("map server: {e}");
-        }
-        forward.abort();
-    }))
-}
-
 async fn sigterm() {
     match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
         Ok(mut s) => {
@@ -437,107 +361,4 @@ fn resolve_addr(s: &str) -> Result<SocketAddr> {
         .with_context(|| format!("cannot resolve peer address {s:?}"))?
         .next()
         .ok_or_else(|| anyhow!("peer address {s:?} resolves to nothing"))
-}
-
-/// Spawn a task whose end (return or panic) is reported on `ended`.
-fn supervise(
-    what: &'static str,
-    ended: &tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
-    fut: impl std::future::Future<Output = Option<String>> + Send + 'static,
-) -> tokio::task::JoinHandle<()> {
-    let guard = EndGuard::new(what, ended.clone());
-    tokio::spawn(async move {
-        let why = fut.await;
-        guard.done(why);
-    })
-}
-
-/// Reports the end of a task or thread, panics included (the report is
-/// sent from `Drop`, which runs while unwinding).
-struct EndGuard {
-    what: &'static str,
-    ended: tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
-    why: Option<Option<String>>,
-}
-
-impl EndGuard {
-    fn new(
-        what: &'static str,
-        ended: tokio::sync::mpsc::UnboundedSender<(&'static str, Option<String>)>,
-    ) -> EndGuard {
-        EndGuard {
-            what,
-            ended,
-            why: None,
-        }
-    }
-    /// Ended normally, with a reason if it was an error.
-    fn done(mut self, why: Option<String>) {
-        self.why = Some(why);
-    }
-}
-
-impl Drop for EndGuard {
-    fn drop(&mut self) {
-        let why = match self.why.take() {
-            Some(why) => why,
-            None if std::thread::panicking() => Some("it panicked".into()),
-            None => Some("it was cancelled".into()),
-        };
-        let _ = self.ended.send((self.what, why));
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A task or the sensing thread that panics or returns before shutdown
-    /// is reported, so the session ends with an error instead of going on
-    /// deaf.
-    #[test]
-    fn a_task_or_thread_that_panics_or_ends_is_reported() {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async {
-            let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-            let _task = supervise("receiver task", &tx, async {
-                if std::hint::black_box(true) {
-                    panic!("peer sent something odd");
-                }
-                None
-            });
-            let (what, why) = rx.recv().await.unwrap();
-            assert_eq!(
-                (what, why.as_deref()),
-                ("receiver task", Some("it panicked"))
-            );
-            let _task = supervise("roller events task", &tx, async {
-                Some("the roller driver stopped".to_string())
-            });
-            let (what, why) = rx.recv().await.unwrap();
-            assert_eq!(
-                (what, why.as_deref()),
-                ("roller events task", Some("the roller driver stopped"))
-            );
-            let ended = tx.clone();
-            let t = std::thread::spawn(move || {
-                let _guard = EndGuard::new("sensing thread", ended);
-                panic!("encoder blew up");
-            });
-            assert!(t.join().is_err());
-            let (what, why) = rx.recv().await.unwrap();
-            assert_eq!(
-                (what, why.as_deref()),
-                ("sensing thread", Some("it panicked"))
-            );
-            let ended = tx.clone();
-            std::thread::spawn(move || EndGuard::new("sensing thread", ended).done(None))
-                .join()
-                .unwrap();
-            assert_eq!(rx.recv().await.unwrap(), ("sensing thread", None));
-        });
-    }
 }
