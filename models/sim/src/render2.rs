@@ -26,9 +26,10 @@ pub const V2_UNITS: u32 = 16;
 pub const FPS_CHOICES: [f32; 4] = [25.0, 30.0, 50.0, 60.0];
 /// Swatches (regions of the bolt) per textile in catalogue 2.
 pub const SWATCHES: u32 = 8;
-/// Side of the fabric raster rendered per press (covers the rotated,
-/// stretched and slipped window).
-pub(crate) const RASTER: usize = 448;
+/// Side of the fabric raster rendered per press: covers the rotated window
+/// (half-diagonal 200 px), stretched and sheared (+5 %, +4 %) and slipped
+/// (+13 px).
+pub(crate) const RASTER: usize = 472;
 /// The block size of the compression approximation.
 const BLOCK: usize = 8;
 /// Salt separating version-2 draws from version 1's.
@@ -463,7 +464,6 @@ impl Simulator {
         };
         let slip_mm = [slip_mm[0].clamp(-1.0, 1.0), slip_mm[1].clamp(-1.0, 1.0)];
         // --- timeline in seconds -------------------------------------------
-        let dur = frames as f32 / fps;
         let contact_s = if spec.jig {
             rng.gen_range(0.25..0.6)
         } else {
@@ -502,7 +502,6 @@ impl Simulator {
         } else {
             None
         };
-        let _ = dur;
         // --- the cloth: swatch of the bolt, press features ------------------
         let swatch = swatch_of(spec);
         let sw = bolt::swatch(textile, swatch);
