@@ -80,6 +80,9 @@ enum SimCmd {
         /// Output PNG.
         #[arg(long, default_value = "docs/contact-sheet.png")]
         out: PathBuf,
+        /// Catalogue version (1 or 2).
+        #[arg(long, default_value_t = 1)]
+        catalogue: u32,
     },
     /// List the textile catalogue.
     List {
@@ -163,7 +166,7 @@ struct DatasetArgs {
 pub fn run(args: Args) -> Result<()> {
     match args.cmd {
         Some(SimCmd::Dataset(d)) => dataset_cmd(d),
-        Some(SimCmd::ContactSheet { out }) => contact_sheet(&out),
+        Some(SimCmd::ContactSheet { out, catalogue }) => contact_sheet(&out, catalogue),
         Some(SimCmd::List { catalogue }) => list(catalogue),
         Some(SimCmd::Stats(s)) => stats_cmd(s),
         None => press(args.press),
@@ -258,8 +261,8 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
     Ok(())
 }
 
-fn contact_sheet(out: &Path) -> Result<()> {
-    let sim = Simulator::new()?;
+fn contact_sheet(out: &Path, catalogue: u32) -> Result<()> {
+    let sim = Simulator::with_catalogue(catalogue)?;
     let (img, tiles) = sheet::contact_sheet(&sim)?;
     if let Some(dir) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -551,6 +554,16 @@ mod tests {
         ]))
         .unwrap();
         run(parse(&["list", "--catalogue", "2"])).unwrap();
+        let sheet = tmp.path().join("sheet2.png");
+        run(parse(&[
+            "contact-sheet",
+            "--catalogue",
+            "2",
+            "--out",
+            sheet.to_str().unwrap(),
+        ]))
+        .unwrap();
+        assert_eq!(image_dims(&sheet), (6 * 240, 2 * (320 + 22)));
         run(parse(&[
             "stats",
             "--catalogue",
