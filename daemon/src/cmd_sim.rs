@@ -316,10 +316,10 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
     }
     let units = stats::unit_background_difference(&sim, a.catalogue, a.units);
     let sum = stats::summarise(&rows, units);
-    let speed = if a.speed_presses > 0 {
+    let speed = if let Some(step) = specs.len().checked_div(a.speed_presses) {
         let sp: Vec<PressSpec> = specs
             .iter()
-            .step_by((specs.len() / a.speed_presses).max(1))
+            .step_by(step.max(1))
             .take(a.speed_presses)
             .enumerate()
             .map(|(k, s)| PressSpec {
