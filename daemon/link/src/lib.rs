@@ -24,6 +24,7 @@
 //! smaller ID (newest if both were), so they agree without talking.
 #![forbid(unsafe_code)]
 
+pub mod conn;
 pub mod discovery;
 mod session;
 

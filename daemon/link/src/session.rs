@@ -12,11 +12,10 @@ use telextiles_certs::{
     peer_device_id, DeviceId, PairingError, PairingMessage, PairingRole, PairingSession,
     PairingStep, PeerPolicy, PeerRecord, TrustStore,
 };
-use telextiles_proto::peer::{
-    self, check_hello, ClockOffset, ClockSample, Control, FrameDecoder, LatentFrame, LatestWins,
-};
+use telextiles_proto::peer::{self, check_hello, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::{mpsc, watch};
 
+use crate::conn::{ClockConfig, ClockSync};
 use crate::discovery::Discovered;
 use crate::{
     close_code, limits, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot,
@@ -1163,7 +1162,10 @@ async fn stream(
         dec,
         buf,
     } = ctrl;
-    let clock = Arc::new(Mutex::new(ClockOffset::new(16)));
+    let clock = Arc::new(Mutex::new(ClockSync::new(
+        ClockConfig::new(shared.timing.ping_interval),
+        now_us(),
+    )));
 
     // Writer.
     let writer = tokio::spawn(async move {
@@ -1193,20 +1195,26 @@ async fn stream(
         }
     });
 
-    // Pinger.
+    // Pinger: sleeps until the clock machine's next ping is due.
     let ping_tx = ctrl_tx.clone();
-    let interval = shared.timing.ping_interval;
+    let pclock = clock.clone();
     let pinger = tokio::spawn(async move {
-        let mut id = 0u32;
-        let mut tick = tokio::time::interval(interval);
         loop {
-            tick.tick().await;
-            id = id.wrapping_add(1);
-            // A full queue (the peer does not read) skips this ping.
-            if let Err(mpsc::error::TrySendError::Closed(_)) =
-                ping_tx.try_send(Control::Ping { id, t1_us: 0 })
-            {
-                return;
+            let due = lock(&pclock).poll_timeout();
+            let wait = due.saturating_sub(now_us());
+            if wait > 0 {
+                tokio::time::sleep(Duration::from_micros(wait)).await;
+            }
+            let msgs = {
+                let mut c = lock(&pclock);
+                c.handle_timeout(now_us());
+                std::iter::from_fn(|| c.poll()).collect::<Vec<_>>()
+            };
+            for m in msgs {
+                // A full queue (the peer does not read) skips this ping.
+                if let Err(mpsc::error::TrySendError::Closed(_)) = ping_tx.try_send(m) {
+                    return;
+                }
             }
         }
     });
@@ -1257,29 +1265,25 @@ async fn stream(
     let reason = loop {
         match ctrl.read().await {
             Ok(Control::Ping { id, t1_us }) => {
-                let t2 = now_us();
+                let msgs = {
+                    let mut c = lock(&clock);
+                    c.handle_ping(now_us(), id, t1_us);
+                    std::iter::from_fn(|| c.poll()).collect::<Vec<_>>()
+                };
                 // Bounded: a ping flood from a peer that does not read its
                 // pongs fills the queue and further pongs are dropped.
-                let _ = ctrl_tx.try_send(Control::Pong {
-                    id,
-                    t1_us,
-                    t2_us: t2,
-                    t3_us: t2,
-                });
+                for m in msgs {
+                    let _ = ctrl_tx.try_send(m);
+                }
             }
             Ok(Control::Pong {
+                id,
                 t1_us,
                 t2_us,
                 t3_us,
-                ..
             }) => {
-                let t4 = now_us();
-                lock(&clock).add(ClockSample {
-                    t1: t1_us,
-                    t2: t2_us,
-                    t3: t3_us,
-                    t4,
-                });
+                // Only answers to our own outstanding pings count.
+                let _ = lock(&clock).handle_pong(now_us(), id, t1_us, t2_us, t3_us);
             }
             Ok(Control::Hello(_) | Control::HelloAck) => {}
             Ok(Control::Error { code, message }) => {
