@@ -93,8 +93,13 @@ pub struct ContactConfig {
     /// by this factor means the reference was captured touched (0 = off).
     pub touched_reference_ratio: f32,
     /// A would-be press that a per-channel gain change of the reference
-    /// explains (residual below `exit`) is a lighting change (LED or
-    /// exposure drift), not contact: the reference is re-captured.
+    /// explains (what is left is below `exit` and under a quarter of the
+    /// score) is a lighting change (an LED or exposure step), not contact:
+    /// the reference is re-captured. Off by default: a weak press of a soft
+    /// fabric can be mostly a brightness shift, and losing it would be
+    /// worse than a rare false press after an unannounced LED step (which
+    /// the stale-reference rule ends); LED changes the daemon makes itself
+    /// re-capture the reference.
     pub lighting_check: bool,
 }
 
@@ -117,7 +122,9 @@ impl Default for ContactConfig {
             settle_ms: 250.0,
             full_every: 4,
             touched_reference_ratio: 1.3,
-            lighting_check: true,
+            // Off: a weak press of a soft fabric can look like a brightness
+            // step; the daemon re-captures after the LED changes it makes.
+            lighting_check: false,
         }
     }
 }
@@ -481,8 +488,14 @@ impl ContactDetector {
                 if score >= enter {
                     let run_start = if run == 0 { t_us } else { run_start };
                     if run + 1 >= cfg.min_enter_frames.max(1) {
-                        let lighting = cfg.lighting_check
-                            && gain_residual(&self.samples, &self.reference) < exit;
+                        // Only a change that a gain explains almost entirely
+                        // (what is left is noise, and a small part of the
+                        // change): a soft fabric's weak press, whose change
+                        // is partly a shift of brightness, must stay a press.
+                        let lighting = cfg.lighting_check && {
+                            let residual = gain_residual(&self.samples, &self.reference);
+                            residual < exit && score >= 4.0 * residual
+                        };
                         if lighting || self.touched_reference(image) {
                             if lighting {
                                 tracing::warn!(

@@ -17,6 +17,14 @@ use telextiles_sim::{Press, PressSpec};
 
 const PERIOD: u64 = 16_667;
 
+/// The default configuration with the lighting check on.
+fn lighting_on() -> ContactConfig {
+    ContactConfig {
+        lighting_check: true,
+        ..Default::default()
+    }
+}
+
 /// Multiply each channel (an LED brighter or dimmer).
 fn gain(img: &RgbImage, g: [f32; 3]) -> RgbImage {
     let mut out = img.clone();
@@ -63,7 +71,11 @@ fn max_abs_diff(a: &[f32], b: &RgbImage) -> f32 {
 fn a_lighting_step_recaptures_the_reference_instead_of_starting_a_press() {
     let sim = common::sim();
     let bg = sim.background(0);
-    let mut det = ContactDetector::with_reference(ContactConfig::default(), &bg);
+    let lighting = ContactConfig {
+        lighting_check: true,
+        ..Default::default()
+    };
+    let mut det = ContactDetector::with_reference(lighting, &bg);
     let mut t = 0;
     // The red LED 6 % brighter, the blue one 4 % dimmer: far above the
     // contact threshold as a raw difference.
@@ -108,8 +120,7 @@ fn simulated_presses_are_never_taken_for_lighting_changes_or_touched_references(
             };
             let press = sim.render_press(&spec).unwrap();
             let reference = recording_reference(&press).unwrap();
-            let mut det =
-                ContactDetector::with_reference_pixels(ContactConfig::default(), &reference);
+            let mut det = ContactDetector::with_reference_pixels(lighting_on(), &reference);
             let mut t = 0;
             let ev = feed(&mut det, &press.frames, &mut t);
             assert_eq!(starts(&ev), 1, "{spec:?}: {ev:?}");
@@ -402,4 +413,39 @@ fn replaying_recordings_with_different_backgrounds_in_one_run_decides_as_separat
         .filter(|(r, p)| r[0].textile.as_deref() == Some(p.meta.textile.as_str()))
         .count();
     assert!(right >= 3, "{right} of 4 right: {one_run:?}");
+}
+
+/// A weak press whose change is mostly a brightness shift with a little
+/// texture (a soft fabric pressed flat) is still a press with the default
+/// configuration (the lighting check, which would take it for an LED step,
+/// is off by default; the check is tested above).
+#[test]
+fn a_weak_press_that_is_partly_a_brightness_shift_is_still_a_press() {
+    let sim = common::sim();
+    let bg = sim.background(0);
+    let press = sim.render_press(&PressSpec::new("T030", 1)).unwrap();
+    let hold = press.meta.params.as_ref().unwrap().hold_frame as usize;
+    let touched = &press.frames[hold + 5];
+    // Blend: 5 % darker everywhere plus a tenth of the fabric's relief.
+    let weak = |k: f32| {
+        let mut out = bg.clone();
+        for ((o, b), t) in out.iter_mut().zip(bg.iter()).zip(touched.iter()) {
+            let v = *b as f32 * (1.0 - 0.05 * k) + 0.1 * k * (*t as f32 - *b as f32);
+            *o = v.round().clamp(0.0, 255.0) as u8;
+        }
+        out
+    };
+    let mut det = ContactDetector::with_reference(ContactConfig::default(), &bg);
+    let mut frames: Vec<RgbImage> = vec![bg.clone(); 5];
+    frames.extend((1..=10).map(|k| weak(k as f32 / 10.0)));
+    frames.extend(vec![weak(1.0); 30]);
+    let mut t = 0;
+    let ev = feed(&mut det, &frames, &mut t);
+    assert_eq!(starts(&ev), 1, "{ev:?}");
+    assert_eq!(rejected(&ev), 0, "{ev:?}");
+    // Why the lighting check is off by default: it would lose this press.
+    let mut det = ContactDetector::with_reference(lighting_on(), &bg);
+    let ev = feed(&mut det, &frames, &mut t);
+    assert_eq!(starts(&ev), 0, "{ev:?}");
+    assert_eq!(rejected(&ev), 1, "{ev:?}");
 }

@@ -135,7 +135,12 @@ pub(crate) fn sensing_thread(
                     }
                 }
                 SensorCmd::Led { r, g, b, reply } => {
-                    let _ = reply.send(source.set_leds(r, g, b).map_err(|e| e.to_string()));
+                    let r = source.set_leds(r, g, b).map_err(|e| e.to_string());
+                    if r.is_ok() {
+                        // The sensor looks different now: new references.
+                        front.recapture();
+                    }
+                    let _ = reply.send(r);
                 }
                 SensorCmd::Stop => return Ok(()),
             }
