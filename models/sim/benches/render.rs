@@ -129,4 +129,55 @@ fn main() {
         "  amortised over 150 frames: {:.0} frames/s/core",
         150.0 / (s / 1e3 + 150.0 * f / 1e6)
     );
+    for generator in [1, 2] {
+        catalogue_2(&sim, &ids, reps, generator);
+    }
+}
+
+/// The same textile ids in catalogue 2 (each press renders its own bolt
+/// raster: there is no patch cache to warm).
+fn catalogue_2(sim: &Simulator, ids: &[String], reps: usize, generator: u32) {
+    let (mut setup_ms, mut frame_us, mut press_fps) = (Vec::new(), Vec::new(), Vec::new());
+    for r in 0..reps {
+        for (k, id) in ids.iter().enumerate() {
+            let spec = PressSpec {
+                jig: k % 2 == 0,
+                person: (k % 11) as u32,
+                sensor: (k % 16) as u32,
+                catalogue: Some(2),
+                generator: Some(generator),
+                ..PressSpec::new(id.as_str(), r as u64 * 100 + k as u64)
+            };
+            let a = Clock::start();
+            let p = sim.render_press(&spec).expect("press");
+            press_fps.push(p.frames.len() as f64 / a.elapsed().0);
+            let spec2 = PressSpec {
+                seed: spec.seed + 7,
+                ..spec.clone()
+            };
+            let a = Clock::start();
+            let _ = sim.render_frame(&spec2, 0).expect("frame");
+            setup_ms.push(a.elapsed().0 * 1e3);
+            let a = Clock::start();
+            for i in 1..150 {
+                std::hint::black_box(sim.render_frame(&spec2, i).expect("frame"));
+            }
+            frame_us.push(a.elapsed().0 * 1e6 / 149.0);
+        }
+    }
+    let f = median(frame_us);
+    println!("catalogue 2, generator {generator} (same ids, sensor units 0..11):");
+    println!(
+        "  press solve (bolt raster + contact at 6 depths + optics + camera): median {:.1} ms",
+        median(setup_ms)
+    );
+    println!(
+        "  per frame on a solved press: median {:.0} us = {:.0} frames/s/core",
+        f,
+        1e6 / f
+    );
+    println!(
+        "  whole press: median {:.0} frames/s/core",
+        median(press_fps)
+    );
 }
