@@ -406,7 +406,12 @@ impl Simulator {
             },
             seed: Some(spec.seed),
             source: "sim".into(),
-            sensor_serial: Some(format!("SIM{:04}", spec.sensor)),
+            // catalogue-2 units are other units than catalogue 1's
+            sensor_serial: Some(if setup.v2.is_some() {
+                format!("SIM2-{:04}", spec.sensor)
+            } else {
+                format!("SIM{:04}", spec.sensor)
+            }),
             params: Some(setup.params.clone()),
             // Frames before the first contact show the untouched sensor.
             reference_frames: (setup.params.contact_frame > 0)

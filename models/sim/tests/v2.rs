@@ -49,6 +49,7 @@ fn v2_is_deterministic_per_seed_and_differs_from_v1() {
     assert_eq!(a.meta, b.meta);
     let p = a.meta.params.as_ref().unwrap();
     assert_eq!((p.catalogue_version, p.generator), (2, 1));
+    assert_eq!(a.meta.sensor_serial.as_deref(), Some("SIM2-0005"));
     assert!(p.swatch.is_some());
     // another seed, another press; catalogue 1 renders something else
     let c = sim
