@@ -581,7 +581,8 @@ pub struct RecordedMethod {
     /// (ms since the press started): the earliest possible decision.
     pub first_frame_ms: f64,
     pub per_class: Vec<ClassScore>,
-    /// Per press (kNN): `confusion[truth][predicted]`, in `textiles` order.
+    /// Per press (kNN): `confusion[truth][predicted]`, in `textiles` order
+    /// (a query the method embedded no frame of is undecided and not in it).
     pub confusion: Vec<Vec<usize>>,
     pub decisions: Vec<PressDecision>,
 }
@@ -858,10 +859,10 @@ fn score(
         ..Score::default()
     };
     let mut first_ms = Vec::new();
-    for &q in &usable {
-        if roles[q] == Role::Index {
-            continue;
-        }
+    // Every query (a recording this method embedded no frame of counts as
+    // undecided, hence wrong).
+    let queries = (0..processed.len()).filter(|&i| matches!(roles[i], Role::Query | Role::Both));
+    for q in queries {
         let e = &processed[q].methods[m];
         let lopo = roles[q] == Role::Both;
         let allowed = |p: usize| !lopo || p != q;
@@ -875,20 +876,22 @@ fn score(
             }
         }
         // Per press.
-        let mean = unit_mean((0..e.len()).map(|k| e.row(k)), dim).unwrap_or_default();
-        let knn = bank.nearest(&mean, &allowed);
+        let mean = unit_mean((0..e.len()).map(|k| e.row(k)), dim);
+        let knn = mean.as_ref().and_then(|x| bank.nearest(x, &allowed));
         let cents = if lopo {
             centroids(Some(q))
         } else {
             fixed.clone()
         };
-        let cent = cents
-            .iter()
-            .enumerate()
-            .filter_map(|(c, v)| v.as_ref().map(|v| (c, dot(&mean, v))))
-            .filter(|x| x.1.is_finite())
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|x| x.0 as u32);
+        let cent = mean.as_ref().and_then(|mean| {
+            cents
+                .iter()
+                .enumerate()
+                .filter_map(|(c, v)| v.as_ref().map(|v| (c, dot(mean, v))))
+                .filter(|x| x.1.is_finite())
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|x| x.0 as u32)
+        });
         // Against time.
         for (t, correct) in sc.by_time.iter_mut() {
             let upto: Vec<usize> = (0..e.len()).filter(|&k| e.t_ms[k] <= *t).collect();
@@ -898,7 +901,9 @@ fn score(
                 }
             }
         }
-        first_ms.push(e.t_ms.first().copied().unwrap_or(f64::NAN));
+        if let Some(&t) = e.t_ms.first() {
+            first_ms.push(t);
+        }
         // The daemon's decider.
         let own;
         let flat = if lopo {
@@ -908,8 +913,8 @@ fn score(
             fixed_flat.as_ref()
         };
         let (decided, first_decision, switches) = match flat {
-            Some(f) => decide_press(f, e),
-            None => (None, None, 0),
+            Some(f) if !e.is_empty() => decide_press(f, e),
+            _ => (None, None, 0),
         };
         if decided.as_deref() == Some(textiles[truth as usize].as_str()) {
             sc.decider_correct += 1;
@@ -945,8 +950,11 @@ fn score(
             first_decision_ms: first_decision,
             frame_top1: fc as f64 / fr.len().max(1) as f64,
         });
-        sc.nonfinite += crate::methods::nonfinite_rows(&e.rows, dim);
     }
+    sc.nonfinite = usable
+        .iter()
+        .map(|&i| crate::methods::nonfinite_rows(&processed[i].methods[m].rows, dim))
+        .sum();
     sc.first_frame_ms = crate::bench::median(&first_ms);
     sc.dim = dim;
     sc
@@ -1760,6 +1768,75 @@ mod tests {
         assert_eq!(sample(5, 0), [0, 1, 2, 3, 4]);
         assert_eq!(sample(3, 30), [0, 1, 2]);
         assert_eq!(sample(100, 4).len(), 4);
+    }
+
+    fn embedded(textile: &str, rows: &[[f32; 2]]) -> Processed {
+        let mut p = processed(textile, false);
+        let mut e = PressEmbedding {
+            dim: 2,
+            ..Default::default()
+        };
+        for (k, r) in rows.iter().enumerate() {
+            let n = (r[0] * r[0] + r[1] * r[1]).sqrt();
+            e.rows.extend([r[0] / n, r[1] / n]);
+            e.frames.push(k);
+            e.t_ms.push(k as f64 * 40.0);
+        }
+        p.contact_frames = rows.len();
+        p.methods = vec![e];
+        p
+    }
+
+    #[test]
+    fn scores_from_known_embeddings() {
+        // Two textiles along the axes; a's query leans towards a, b's
+        // query had no frame embedded (undecided: wrong, not confused).
+        let a = [[1.0, 0.0]; 5];
+        let b = [[0.0, 1.0]; 5];
+        let processed = vec![
+            embedded("a", &a),
+            embedded("a", &a),
+            embedded("a", &[[0.9, 0.3]; 10]),
+            embedded("b", &b),
+            embedded("b", &b),
+            embedded("b", &[]),
+        ];
+        let methods = vec![Method::Rust {
+            base: Baseline {
+                kind: crate::baselines::BaselineKind::Lbp,
+                bgsub: false,
+            },
+            crop: 64,
+        }];
+        let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
+        cfg.runs = 0;
+        let r = score_all(&cfg, &methods, &[], &processed).unwrap();
+        let m = &r.methods[0];
+        assert_eq!(m.summary.presses, 2);
+        assert_eq!(m.summary.press_top1, 0.5);
+        assert_eq!(m.press_top1_centroid, 0.5);
+        assert_eq!(m.summary.frame_top1, 1.0);
+        assert_eq!(m.summary.queries, 10);
+        assert_eq!(m.confusion, vec![vec![1, 0], vec![0, 0]]);
+        assert_eq!(m.per_class[1].query_presses, 1);
+        assert_eq!(m.per_class[1].presses_correct, 0);
+        // The decider decides a's query once 50 ms of frames have passed
+        // and the nearest stayed for 50 ms more: at frame times, 40 ms
+        // apart.
+        assert_eq!(m.decisions[0].decider, "a");
+        let t = m.decisions[0].first_decision_ms.unwrap();
+        assert!(t >= 100.0 && (t / 40.0).fract() == 0.0, "{t}");
+        assert_eq!(m.decisions[1].decider, "-");
+        assert_eq!(m.decided_presses, 1);
+        assert_eq!(m.press_top1_decider, 0.5);
+        // Against time: a's query is right from its first frame (0 ms).
+        assert!(m.by_time.iter().all(|x| x.1 == 0.5), "{:?}", m.by_time);
+        // Leave one out: six queries; the empty one is never an index press.
+        cfg.split = Split::Lopo;
+        let r = score_all(&cfg, &methods, &[], &processed).unwrap();
+        let m = &r.methods[0];
+        assert_eq!(m.summary.presses, 6);
+        assert_eq!(m.summary.press_top1, 5.0 / 6.0);
     }
 
     #[test]
