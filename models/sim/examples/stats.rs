@@ -1,4 +1,5 @@
-//! Validation statistics per press (development aid):
+//! Validation statistics per press, with where the spectral peak is
+//! (development aid; `telextilesd sim stats` prints the summary row):
 //! `cargo run --profile dev -p telextiles-sim --example stats -- <catalogue> [generator] [per_family]`
 use telextiles_sim::{stats, Simulator};
 
@@ -13,58 +14,30 @@ fn main() {
     for s in &specs {
         let t = std::time::Instant::now();
         let r = stats::press_stats(&sim, s).expect("press");
-        let meta = sim.press_meta(s).unwrap();
-        let q = telextiles_sim::PressSpec {
-            noise: false,
-            ..s.clone()
-        };
-        let mid = {
-            let p = meta.params.as_ref().unwrap();
-            ((p.hold_frame + p.release_frame.unwrap_or(s.frames as u32)) / 2) as usize
-        };
-        let f = sim.render_frame(&q, mid).unwrap();
-        let bg = sim.background_of(v, s.sensor);
-        let abs: Vec<f32> = f
-            .pixels()
-            .zip(bg.pixels())
-            .map(|(a, b)| (0..3).map(|c| (a.0[c] as f32 - b.0[c] as f32).abs()).sum())
+        let meta = sim.press_meta(s).expect("meta");
+        let p = meta.params.as_ref().expect("params");
+        let mid = ((p.hold_frame + p.release_frame.unwrap_or(s.frames as u32)) / 2) as usize;
+        let reference: Vec<f32> = sim
+            .background_for(s)
+            .expect("background")
+            .as_raw()
+            .iter()
+            .map(|v| *v as f32)
             .collect();
-        let (x0, y0) = ((240 - 128) / 2, (320 - 128) / 2);
-        let crop: Vec<f32> = (0..128 * 128)
-            .map(|k| abs[(y0 + k / 128) * 240 + x0 + k % 128])
-            .collect();
-        let signed: Vec<f32> = {
-            let r: Vec<f32> = bg.as_raw().iter().map(|v| *v as f32).collect();
-            stats::centre_difference(&f, &r)
-        };
-        let sig = stats::centre_difference(
-            &sim.render_frame(s, mid).unwrap(),
-            &sim.background_of(v, s.sensor)
-                .as_raw()
-                .iter()
-                .map(|v| *v as f32)
-                .collect::<Vec<_>>(),
-        );
+        let sig = stats::centre_difference(&sim.render_frame(s, mid).expect("frame"), &reference);
+        let (_, at) = stats::peak_to_median_at(&sig);
         println!(
-            "   {} peak at {:?}",
-            s.textile,
-            stats::peak_to_median_at(&sig)
-        );
-        println!(
-            "   quiet: abs-sum peak/med {:.0}, signed {:.0}",
-            stats::peak_to_median(&crop),
-            stats::peak_to_median(&signed)
-        );
-        println!(
-            "{} {:?} std {:.2} peak/med {:.0} lag1 {:.2} col {:.2} fps {} feats {:?} ({:.0} ms)",
+            "{} {:?} unit {}: std {:.2} peak/med {:.0} at {:?} cycles/crop, lag1 {:.2} colour {:.2}, {} fps, {:?} ({:.0} ms)",
             r.textile,
             r.family,
+            s.sensor,
             r.contact_std,
             r.peak_to_median,
+            at,
             r.noise_lag1,
             r.noise_colour,
             meta.fps,
-            meta.params.as_ref().unwrap().features,
+            p.features,
             t.elapsed().as_secs_f64() * 1e3
         );
         rows.push(r);
