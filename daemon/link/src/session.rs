@@ -7,15 +7,15 @@ use std::time::{Duration, SystemTime};
 
 use quinn::{Connection, ConnectionError, RecvStream, SendStream};
 use rustls::pki_types::CertificateDer;
-use telextiles_certs::trust::{sanitize_name, sanitize_text};
+use telextiles_certs::trust::sanitize_text;
 use telextiles_certs::{
     peer_device_id, DeviceId, PairingError, PairingMessage, PairingRole, PairingSession,
     PairingStep, PeerPolicy, PeerRecord, TrustStore,
 };
-use telextiles_proto::peer::{self, check_hello, Control, FrameDecoder, LatentFrame, LatestWins};
+use telextiles_proto::peer::{self, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::{mpsc, watch};
 
-use crate::conn::{ClockConfig, ClockSync};
+use crate::conn::{ClockConfig, ClockSync, Handshake, HandshakeConfig, HsAction, Local, Role};
 use crate::discovery::Discovered;
 use crate::{
     close_code, limits, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot,
@@ -678,175 +678,90 @@ async fn run_connection_inner(
 
     let paired = shared.pins.contains(&peer_id);
     let entering = entering && matches!(*lock(&shared.pairing), Some(PairingMode::Enter(_)));
-    if dialed {
-        if !paired || entering {
-            tokio::time::timeout(
-                hs,
-                pair_as(
-                    shared,
-                    &mut ctrl,
-                    PairingRole::EntersCode,
-                    &cert,
-                    peer_id,
-                    addr,
-                    None,
-                ),
-            )
-            .await
-            .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
-        }
-        ctrl.write(&Control::Hello(shared.hello.clone()))
-            .await
-            .map_err(End::quiet)?;
-    }
-    // Hello phase (the acceptor learns from the first message whether the
-    // dialer wants to pair).
-    let first = tokio::time::timeout(hs, ctrl.read())
+    if dialed && (!paired || entering) {
+        tokio::time::timeout(
+            hs,
+            pair_as(
+                shared,
+                &mut ctrl,
+                PairingRole::EntersCode,
+                &cert,
+                peer_id,
+                addr,
+                None,
+            ),
+        )
         .await
-        .map_err(|_| {
-            End::err(
-                ErrorKind::Connection,
-                format!("no hello from {addr} within {hs:?}"),
-            )
-        })?
-        .map_err(|f| f.into_end(addr))?;
-    let their_hello = match first {
-        Control::Pair(PairingMessage::Start(start)) if !dialed => {
-            let show = matches!(*lock(&shared.pairing), Some(PairingMode::Show(_)));
-            if !show {
-                let _ = ctrl
-                    .write(&Control::Pair(PairingMessage::Abort(
-                        telextiles_certs::pairing::PairingAbort::NotPairing,
-                    )))
-                    .await;
-                let _ = ctrl.send.finish();
-                tokio::time::sleep(Duration::from_millis(100)).await;
-                return Err(End::err(
-                    ErrorKind::RefusedPeer,
-                    format!("device {} at {addr} tried to pair, but this device is not showing a pairing code", peer_id.short()),
-                ));
-            }
-            let pending = Some(PairingMessage::Start(start));
-            tokio::time::timeout(
-                hs,
-                pair_as(
-                    shared,
-                    &mut ctrl,
-                    PairingRole::ShowsCode,
-                    &cert,
-                    peer_id,
-                    addr,
-                    pending,
-                ),
-            )
-            .await
-            .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
-            ctrl.write(&Control::Hello(shared.hello.clone()))
-                .await
-                .map_err(End::quiet)?;
-            match tokio::time::timeout(hs, ctrl.read()).await {
-                Ok(Ok(Control::Hello(h))) => h,
-                Ok(Ok(other)) => {
-                    return Err(End::err(
-                        ErrorKind::Protocol,
-                        format!("expected hello from {addr}, got {other:?}"),
-                    ))
+        .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
+    }
+    // Hello phase: the sans-IO machine decides; this loop moves messages
+    // and time (the acceptor learns from the first message whether the
+    // dialer wants to pair).
+    let role = if dialed { Role::Dialer } else { Role::Acceptor };
+    let mut machine = Handshake::new(
+        HandshakeConfig::new(shared.hello.clone(), hs),
+        role,
+        addr,
+        peer_id,
+        now_us(),
+    );
+    let their_hello = 'hello: loop {
+        while let Some(action) = machine.poll() {
+            match action {
+                HsAction::Send(msg) => {
+                    let must = matches!(msg, Control::Hello(_) | Control::HelloAck);
+                    match ctrl.write(&msg).await {
+                        Err(e) if must => return Err(End::quiet(e)),
+                        _ => {}
+                    }
                 }
-                Ok(Err(f)) => return Err(f.into_end(addr)),
-                Err(_) => return Err(End::err(ErrorKind::Connection, "no hello after pairing")),
-            }
-        }
-        Control::Hello(h) => {
-            if !dialed {
-                if !shared.pins.contains(&peer_id) {
-                    return Err(End::err(
-                        ErrorKind::RefusedPeer,
-                        format!(
-                            "refused device {} at {addr}: it is not paired with this device",
-                            peer_id.short()
+                HsAction::FinishSend => {
+                    let _ = ctrl.send.finish();
+                }
+                HsAction::Pair(start) => {
+                    tokio::time::timeout(
+                        hs,
+                        pair_as(
+                            shared,
+                            &mut ctrl,
+                            PairingRole::ShowsCode,
+                            &cert,
+                            peer_id,
+                            addr,
+                            Some(start),
                         ),
-                    ));
-                }
-                ctrl.write(&Control::Hello(shared.hello.clone()))
+                    )
                     .await
-                    .map_err(End::quiet)?;
+                    .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
+                    machine.handle_paired(now_us());
+                }
+                HsAction::Up(h) => break 'hello h,
+                HsAction::Fail(e) => return Err(End::err(e.kind, e.message)),
             }
-            h
         }
-        Control::Pair(PairingMessage::Abort(a)) => {
-            // Honoured (reported as a pairing failure) only from a device
-            // authenticated by its pin. From anyone else it is noise: it
-            // proved no code, and it must not end `pair --show`.
-            if !dialed && !shared.pins.contains(&peer_id) {
-                return Err(End::err(
-                    ErrorKind::RefusedPeer,
-                    format!(
-                        "ignored a pairing abort ({}) from device {} at {addr}: it is not paired and proved no pairing code",
-                        a.describe(),
-                        peer_id.short()
-                    ),
-                ));
+        let read = match machine.poll_timeout() {
+            Some(deadline) => {
+                let wait = Duration::from_micros(deadline.saturating_sub(now_us()));
+                tokio::time::timeout(wait, ctrl.read()).await.ok()
             }
-            return Err(End::err(
-                ErrorKind::Pairing,
-                format!("the device at {addr}: {}", a.describe()),
-            ));
-        }
-        other => {
-            return Err(End::err(
-                ErrorKind::Protocol,
-                format!("expected hello from {addr}, got {other:?}"),
-            ));
+            None => Some(ctrl.read().await),
+        };
+        match read {
+            None => machine.handle_timeout(now_us().max(machine.poll_timeout().unwrap_or(0))),
+            Some(Ok(msg)) => {
+                let local = Local {
+                    peer_pinned: shared.pins.contains(&peer_id),
+                    showing_code: matches!(*lock(&shared.pairing), Some(PairingMode::Show(_))),
+                };
+                machine.handle_message(now_us(), msg, local);
+            }
+            Some(Err(f)) => {
+                if !machine.handle_read_error() {
+                    return Err(f.into_end(addr));
+                }
+            }
         }
     };
-
-    // The name is shown to the user and logged: no terminal escapes.
-    let mut their_hello = their_hello;
-    their_hello.device_name = sanitize_name(&their_hello.device_name);
-    if let Err(reasons) = check_hello(&shared.hello, &their_hello) {
-        let _ = ctrl
-            .write(&Control::Mismatch {
-                reasons: reasons.clone(),
-            })
-            .await;
-        let text: Vec<String> = reasons.iter().map(|r| r.to_string()).collect();
-        let message = format!(
-            "cannot stream with \"{}\" ({}): {}",
-            their_hello.device_name,
-            peer_id.short(),
-            text.join("; ")
-        );
-        // Give the mismatch message time to arrive before closing.
-        let _ = tokio::time::timeout(Duration::from_millis(300), ctrl.read()).await;
-        return Err(End::err(ErrorKind::Incompatible(reasons), message));
-    }
-    ctrl.write(&Control::HelloAck).await.map_err(End::quiet)?;
-    match tokio::time::timeout(hs, ctrl.read()).await {
-        Ok(Ok(Control::HelloAck)) => {}
-        Ok(Ok(Control::Mismatch { reasons })) => {
-            // The peer's strings (hashes) are shown: no terminal escapes.
-            let text: Vec<String> = reasons
-                .iter()
-                .map(|r| sanitize_text(&r.to_string(), 400))
-                .collect();
-            return Err(End::err(
-                ErrorKind::Incompatible(reasons),
-                format!(
-                    "\"{}\" refused to stream: {}",
-                    their_hello.device_name,
-                    text.join("; ")
-                ),
-            ));
-        }
-        Ok(Ok(other)) => {
-            return Err(End::err(
-                ErrorKind::Protocol,
-                format!("expected hello ack from {addr}, got {other:?}"),
-            ))
-        }
-        Ok(Err(f)) => return Err(f.into_end(addr)),
-        Err(_) => return Err(End::err(ErrorKind::Connection, "no hello ack")),
-    }
 
     // Up: register (resolving duplicates), then stream.
     let (ctrl_tx, ctrl_rx) = mpsc::channel(limits::CONTROL_QUEUE);

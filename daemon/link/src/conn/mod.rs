@@ -5,12 +5,17 @@
 //! due. The tokio code in `session.rs` only moves bytes and time.
 //!
 //! * [`clock`]: ping/pong, the clock offset and one-way latency.
+//! * [`handshake`]: the hello/ack exchange of one connection.
 
 pub mod clock;
+pub mod handshake;
 
 pub use clock::{ClockConfig, ClockStats, ClockSync, PongOutcome};
+pub use handshake::{Handshake, HandshakeConfig, HsAction, HsError, HsState, Local, Role};
 
 #[cfg(test)]
 mod sim;
 #[cfg(test)]
 mod tests_clock;
+#[cfg(test)]
+mod tests_handshake;
