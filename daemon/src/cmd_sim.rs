@@ -338,10 +338,10 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
     } else {
         "catalogue 1".to_string()
     };
-    println!("| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | unit-to-unit background (DN) | frames/s/core |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | single-frame residual std (DN) / lag-1 | unit-to-unit background (DN) | frames/s/core |");
+    println!("|---|---|---|---|---|---|---|---|");
     println!(
-        "| {label} | {} | {:.2} / {} / {} | {:.0} ({:.0}), n = {} | {:.2} / {:.2} | {:.1} (units 0..{}) | {} |",
+        "| {label} | {} | {:.2} / {} / {} | {:.0} ({:.0}), n = {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.1} (units 0..{}) | {} |",
         sum.presses,
         sum.contact_std_median,
         opt(sum.contact_std_soft),
@@ -351,12 +351,21 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
         sum.peak_presses,
         sum.noise_lag1,
         sum.noise_colour,
+        sum.residual_std,
+        sum.residual_lag1,
         sum.unit_bg_difference,
         a.units,
         speed.map_or("-".to_string(), |s| format!("{s:.0}")),
     );
     let real = stats::background_difference(sim.real_background(), sim.real_background_tvl());
-    println!("| real: tacto vs tvl no-contact frames | - | - | - | - | {real:.1} | - |");
+    let (ta, tb) = (
+        stats::residual_noise(sim.real_background()),
+        stats::residual_noise(sim.real_background_tvl()),
+    );
+    println!(
+        "| real no-contact frames: tacto, tvl | - | - | - | - | {:.2} / {:.2}, {:.2} / {:.2} | {real:.1} (tacto vs tvl) | - |",
+        ta.0, ta.1, tb.0, tb.1
+    );
     Ok(())
 }
 

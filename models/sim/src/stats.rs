@@ -157,6 +157,50 @@ pub fn noise_lag1(a: &RgbImage, b: &RgbImage) -> f32 {
     total / 3.0
 }
 
+/// Fine structure of one frame: the residual of each channel after a 5 x 5
+/// mean filter (what remains is the noise and compression texture plus the
+/// background's finest detail). Returns the residual's std (DN) and its
+/// lag-1 spatial autocorrelation (mean of horizontal and vertical, over
+/// channels). Works on a single frame, so it applies to the real
+/// no-contact frames too.
+pub fn residual_noise(f: &RgbImage) -> (f32, f32) {
+    let raw = f.as_raw();
+    let (mut sd, mut lag) = (0f32, 0f32);
+    for c in 0..3 {
+        let v: Vec<f32> = (0..W * H).map(|p| raw[p * 3 + c] as f32).collect();
+        let mut res = Vec::with_capacity((W - 4) * (H - 4));
+        for y in 2..H - 2 {
+            for x in 2..W - 2 {
+                let mut m = 0f32;
+                for dy in 0..5 {
+                    for dx in 0..5 {
+                        m += v[(y + dy - 2) * W + x + dx - 2];
+                    }
+                }
+                res.push(v[y * W + x] - m / 25.0);
+            }
+        }
+        let (w, h) = (W - 4, H - 4);
+        let mean = res.iter().sum::<f32>() / res.len() as f32;
+        let var: f32 = res.iter().map(|r| (r - mean).powi(2)).sum();
+        let (mut ch, mut cv) = (0f32, 0f32);
+        for y in 0..h {
+            for x in 0..w {
+                let e = res[y * w + x] - mean;
+                if x + 1 < w {
+                    ch += e * (res[y * w + x + 1] - mean);
+                }
+                if y + 1 < h {
+                    cv += e * (res[(y + 1) * w + x] - mean);
+                }
+            }
+        }
+        sd += (var / res.len() as f32).sqrt();
+        lag += 0.5 * (ch + cv) / var.max(1e-9);
+    }
+    (sd / 3.0, lag / 3.0)
+}
+
 /// Correlation between channels of the frame-to-frame difference (mean of
 /// the three channel pairs).
 pub fn noise_colour_correlation(a: &RgbImage, b: &RgbImage) -> f32 {
@@ -214,6 +258,8 @@ pub struct PressStats {
     /// Lag-1 autocorrelation of the difference of the first two frames.
     pub noise_lag1: f32,
     pub noise_colour: f32,
+    /// `residual_noise` of the first (untouched) frame: std and lag-1.
+    pub residual: (f32, f32),
     /// Catalogue 2's press features (crease, seam, edge, ...).
     pub features: Vec<String>,
 }
@@ -263,6 +309,7 @@ pub fn press_stats(sim: &Simulator, spec: &PressSpec) -> Result<PressStats, SimE
         peak_to_median: peak_to_median(&d),
         noise_lag1: noise_lag1(&ref_frames[0], &f1),
         noise_colour: noise_colour_correlation(&ref_frames[0], &f1),
+        residual: residual_noise(&ref_frames[0]),
         features: p.features.clone(),
     })
 }
@@ -317,6 +364,9 @@ pub struct Summary {
     pub peak_presses: usize,
     pub noise_lag1: f32,
     pub noise_colour: f32,
+    /// Median `residual_noise` of the presses' first frames (std, lag-1).
+    pub residual_std: f32,
+    pub residual_lag1: f32,
     pub unit_bg_difference: f32,
 }
 
@@ -368,6 +418,8 @@ pub fn summarise(rows: &[PressStats], unit_bg_difference: f32) -> Summary {
         peak_presses: peaks.len(),
         noise_lag1: med(&|r| Some(r.noise_lag1 as f64)).unwrap_or(f64::NAN) as f32,
         noise_colour: med(&|r| Some(r.noise_colour as f64)).unwrap_or(f64::NAN) as f32,
+        residual_std: med(&|r| Some(r.residual.0 as f64)).unwrap_or(f64::NAN) as f32,
+        residual_lag1: med(&|r| Some(r.residual.1 as f64)).unwrap_or(f64::NAN) as f32,
         unit_bg_difference,
     }
 }

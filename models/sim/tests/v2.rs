@@ -409,6 +409,30 @@ fn validation_statistics_on_a_small_sample() {
     for p in &v1 {
         assert!(p.noise_lag1.abs() < 0.05 && p.noise_colour.abs() < 0.05);
     }
+    // one frame's fine structure (5x5 residual) against the real frames':
+    // v2 within their range, v1 twice as strong and white
+    let real: Vec<(f32, f32)> = [sim.real_background(), sim.real_background_tvl()]
+        .into_iter()
+        .map(stats::residual_noise)
+        .collect();
+    let (lo_sd, hi_sd) = (real[0].0.min(real[1].0), real[0].0.max(real[1].0));
+    let (lo_lag, hi_lag) = (real[0].1.min(real[1].1), real[0].1.max(real[1].1));
+    let r2 = med(soft.iter().chain(&rough).map(|p| p.residual.0).collect());
+    let l2 = med(soft.iter().chain(&rough).map(|p| p.residual.1).collect());
+    assert!(
+        r2 > 0.7 * lo_sd && r2 < 1.4 * hi_sd,
+        "v2 residual {r2}, real {real:?}"
+    );
+    assert!(
+        l2 > 0.7 * lo_lag && l2 < 1.3 * hi_lag,
+        "v2 lag-1 {l2}, real {real:?}"
+    );
+    let r1 = med(v1.iter().map(|p| p.residual.0).collect());
+    let l1 = med(v1.iter().map(|p| p.residual.1).collect());
+    assert!(
+        r1 > 1.5 * hi_sd && l1 < 0.5 * lo_lag,
+        "v1 {r1} / {l1}, real {real:?}"
+    );
     // periodicity of plain-cloth woven/knit presses: well below v1's
     let fams = [Family::Plain, Family::Satin, Family::Knit];
     let peaks = |rows: Vec<stats::PressStats>| -> Vec<f32> {
