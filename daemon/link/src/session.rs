@@ -15,6 +15,7 @@ use telextiles_certs::{
 use telextiles_proto::peer::{self, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::{mpsc, watch};
 
+use crate::conn::duplicate::{self, Keep};
 use crate::conn::{ClockConfig, ClockSync, Handshake, HandshakeConfig, HsAction, Local, Role};
 use crate::discovery::Discovered;
 use crate::{
@@ -765,11 +766,11 @@ async fn run_connection_inner(
 
     // Up: register (resolving duplicates), then stream.
     let (ctrl_tx, ctrl_rx) = mpsc::channel(limits::CONTROL_QUEUE);
-    let dialed_by_lower = dialed == (shared.my_id < peer_id);
+    let dialed_by_lower = duplicate::dialed_by_lower(dialed, &shared.my_id, &peer_id);
     {
         let mut peers = lock(&shared.peers);
         if let Some(old) = peers.get(&peer_id) {
-            if old.dialed_by_lower && !dialed_by_lower {
+            if duplicate::resolve(old.dialed_by_lower, dialed_by_lower) == Keep::Existing {
                 drop(peers);
                 conn.close(close_code::DUPLICATE.into(), b"duplicate connection");
                 return Err(End::quiet("duplicate connection"));

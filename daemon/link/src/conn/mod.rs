@@ -6,8 +6,10 @@
 //!
 //! * [`clock`]: ping/pong, the clock offset and one-way latency.
 //! * [`handshake`]: the hello/ack exchange of one connection.
+//! * [`duplicate`]: which of two connections to one peer survives.
 
 pub mod clock;
+pub mod duplicate;
 pub mod handshake;
 
 pub use clock::{ClockConfig, ClockStats, ClockSync, PongOutcome};
