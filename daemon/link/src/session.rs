@@ -15,8 +15,9 @@ use telextiles_certs::{
 use telextiles_proto::peer::{self, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::{mpsc, watch};
 
+use crate::conn::connection::{Action, Connection as ConnMachine};
 use crate::conn::duplicate::{self, Keep};
-use crate::conn::{ClockConfig, ClockSync, Handshake, HandshakeConfig, HsAction, Local, Role};
+use crate::conn::{ClockConfig, HandshakeConfig, Local, Role};
 use crate::discovery::Discovered;
 use crate::{
     close_code, limits, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot,
@@ -699,8 +700,9 @@ async fn run_connection_inner(
     // and time (the acceptor learns from the first message whether the
     // dialer wants to pair).
     let role = if dialed { Role::Dialer } else { Role::Acceptor };
-    let mut machine = Handshake::new(
+    let mut machine = ConnMachine::new(
         HandshakeConfig::new(shared.hello.clone(), hs),
+        ClockConfig::new(shared.timing.ping_interval),
         role,
         addr,
         peer_id,
@@ -709,17 +711,17 @@ async fn run_connection_inner(
     let their_hello = 'hello: loop {
         while let Some(action) = machine.poll() {
             match action {
-                HsAction::Send(msg) => {
+                Action::Send(msg) => {
                     let must = matches!(msg, Control::Hello(_) | Control::HelloAck);
                     match ctrl.write(&msg).await {
                         Err(e) if must => return Err(End::quiet(e)),
                         _ => {}
                     }
                 }
-                HsAction::FinishSend => {
+                Action::FinishSend => {
                     let _ = ctrl.send.finish();
                 }
-                HsAction::Pair(start) => {
+                Action::Pair(start) => {
                     tokio::time::timeout(
                         hs,
                         pair_as(
@@ -736,8 +738,10 @@ async fn run_connection_inner(
                     .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
                     machine.handle_paired(now_us());
                 }
-                HsAction::Up(h) => break 'hello h,
-                HsAction::Fail(e) => return Err(End::err(e.kind, e.message)),
+                Action::Up(h) => break 'hello h,
+                Action::Fail(e) => return Err(End::err(e.kind, e.message)),
+                // Only once up.
+                Action::Deliver(_) => {}
             }
         }
         let read = match machine.poll_timeout() {
@@ -799,7 +803,8 @@ async fn run_connection_inner(
         })
         .await;
 
-    let reason = stream(shared, conn, peer_id, ctrl, ctrl_tx, ctrl_rx).await;
+    let machine = Arc::new(Mutex::new(machine));
+    let reason = stream(shared, conn, peer_id, ctrl, ctrl_tx, ctrl_rx, machine).await;
 
     let mine = {
         let mut peers = lock(&shared.peers);
@@ -1071,6 +1076,7 @@ async fn stream(
     ctrl: Ctrl,
     ctrl_tx: mpsc::Sender<Control>,
     mut ctrl_rx: mpsc::Receiver<Control>,
+    clock: Arc<Mutex<ConnMachine>>,
 ) -> String {
     let Ctrl {
         mut send,
@@ -1078,10 +1084,6 @@ async fn stream(
         dec,
         buf,
     } = ctrl;
-    let clock = Arc::new(Mutex::new(ClockSync::new(
-        ClockConfig::new(shared.timing.ping_interval),
-        now_us(),
-    )));
 
     // Writer.
     let writer = tokio::spawn(async move {
@@ -1116,20 +1118,24 @@ async fn stream(
     let pclock = clock.clone();
     let pinger = tokio::spawn(async move {
         loop {
-            let due = lock(&pclock).poll_timeout();
+            let Some(due) = lock(&pclock).poll_timeout() else {
+                return;
+            };
             let wait = due.saturating_sub(now_us());
             if wait > 0 {
                 tokio::time::sleep(Duration::from_micros(wait)).await;
             }
-            let msgs = {
+            let actions = {
                 let mut c = lock(&pclock);
                 c.handle_timeout(now_us());
                 std::iter::from_fn(|| c.poll()).collect::<Vec<_>>()
             };
-            for m in msgs {
+            for a in actions {
                 // A full queue (the peer does not read) skips this ping.
-                if let Err(mpsc::error::TrySendError::Closed(_)) = ping_tx.try_send(m) {
-                    return;
+                if let Action::Send(m) = a {
+                    if let Err(mpsc::error::TrySendError::Closed(_)) = ping_tx.try_send(m) {
+                        return;
+                    }
                 }
             }
         }
@@ -1180,35 +1186,25 @@ async fn stream(
     let mut ctrl = ReaderOnly { recv, dec, buf };
     let reason = loop {
         match ctrl.read().await {
-            Ok(Control::Ping { id, t1_us }) => {
-                let msgs = {
+            Ok(msg) => {
+                let actions = {
                     let mut c = lock(&clock);
-                    c.handle_ping(now_us(), id, t1_us);
+                    c.handle_message(now_us(), msg, Local::default());
                     std::iter::from_fn(|| c.poll()).collect::<Vec<_>>()
                 };
-                // Bounded: a ping flood from a peer that does not read its
-                // pongs fills the queue and further pongs are dropped.
-                for m in msgs {
-                    let _ = ctrl_tx.try_send(m);
+                for a in actions {
+                    match a {
+                        // Pongs: a ping flood from a peer that does not read
+                        // its pongs fills the bounded queue; the rest drop.
+                        Action::Send(m) => {
+                            let _ = ctrl_tx.try_send(m);
+                        }
+                        Action::Deliver(msg) => {
+                            shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
+                        }
+                        _ => {}
+                    }
                 }
-            }
-            Ok(Control::Pong {
-                id,
-                t1_us,
-                t2_us,
-                t3_us,
-            }) => {
-                // Only answers to our own outstanding pings count.
-                let _ = lock(&clock).handle_pong(now_us(), id, t1_us, t2_us, t3_us);
-            }
-            Ok(Control::Hello(_) | Control::HelloAck) => {}
-            Ok(Control::Error { code, message }) => {
-                let message = sanitize_text(&message, peer::MAX_TEXT_LEN);
-                let msg = Control::Error { code, message };
-                shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
-            }
-            Ok(msg) => {
-                shared.emit(LinkEvent::Control { peer: peer_id, msg }).await;
             }
             Err(ReadFail::Conn(_)) if !shared.pins.contains(&peer_id) => {
                 break "unpaired on this device".to_string()

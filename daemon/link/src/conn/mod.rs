@@ -7,17 +7,23 @@
 //! * [`clock`]: ping/pong, the clock offset and one-way latency.
 //! * [`handshake`]: the hello/ack exchange of one connection.
 //! * [`duplicate`]: which of two connections to one peer survives.
+//! * [`connection`]: one connection's life cycle (handshake, then the live
+//!   session's pings, pongs and control messages).
 
 pub mod clock;
+pub mod connection;
 pub mod duplicate;
 pub mod handshake;
 
 pub use clock::{ClockConfig, ClockStats, ClockSync, PongOutcome};
+pub use connection::{Action, Connection, Phase};
 pub use handshake::{Handshake, HandshakeConfig, HsAction, HsError, HsState, Local, Role};
 
 #[cfg(test)]
 mod sim;
 #[cfg(test)]
 mod tests_clock;
+#[cfg(test)]
+mod tests_connection;
 #[cfg(test)]
 mod tests_handshake;
