@@ -165,3 +165,42 @@ fn led_control_on_a_sensor_without_leds_names_the_sensor() {
         "{text}"
     );
 }
+
+#[test]
+fn a_missing_model_is_a_clear_error_not_a_fallback_into_the_build_tree() {
+    // No model compiled in: the configured (here: the data directory's
+    // default) model is the only one, and its absence says what to do.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("none.toml"), "").unwrap();
+    let out = Command::new(BIN)
+        .arg("run")
+        .arg("--config")
+        .arg(dir.path().join("none.toml"))
+        .args(["--state-dir", dir.path().join("state").to_str().unwrap()])
+        .args(["--data-dir", dir.path().join("data").to_str().unwrap()])
+        .args(["--runtime-dir", dir.path().to_str().unwrap()])
+        .args([
+            "--sensor",
+            "sim",
+            "--roller",
+            "sim",
+            "--map=false",
+            "--mdns=false",
+        ])
+        .args(["--listen", "127.0.0.1:0"])
+        .env_remove("TELEXTILESD_MODEL")
+        .env_remove("TELEXTILESD_INDEX")
+        .env_remove("TELEXTILESD_CONFIG")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("encoder model")
+            && err.contains("data/encoder.onnx")
+            && err.contains("not found")
+            && err.contains("--model"),
+        "{err}"
+    );
+}
