@@ -4,7 +4,9 @@
 //! centroids from jig presses of people 0..5, tested on people 6..10 with
 //! the jig and hand-held. Also the weave-family accuracy.
 //!
-//! `cargo run --release -p telextiles-sim --example baseline [n_textiles]`
+//! `cargo run --release -p telextiles-sim --example baseline [n_textiles [catalogue [generator]]]`
+//! (catalogue 1 uses frame 100 as always; catalogue 2 the mid-hold frame,
+//! since its presses run at 25..60 fps and release at varying times)
 use telextiles_sim::{PressSpec, RgbImage, Simulator};
 
 const CROP: usize = 96;
@@ -92,7 +94,14 @@ fn main() {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(40);
-    let sim = Simulator::new().expect("simulator");
+    let arg = |i: usize, d: u32| {
+        std::env::args()
+            .nth(i)
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(d)
+    };
+    let (version, generator) = (arg(2, 1), arg(3, 1));
+    let sim = Simulator::with_options(version, generator).expect("simulator");
     let cat = sim.catalogue();
     let step = (119 / n).max(1);
     let ids: Vec<String> = cat
@@ -107,7 +116,13 @@ fn main() {
             jig,
             ..PressSpec::new(id, 1000 + person as u64)
         };
-        let f = sim.render_frame(&spec, 100).expect("frame");
+        let frame = if version == 1 {
+            100
+        } else {
+            let p = sim.press_meta(&spec).expect("meta").params.expect("params");
+            ((p.hold_frame + p.release_frame.unwrap_or(spec.frames as u32)) / 2) as usize
+        };
+        let f = sim.render_frame(&spec, frame).expect("frame");
         feature(&f, &sim.background(0))
     };
     let mut centroids = Vec::new();
@@ -136,7 +151,7 @@ fn main() {
             }
         }
         println!(
-            "{} textiles, test {}: textile top-1 {ok}/{total} = {:.1}%, family {:.1}% (chance {:.1}%)",
+            "catalogue {version} generator {generator}, {} textiles, test {}: textile top-1 {ok}/{total} = {:.1}%, family {:.1}% (chance {:.1}%)",
             ids.len(),
             if jig { "jig      " } else { "hand-held" },
             100.0 * ok as f32 / total as f32,
