@@ -211,9 +211,30 @@ impl Handler for Daemon {
                 Command::Subscribe(_) => {
                     Err(CtlError::internal("subscribe is handled by the server"))
                 }
-                Command::RecordStart(_) | Command::RecordStop => Err(CtlError::unavailable(
-                    "recording over the control socket is not wired into this daemon yet; use `telextilesd record`",
-                )),
+                Command::RecordStart(a) => {
+                    use crate::cmd_record::{label_from_description, LiveRecording, RecordCtl};
+                    let (source, serial) = label_from_description(&s.sensor_desc);
+                    let (rec, reply) = LiveRecording::start(&a, source, serial)
+                        .map_err(|e| CtlError::failed(format!("{e:#}")))?;
+                    s.sensor_tx
+                        .send(SensorCmd::Record(RecordCtl::Start(Box::new(rec))))
+                        .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
+                    Ok(reply)
+                }
+                Command::RecordStop => {
+                    let (tx, rx) = tokio::sync::oneshot::channel();
+                    s.sensor_tx
+                        .send(SensorCmd::Record(crate::cmd_record::RecordCtl::Stop(tx)))
+                        .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
+                    // Stopping waits for the presses already complete to be written.
+                    match tokio::time::timeout(std::time::Duration::from_secs(30), rx).await {
+                        Ok(Ok(Some(saved))) => Ok(json!({"stopped": true, "saved": saved})),
+                        Ok(Ok(None)) => Ok(json!({"stopped": false})),
+                        _ => Err(CtlError::unavailable(
+                            "the sensor did not answer (is it stuck reading a frame?)",
+                        )),
+                    }
+                }
             }
         })
     }

@@ -36,6 +36,8 @@ pub(crate) enum SensorCmd {
         b: u8,
         reply: tokio::sync::oneshot::Sender<Result<(), String>>,
     },
+    /// Start or stop a recording (`record.start` / `record.stop`).
+    Record(crate::cmd_record::RecordCtl),
     /// End the thread.
     Stop,
 }
@@ -125,6 +127,8 @@ pub(crate) fn sensing_thread(
     let mut sender = SenderCore::new(front.encoder().dim());
     let mut frame = Frame::blank();
     let mut actions = Vec::new();
+    // A recording asked for over the control socket, fed below.
+    let mut recording: Option<crate::cmd_record::LiveRecording> = None;
     loop {
         while let Ok(cmd) = cmds.try_recv() {
             match cmd {
@@ -142,6 +146,9 @@ pub(crate) fn sensing_thread(
                     }
                     let _ = reply.send(r);
                 }
+                SensorCmd::Record(c) => c.apply(&mut recording, &mut |e| {
+                    let _ = state.events.send(e);
+                }),
                 SensorCmd::Stop => return Ok(()),
             }
         }
@@ -177,6 +184,13 @@ pub(crate) fn sensing_thread(
             }
         };
         let up = out.contact;
+        if let Some(r) = recording.as_mut() {
+            if r.push(&frame, &up, &mut |e| {
+                let _ = state.events.send(e);
+            }) {
+                recording = None;
+            }
+        }
         let contact_us = capture_us + out.contact_ns / 1000;
         let phase = match up.event {
             Some(ContactEvent::PressStart { .. }) => Some(ContactPhase::Start),
