@@ -61,9 +61,9 @@ pub struct BuildArgs {
     /// Use every n-th contact frame.
     #[arg(long, default_value_t = 4)]
     pub stride: usize,
-    /// Roller slots.
-    #[arg(long, default_value_t = 16)]
-    pub slots: usize,
+    /// Roller slots [default: 16, or the number of textiles when fewer].
+    #[arg(long)]
+    pub slots: Option<usize>,
     /// Roller selection: umap1d (the paper), farthest, kmedoids, random.
     #[arg(long, default_value = "kmedoids")]
     pub method: SelectionMethod,
@@ -134,6 +134,7 @@ pub fn press_embeddings(
 fn record(
     cat: &Catalogue,
     id: &str,
+    name: Option<&str>,
     embeddings: Vec<Vec<f32>>,
     exemplars: Vec<Vec<f32>>,
 ) -> TextileRecord {
@@ -159,10 +160,11 @@ fn record(
             embeddings,
             exemplars,
         },
-        // A user's own fabric: no catalogue entry, seen by definition.
+        // A user's own fabric: no catalogue entry, seen by definition; its
+        // name from `telextilesd record --name` (textile.json), else its id.
         None => TextileRecord {
             id: id.to_string(),
-            name: id.to_string(),
+            name: name.unwrap_or(id).to_string(),
             seen: true,
             structure: String::new(),
             attributes: Vec::new(),
@@ -196,6 +198,8 @@ fn build(a: BuildArgs) -> Result<()> {
     let cat = Catalogue::builtin();
     // textile id -> (frame embeddings, per-press means)
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
+    // Names of the user's own fabrics (`telextilesd record --name`).
+    let mut names: BTreeMap<String, String> = BTreeMap::new();
     let mut add = |id: &str, embs: Vec<Vec<f32>>| {
         if embs.is_empty() {
             return;
@@ -216,6 +220,9 @@ fn build(a: BuildArgs) -> Result<()> {
         let progress = Progress::new("index build", dirs.len() as u64, "presses");
         for d in dirs {
             let press = telextiles_sim::recording::read_press(&d)?;
+            if let Some(name) = textile_name(&d, &press.meta.textile) {
+                names.insert(press.meta.textile.clone(), name);
+            }
             let embs = press_embeddings(&mut front, &press, a.stride)?;
             if embs.is_empty() {
                 progress.println(&format!(
@@ -254,13 +261,15 @@ fn build(a: BuildArgs) -> Result<()> {
         bail!("say where the presses come from: --presses <dir> or --sim");
     }
     let mut builder = IndexBuilder::new(&info.sha256, &info.arch, info.dim, cat.version);
-    builder.roller_n = a.slots;
+    let slots = a.slots.unwrap_or_else(|| by_textile.len().min(16));
+    builder.roller_n = slots;
     builder.method = a.method;
     builder.seed = a.seed;
     for (id, (embs, means)) in by_textile {
         builder.add(record(
             &cat,
             &id,
+            names.get(&id).map(String::as_str),
             embs,
             if keep_exemplars(&a) {
                 means
@@ -297,11 +306,19 @@ fn build(a: BuildArgs) -> Result<()> {
             }
         }
     }
-    print!("{}", coverage_report(&index, &unseen, a.slots, a.seed));
+    print!("{}", coverage_report(&index, &unseen, slots, a.seed));
     Ok(())
 }
 
 /// The L2-normalised mean of L2-normalised vectors (None when empty).
+/// The name `telextilesd record --name` stored for textile `id` next to
+/// its presses (`<out>/<id>/textile.json`), if any.
+fn textile_name(press_dir: &std::path::Path, id: &str) -> Option<String> {
+    let p = press_dir.parent()?.join("textile.json");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).ok()?).ok()?;
+    (v["id"] == id).then(|| v["name"].as_str().map(str::to_string))?
+}
+
 /// Whether the index keeps per-press exemplars (see `--exemplars`).
 fn keep_exemplars(a: &BuildArgs) -> bool {
     a.exemplars || (a.presses.is_some() && !a.no_exemplars)
@@ -543,6 +560,78 @@ mod tests {
             "--no-exemplars"
         ])
         .is_err());
+    }
+
+    /// From a user's own recordings: the roller gets one slot per fabric
+    /// when there are fewer than 16 (no --slots needed), and the names
+    /// `record --name` stored are the index's names.
+    #[test]
+    fn own_recordings_default_slots_and_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = dir.path().join("rec");
+        let sim = Simulator::new().unwrap();
+        for (id, name) in [("denim", Some("blue denim")), ("wool", None)] {
+            for seed in [1, 2] {
+                let mut p = sim
+                    .render_press(&telextiles_sim::PressSpec {
+                        frames: 40,
+                        ..telextiles_sim::PressSpec::new(
+                            if id == "denim" { "T030" } else { "T110" },
+                            seed,
+                        )
+                    })
+                    .unwrap();
+                p.meta.textile = id.into();
+                telextiles_sim::recording::write_press(
+                    &rec.join(id).join(format!("{seed:04}")),
+                    &p,
+                )
+                .unwrap();
+            }
+            if let Some(n) = name {
+                std::fs::write(
+                    rec.join(id).join("textile.json"),
+                    serde_json::json!({"id": id, "name": n}).to_string(),
+                )
+                .unwrap();
+            }
+        }
+        // Another fabric's file does not name this one.
+        std::fs::write(
+            rec.join("wool/textile.json"),
+            r#"{"id": "silk", "name": "silk"}"#,
+        )
+        .unwrap();
+        let out = dir.path().join("my.tlxi");
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            b: BuildArgs,
+        }
+        use clap::Parser;
+        let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_encoder.onnx");
+        let a = Cli::try_parse_from([
+            "index-build",
+            "--model",
+            model.to_str().unwrap(),
+            "--presses",
+            rec.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .unwrap()
+        .b;
+        build(a).unwrap();
+        let index = Index::read(&out).unwrap();
+        assert_eq!(index.roller.n(), 2);
+        let names: Vec<(&str, &str)> = index
+            .entries
+            .iter()
+            .map(|e| (e.id.as_str(), e.name.as_str()))
+            .collect();
+        assert_eq!(names, [("denim", "blue denim"), ("wool", "wool")]);
+        assert!(index.entries.iter().all(|e| e.exemplars.len() == 2));
     }
 
     #[test]

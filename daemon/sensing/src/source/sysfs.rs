@@ -117,7 +117,7 @@ pub fn find_digit(
                 .iter()
                 .map(|d| format!("{} ({})", d.serial, d.node.display()))
                 .collect();
-            let want = serial.map_or("any DIGIT".to_string(), |s| {
+            let want = serial.map_or("DIGIT found".to_string(), |s| {
                 format!("DIGIT with serial {s}")
             });
             Err(SourceError::Unavailable(if listed.is_empty() {
