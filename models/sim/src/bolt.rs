@@ -135,6 +135,11 @@ pub fn window(t: &Textile, sw: &Swatch, ox: i64, oy: i64, size: usize) -> Height
     if sw.pilling > 0.01 {
         pills(t, &g, &mut h, sw.pilling);
     }
+    // Terry loops and tufts are bundles of soft fibres, not hard tubes:
+    // their edges are rounded off.
+    if matches!(t.structure, Structure::Terry { .. } | Structure::Tufted { .. }) {
+        blur(&mut h, size, 2);
+    }
     // Irregular mm-scale relief of wovens and knits (uneven yarn packing,
     // fibre bundles, cockling): on real cloth it outweighs the lattice.
     if matches!(
