@@ -137,7 +137,10 @@ pub fn window(t: &Textile, sw: &Swatch, ox: i64, oy: i64, size: usize) -> Height
     }
     // Terry loops and tufts are bundles of soft fibres, not hard tubes:
     // their edges are rounded off.
-    if matches!(t.structure, Structure::Terry { .. } | Structure::Tufted { .. }) {
+    if matches!(
+        t.structure,
+        Structure::Terry { .. } | Structure::Tufted { .. }
+    ) {
         blur(&mut h, size, 2);
     }
     // Irregular mm-scale relief of wovens and knits (uneven yarn packing,
