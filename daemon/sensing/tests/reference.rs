@@ -29,8 +29,8 @@ fn lighting_on() -> ContactConfig {
 fn gain(img: &RgbImage, g: [f32; 3]) -> RgbImage {
     let mut out = img.clone();
     for p in out.pixels_mut() {
-        for c in 0..3 {
-            p.0[c] = (p.0[c] as f32 * g[c]).round().clamp(0.0, 255.0) as u8;
+        for (v, g) in p.0.iter_mut().zip(g) {
+            *v = (*v as f32 * g).round().clamp(0.0, 255.0) as u8;
         }
     }
     out
