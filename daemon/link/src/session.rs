@@ -9,14 +9,14 @@ use quinn::{Connection, ConnectionError, RecvStream, SendStream};
 use rustls::pki_types::CertificateDer;
 use telextiles_certs::trust::sanitize_text;
 use telextiles_certs::{
-    peer_device_id, DeviceId, PairingError, PairingMessage, PairingRole, PairingSession,
-    PairingStep, PeerPolicy, PeerRecord, TrustStore,
+    peer_device_id, DeviceId, PairingMessage, PairingRole, PeerPolicy, PeerRecord, TrustStore,
 };
 use telextiles_proto::peer::{self, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::{mpsc, watch};
 
 use crate::conn::connection::{Action, Connection as ConnMachine};
 use crate::conn::duplicate::{self, Keep};
+use crate::conn::pairing::{PairAction, PairingExchange};
 use crate::conn::{ClockConfig, HandshakeConfig, Local, Role};
 use crate::discovery::Discovered;
 use crate::{
@@ -923,58 +923,57 @@ async fn pair_as_inner(
             )),
         }
     };
-    let code = match code {
-        Ok(c) => c,
-        Err((abort, text)) => {
-            if let Some(a) = abort {
-                let _ = ctrl.write(&Control::Pair(PairingMessage::Abort(a))).await;
-                tokio::time::sleep(Duration::from_millis(100)).await;
-            }
-            return Err(End::err(ErrorKind::Pairing, text));
-        }
-    };
-    let mut rng = rand::rngs::OsRng;
-    let (mut session, start) =
-        PairingSession::start(role, code, shared.identity.cert_der(), peer_cert, &mut rng)
-            .map_err(|e| End::err(ErrorKind::Pairing, e.to_string()))?;
-    ctrl.write(&Control::Pair(start))
-        .await
-        .map_err(End::quiet)?;
-    let fail = |e: PairingError| {
-        End::err(
-            ErrorKind::Pairing,
-            format!("pairing with the device at {addr} failed: {e}"),
-        )
-    };
-    let paired = loop {
-        let next = match pending.take() {
-            Some(m) => Ok(Control::Pair(m)),
-            None => ctrl.read().await,
-        };
-        let msg = match next {
-            Ok(Control::Pair(m)) => m,
-            Ok(other) => {
-                return Err(End::err(
-                    ErrorKind::Protocol,
-                    format!("expected a pairing message, got {other:?}"),
-                ))
-            }
-            Err(f) => return Err(f.into_end(addr)),
-        };
-        match session.handle(&msg) {
-            Ok(PairingStep::Send(reply)) => {
-                ctrl.write(&Control::Pair(reply))
-                    .await
-                    .map_err(End::quiet)?;
-            }
-            Ok(PairingStep::Paired(p)) => break p,
-            Err(e) => {
-                if let Some(abort) = e.abort_message() {
-                    let _ = ctrl.write(&Control::Pair(abort)).await;
-                    tokio::time::sleep(Duration::from_millis(100)).await;
+    // The exchange is the sans-IO machine's; this loop moves messages and
+    // time.
+    let mut x = PairingExchange::start(
+        role,
+        code,
+        shared.identity.cert_der(),
+        peer_cert,
+        &mut rand::rngs::OsRng,
+        addr,
+        now_us(),
+        shared.timing.handshake_timeout,
+    );
+    if let Some(m) = pending.take() {
+        x.handle_message(now_us(), Control::Pair(m));
+    }
+    let paired = 'pairing: loop {
+        while let Some(action) = x.poll() {
+            match action {
+                PairAction::Send(msg) => {
+                    let abort = matches!(msg, Control::Pair(PairingMessage::Abort(_)));
+                    match ctrl.write(&msg).await {
+                        Err(e) if !abort => return Err(End::quiet(e)),
+                        _ => {}
+                    }
                 }
-                finish_pairing_mode(shared);
-                return Err(fail(e));
+                PairAction::Paired(p) => break 'pairing p,
+                PairAction::Fail {
+                    error,
+                    session_failed,
+                } => {
+                    if session_failed {
+                        finish_pairing_mode(shared);
+                    }
+                    return Err(End::err(error.kind, error.message));
+                }
+            }
+        }
+        let read = match x.poll_timeout() {
+            Some(deadline) => {
+                let wait = Duration::from_micros(deadline.saturating_sub(now_us()));
+                tokio::time::timeout(wait, ctrl.read()).await.ok()
+            }
+            None => Some(ctrl.read().await),
+        };
+        match read {
+            None => x.handle_timeout(now_us().max(x.poll_timeout().unwrap_or(0))),
+            Some(Ok(msg)) => x.handle_message(now_us(), msg),
+            Some(Err(f)) => {
+                if !x.handle_read_error() {
+                    return Err(f.into_end(addr));
+                }
             }
         }
     };

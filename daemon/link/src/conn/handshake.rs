@@ -403,7 +403,7 @@ impl Handshake {
 
 /// A message named for an error text, without the peer's strings (which
 /// could carry terminal escapes) or large payloads.
-fn describe(m: &Control) -> &'static str {
+pub(crate) fn describe(m: &Control) -> &'static str {
     match m {
         Control::Hello(_) => "Hello",
         Control::HelloAck => "HelloAck",

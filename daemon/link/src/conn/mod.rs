@@ -7,6 +7,8 @@
 //! * [`clock`]: ping/pong, the clock offset and one-way latency.
 //! * [`handshake`]: the hello/ack exchange of one connection.
 //! * [`duplicate`]: which of two connections to one peer survives.
+//! * [`pairing`]: the pairing exchange on the control stream around
+//!   `telextiles_certs::PairingSession`.
 //! * [`connection`]: one connection's life cycle (handshake, then the live
 //!   session's pings, pongs and control messages).
 
@@ -14,6 +16,7 @@ pub mod clock;
 pub mod connection;
 pub mod duplicate;
 pub mod handshake;
+pub mod pairing;
 
 pub use clock::{ClockConfig, ClockStats, ClockSync, PongOutcome};
 pub use connection::{Action, Connection, Phase};
@@ -27,3 +30,5 @@ mod tests_clock;
 mod tests_connection;
 #[cfg(test)]
 mod tests_handshake;
+#[cfg(test)]
+mod tests_pairing;
