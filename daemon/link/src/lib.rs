@@ -17,6 +17,11 @@
 //! NTP-style clock-offset estimate so received latents carry their one-way
 //! latency.
 //!
+//! The connection protocol (hello/ack, pairing exchange, ping/pong and the
+//! clock offset, duplicate resolution, a connection's life cycle) is in
+//! [`conn`] as sans-IO state machines tested in simulated time; the tokio
+//! code here and in `session.rs` drives them.
+//!
 //! Who dials: a peer found by mDNS or remembered in the trust store is
 //! dialled by the side with the smaller device ID; addresses given with
 //! `--connect` ([`LinkConfig::connect`]) are always dialled. If two
