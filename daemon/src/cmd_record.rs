@@ -201,22 +201,10 @@ fn open_digit(_serial: Option<String>) -> Result<Opened> {
     bail!("the DIGIT is read over V4L2, which only Linux has; use --sensor sim or replay:<dir>")
 }
 
-/// Press directories (with press.json) under `root`, sorted.
+/// Press directories (with press.json) under `root`, sorted (the shared
+/// walk: symbolic links followed once, unfinished writes skipped).
 pub fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
-    if root.join(telextiles_sim::recording::META_FILE).is_file() {
-        out.push(root.to_path_buf());
-        return Ok(());
-    }
-    let mut entries: Vec<_> = std::fs::read_dir(root)
-        .with_context(|| format!("cannot read {}", root.display()))?
-        .collect::<Result<_, _>>()?;
-    entries.sort_by_key(|e| e.file_name());
-    for e in entries {
-        // Unfinished writes (`0003.tmp-<pid>-<n>`) are not presses.
-        if e.file_type()?.is_dir() && !e.file_name().to_string_lossy().contains(".tmp-") {
-            find_presses(&e.path(), out)?;
-        }
-    }
+    out.extend(telextiles_sim::recording::find_presses(root)?);
     Ok(())
 }
 
