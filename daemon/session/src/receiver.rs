@@ -177,19 +177,24 @@ impl<I: TextileIndex> ReceiverCore<I> {
         self.peers.get(peer)?.press.as_ref().map(|p| p.press_id)
     }
 
+    /// The state of `peer` (made, evicting the least recently heard peer
+    /// beyond `max_peers`, only the first time: no allocation per message).
     fn peer(&mut self, peer: &str) -> &mut PeerState {
         self.tick += 1;
-        if !self.peers.contains_key(peer) && self.peers.len() >= self.cfg.max_peers.max(1) {
-            if let Some(oldest) = self
-                .peers
-                .iter()
-                .min_by_key(|(_, s)| s.heard)
-                .map(|(k, _)| k.clone())
-            {
-                self.peers.remove(&oldest);
+        if !self.peers.contains_key(peer) {
+            if self.peers.len() >= self.cfg.max_peers.max(1) {
+                if let Some(oldest) = self
+                    .peers
+                    .iter()
+                    .min_by_key(|(_, s)| s.heard)
+                    .map(|(k, _)| k.clone())
+                {
+                    self.peers.remove(&oldest);
+                }
             }
+            self.peers.insert(peer.to_string(), PeerState::default());
         }
-        let s = self.peers.entry(peer.to_string()).or_default();
+        let s = self.peers.get_mut(peer).expect("inserted above");
         s.heard = self.tick;
         s
     }
