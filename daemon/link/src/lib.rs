@@ -300,8 +300,17 @@ pub enum ErrorKind {
     RefusedByPeer,
     /// This side refused a device that is not paired.
     RefusedPeer,
-    /// Pairing failed (wrong code, expired, ...).
+    /// Pairing failed (wrong code, expired, ...) in a way that ends this
+    /// side's pairing: on the side showing the code (its code is single-use)
+    /// or a refusal from a device authenticated by its pin.
     Pairing,
+    /// One device showing a code refused, stalled or failed the exchange
+    /// without proving the code; pairing continues with other devices.
+    /// Only the side entering a code reports it: nothing an unproven device
+    /// says (an `Abort`, silence, a wrong confirmation) can end
+    /// `pair --enter`, and that device is not dialled again for pairing
+    /// (one exchange per device, so no repeated online guesses).
+    PairingAttempt,
     /// Could not reach the peer / the connection failed.
     Connection,
     /// The peer broke the protocol.

@@ -306,16 +306,23 @@ async fn pair(code_ok: bool) {
         let sb = telextiles_certs::TrustStore::load(dir_b.path()).unwrap();
         assert!(sb.contains(&ia.device_id()));
     } else {
-        for (rx, who) in [(&mut ra, "a"), (&mut rb, "b")] {
+        // a shows the code: its pairing ends (the code is used up). b
+        // enters it: a failed to prove the code b typed, which ends that
+        // attempt only (b keeps looking, see hostile.rs).
+        for (rx, who, want) in [
+            (&mut ra, "a", ErrorKind::Pairing),
+            (&mut rb, "b", ErrorKind::PairingAttempt),
+        ] {
             let msg = wait_for(rx, 10, &format!("pairing failure on {who}"), |e| match e {
                 LinkEvent::Paired { .. } | LinkEvent::PeerUp { .. } => {
                     panic!("{who}: paired with a wrong code")
                 }
-                LinkEvent::Error {
-                    kind: ErrorKind::Pairing,
-                    message,
-                    ..
-                } => Some(message.clone()),
+                LinkEvent::Error { kind, message, .. }
+                    if matches!(kind, ErrorKind::Pairing | ErrorKind::PairingAttempt) =>
+                {
+                    assert_eq!(*kind, want, "{who}: {message}");
+                    Some(message.clone())
+                }
                 _ => None,
             })
             .await;

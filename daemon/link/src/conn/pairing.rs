@@ -5,6 +5,19 @@
 //! after a short linger (so the abort arrives before the close), and the
 //! whole exchange has the handshake timeout.
 //!
+//! The two roles fail differently. The side showing the code gave its
+//! single-use code to this exchange: any failure ends its pairing
+//! (`ErrorKind::Pairing`, `session_failed` for the exchange's own
+//! failures). The side entering the code dials devices that merely claim
+//! to show a code (anyone can advertise `pair=1`); the device has proved
+//! nothing until its confirmation checks out, so whatever it does instead
+//! (an `Abort`, silence, a wrong confirmation, a foreign message) is
+//! `ErrorKind::PairingAttempt` without `session_failed`: that device is
+//! done with, pairing goes on. A genuine showing side's `Confirm` always
+//! arrives before any `Abort` of its own (each side confirms as soon as it
+//! has the other's `Start`), so the entering side judges the code itself
+//! and never needs to believe an abort.
+//!
 //! What the code is (the one shown, taken once, or the one typed) and what
 //! a success does (pin, trust store, pairing mode left, `Paired` event) are
 //! the driver's: they touch shared state and files.
@@ -14,7 +27,7 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use rustls::pki_types::CertificateDer;
-use telextiles_certs::pairing::PairingAbort;
+use telextiles_certs::pairing::{PairingAbort, PairingError};
 use telextiles_certs::{Paired, PairingCode, PairingRole, PairingSession, PairingStep};
 use telextiles_proto::pairing::PairingMessage;
 use telextiles_proto::peer::Control;
@@ -22,6 +35,10 @@ use telextiles_proto::peer::Control;
 use super::clock::us;
 use super::handshake::{describe, HsError};
 use crate::ErrorKind;
+
+/// The end of the entering side's [`ErrorKind::PairingAttempt`] messages.
+pub(crate) const STILL_LOOKING: &str =
+    "still looking for the device showing the code (this one is not tried again)";
 
 /// How long a failure waits after its `Abort` was queued.
 pub const ABORT_LINGER: Duration = Duration::from_millis(100);
@@ -34,7 +51,9 @@ pub enum PairAction {
     /// Both sides proved the code: pin the peer.
     Paired(Paired),
     /// Pairing failed. `session_failed`: the exchange itself failed (wrong
-    /// code, the peer aborted, ...), so this side leaves pairing mode.
+    /// code, the peer aborted, ...), so this side leaves pairing mode
+    /// (only ever on the side showing the code; the entering side's
+    /// failures are `ErrorKind::PairingAttempt` and never set it).
     Fail {
         error: HsError,
         session_failed: bool,
@@ -51,7 +70,9 @@ enum State {
 /// One pairing exchange. See the module docs.
 pub struct PairingExchange {
     session: Option<PairingSession>,
+    role: PairingRole,
     addr: SocketAddr,
+    timeout: Duration,
     state: State,
     deadline: Option<u64>,
     pending: Option<(HsError, bool)>,
@@ -61,6 +82,7 @@ pub struct PairingExchange {
 impl std::fmt::Debug for PairingExchange {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("PairingExchange")
+            .field("role", &self.role)
             .field("addr", &self.addr)
             .field("state", &self.state)
             .field("deadline", &self.deadline)
@@ -86,7 +108,9 @@ impl PairingExchange {
     ) -> PairingExchange {
         let mut x = PairingExchange {
             session: None,
+            role,
             addr,
+            timeout,
             state: State::Exchanging,
             deadline: Some(now.saturating_add(us(timeout))),
             pending: None,
@@ -95,7 +119,7 @@ impl PairingExchange {
         match code {
             Err((abort, text)) => {
                 let err = HsError {
-                    kind: ErrorKind::Pairing,
+                    kind: x.kind(),
                     message: text,
                 };
                 match abort {
@@ -114,7 +138,7 @@ impl PairingExchange {
                 }
                 Err(e) => x.fail(
                     HsError {
-                        kind: ErrorKind::Pairing,
+                        kind: x.kind(),
                         message: e.to_string(),
                     },
                     false,
@@ -135,6 +159,25 @@ impl PairingExchange {
     /// Whether it ended (paired or failed).
     pub fn is_done(&self) -> bool {
         self.state == State::Done
+    }
+
+    fn entering(&self) -> bool {
+        self.role == PairingRole::EntersCode
+    }
+
+    /// The kind of this side's pairing failures (see the module docs).
+    fn kind(&self) -> ErrorKind {
+        if self.entering() {
+            ErrorKind::PairingAttempt
+        } else {
+            ErrorKind::Pairing
+        }
+    }
+
+    /// What the entering side tells its user when a device it dialled
+    /// failed to prove the code.
+    fn attempt_message(&self, what: &str) -> String {
+        format!("the device at {} {what}; {STILL_LOOKING}", self.addr)
     }
 
     fn fail(&mut self, error: HsError, session_failed: bool) {
@@ -166,13 +209,23 @@ impl PairingExchange {
             _ => return,
         }
         match self.state {
-            State::Exchanging => self.fail(
-                HsError {
-                    kind: ErrorKind::Pairing,
-                    message: "pairing timed out".into(),
-                },
-                false,
-            ),
+            State::Exchanging => {
+                let message = if self.entering() {
+                    self.attempt_message(&format!(
+                        "did not prove the code within {} s (it stopped answering)",
+                        self.timeout.as_secs()
+                    ))
+                } else {
+                    "pairing timed out".into()
+                };
+                self.fail(
+                    HsError {
+                        kind: self.kind(),
+                        message,
+                    },
+                    false,
+                )
+            }
             State::Lingering => self.end_linger(),
             State::Done => {}
         }
@@ -197,16 +250,24 @@ impl PairingExchange {
             Control::Pair(m) => m,
             other => {
                 let addr = self.addr;
-                self.fail(
+                let error = if self.entering() {
+                    HsError {
+                        kind: ErrorKind::PairingAttempt,
+                        message: self.attempt_message(&format!(
+                            "sent {} instead of a pairing message, without proving the code",
+                            describe(&other)
+                        )),
+                    }
+                } else {
                     HsError {
                         kind: ErrorKind::Protocol,
                         message: format!(
                             "expected a pairing message from {addr}, got {}",
                             describe(&other)
                         ),
-                    },
-                    false,
-                );
+                    }
+                };
+                self.fail(error, false);
                 return;
             }
         };
@@ -225,17 +286,37 @@ impl PairingExchange {
                 self.actions.push_back(PairAction::Paired(p));
             }
             Err(e) => {
-                let err = HsError {
-                    kind: ErrorKind::Pairing,
-                    message: format!("pairing with the device at {} failed: {e}", self.addr),
+                // The showing side's code is used up: it leaves pairing.
+                // The entering side is done with this device only.
+                let session_failed = !self.entering();
+                let err = if self.entering() {
+                    let what = match &e {
+                        PairingError::WrongCode => {
+                            "did not prove the code you typed: the codes did not match (a typo, or it is not the device showing the code; if it is, its code is used up: start again on both devices)".to_string()
+                        }
+                        PairingError::PeerAborted(a) => format!(
+                            "stopped pairing without proving the code (it says: {})",
+                            a.describe()
+                        ),
+                        other => format!("failed the pairing exchange without proving the code ({other})"),
+                    };
+                    HsError {
+                        kind: ErrorKind::PairingAttempt,
+                        message: self.attempt_message(&what),
+                    }
+                } else {
+                    HsError {
+                        kind: ErrorKind::Pairing,
+                        message: format!("pairing with the device at {} failed: {e}", self.addr),
+                    }
                 };
                 match e.abort_message() {
                     Some(abort) => {
                         self.actions
                             .push_back(PairAction::Send(Control::Pair(abort)));
-                        self.linger(now, err, true);
+                        self.linger(now, err, session_failed);
                     }
-                    None => self.fail(err, true),
+                    None => self.fail(err, session_failed),
                 }
             }
         }

@@ -134,9 +134,11 @@ fn right_code_pairs_both_sides() {
     assert!(e.sent.iter().all(|m| matches!(m, Control::Pair(_))));
 }
 
-/// Different codes: both fail as pairing failures of the exchange itself
-/// (so a showing side leaves pairing mode), nobody is paired, an `Abort`
-/// was sent, and the failure comes after the abort linger.
+/// Different codes: both fail, nobody is paired, an `Abort` was sent. The
+/// showing side fails as a pairing failure of the exchange itself (it
+/// leaves pairing mode: its code is used up); the entering side judged the
+/// showing side's confirmation itself and fails one attempt only
+/// (`PairingAttempt`, pairing mode kept: that device proved no code).
 #[test]
 fn wrong_code_fails_both_sides() {
     let (e, s) = exchange(
@@ -145,12 +147,15 @@ fn wrong_code_fails_both_sides() {
         20 * MS,
     );
     assert!(e.paired.is_none() && s.paired.is_none());
-    for side in [&e, &s] {
-        let (kind, msg, session_failed, _) = side.failed.clone().expect("failed");
-        assert_eq!(kind, ErrorKind::Pairing);
-        assert!(session_failed, "{msg}");
-        assert!(msg.contains("203.0.113.5:4797"), "{msg}");
-    }
+    let (kind, msg, session_failed, _) = s.failed.clone().expect("showing side failed");
+    assert_eq!(kind, ErrorKind::Pairing);
+    assert!(session_failed, "{msg}");
+    assert!(msg.contains("203.0.113.5:4797"), "{msg}");
+    let (kind, msg, session_failed, _) = e.failed.clone().expect("entering side failed");
+    assert_eq!(kind, ErrorKind::PairingAttempt);
+    assert!(!session_failed, "{msg}");
+    assert!(msg.contains("203.0.113.5:4797"), "{msg}");
+    assert!(msg.contains("did not prove the code you typed"), "{msg}");
     let aborts = e
         .sent
         .iter()
@@ -161,9 +166,16 @@ fn wrong_code_fails_both_sides() {
 }
 
 fn one(code: Result<PairingCode, (Option<PairingAbort>, String)>) -> PairingExchange {
+    one_as(PairingRole::ShowsCode, code)
+}
+
+fn one_as(
+    role: PairingRole,
+    code: Result<PairingCode, (Option<PairingAbort>, String)>,
+) -> PairingExchange {
     let (a, b) = (Identity::generate().unwrap(), Identity::generate().unwrap());
     PairingExchange::start(
-        PairingRole::ShowsCode,
+        role,
         code,
         a.cert_der(),
         b.cert_der(),
@@ -332,4 +344,169 @@ fn messages_of_another_device_pair_do_not_pair() {
     }
     assert_eq!(failed, Some((ErrorKind::Pairing, true)));
     assert!(x.is_done());
+}
+
+/// The entering side dials devices that only claim to show a code (anyone
+/// can advertise `pair=1`). Whatever such a device does instead of proving
+/// the code ends that one attempt (`PairingAttempt`, `session_failed`
+/// false: this side stays in pairing mode), never the pairing: an
+/// `Abort` (of any reason), silence until the timeout, a foreign message,
+/// a malformed or out-of-place pairing message. The old exchange failed
+/// each as `Pairing` with `session_failed` (the abort) and the front ends
+/// ended `pair --enter` on it. Each message names the device's address.
+#[test]
+fn entering_side_failures_without_a_proof_are_one_attempt_only() {
+    let entering = || {
+        let mut x = one_as(
+            PairingRole::EntersCode,
+            Ok(PairingCode::generate(&mut OsRng)),
+        );
+        assert!(matches!(
+            x.poll(),
+            Some(PairAction::Send(Control::Pair(PairingMessage::Start(_))))
+        ));
+        x
+    };
+    let attempt = |x: &mut PairingExchange, what: &str| {
+        let (kind, msg, session_failed) = fail_of(x);
+        assert_eq!(kind, ErrorKind::PairingAttempt, "{what}: {msg}");
+        assert!(!session_failed, "{what}: {msg}");
+        assert!(msg.contains("203.0.113.5:4797"), "{what}: {msg}");
+        assert!(msg.contains("still looking"), "{what}: {msg}");
+        assert!(x.is_done(), "{what}");
+        msg
+    };
+
+    for reason in [
+        PairingAbort::CodeExpired,
+        PairingAbort::CodeUsed,
+        PairingAbort::NotPairing,
+        PairingAbort::WrongCode,
+        PairingAbort::SameRole,
+        PairingAbort::UnsupportedVersion(9),
+        PairingAbort::ProtocolViolation,
+        PairingAbort::Cancelled,
+    ] {
+        let mut x = entering();
+        x.handle_message(5, Control::Pair(PairingMessage::Abort(reason)));
+        let msg = attempt(&mut x, &format!("abort {reason:?}"));
+        assert!(msg.contains("without proving the code"), "{msg}");
+    }
+
+    let mut x = entering();
+    x.handle_timeout(1_000 + 10_000 * MS - 1);
+    assert!(x.poll().is_none());
+    x.handle_timeout(1_000 + 10_000 * MS);
+    let msg = attempt(&mut x, "silence");
+    assert!(msg.contains("within 10 s"), "{msg}");
+
+    let mut x = entering();
+    x.handle_message(5, Control::HelloAck);
+    let msg = attempt(&mut x, "foreign message");
+    assert!(msg.contains("HelloAck"), "{msg}");
+
+    // A confirmation before any start: out of place. This side tells the
+    // device (an `Abort`), then fails the attempt after the linger.
+    let mut x = entering();
+    x.handle_message(
+        5,
+        Control::Pair(PairingMessage::Confirm(
+            telextiles_proto::pairing::PairingConfirm { mac: [7; 32] },
+        )),
+    );
+    assert!(matches!(
+        x.poll(),
+        Some(PairAction::Send(Control::Pair(PairingMessage::Abort(
+            PairingAbort::ProtocolViolation
+        ))))
+    ));
+    assert!(x.handle_read_error());
+    attempt(&mut x, "confirmation before a start");
+}
+
+/// A device that answers the entering side's `Start` with a `Start` for
+/// another code and a confirmation (what a fake device showing a code
+/// does to guess it): the entering side checks the confirmation itself,
+/// tells the device the code did not match, and fails that attempt only,
+/// after the linger. The showing side's wrong-code failure is unchanged:
+/// `Pairing`, `session_failed`.
+#[test]
+fn entering_side_judges_a_wrong_confirmation_itself() {
+    let (ide, ids) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let mut e = PairingExchange::start(
+        PairingRole::EntersCode,
+        Ok(PairingCode::generate(&mut OsRng)),
+        ide.cert_der(),
+        ids.cert_der(),
+        &mut OsRng,
+        addr(),
+        0,
+        TIMEOUT,
+    );
+    let Some(PairAction::Send(Control::Pair(e_start))) = e.poll() else {
+        panic!("no start")
+    };
+    let (mut fake, fake_start) = telextiles_certs::PairingSession::start(
+        PairingRole::ShowsCode,
+        PairingCode::generate(&mut OsRng),
+        ids.cert_der(),
+        ide.cert_der(),
+        &mut OsRng,
+    )
+    .unwrap();
+    let telextiles_certs::PairingStep::Send(fake_confirm) = fake.handle(&e_start).unwrap() else {
+        panic!("no confirmation")
+    };
+    e.handle_message(10, Control::Pair(fake_start));
+    assert!(matches!(
+        e.poll(),
+        Some(PairAction::Send(Control::Pair(PairingMessage::Confirm(_))))
+    ));
+    e.handle_message(20, Control::Pair(fake_confirm));
+    assert!(matches!(
+        e.poll(),
+        Some(PairAction::Send(Control::Pair(PairingMessage::Abort(
+            PairingAbort::WrongCode
+        ))))
+    ));
+    assert!(e.poll().is_none(), "the failure waits for the linger");
+    e.handle_timeout(20 + ABORT_LINGER.as_micros() as u64);
+    let (kind, msg, session_failed) = fail_of(&mut e);
+    assert_eq!(kind, ErrorKind::PairingAttempt, "{msg}");
+    assert!(!session_failed, "{msg}");
+    assert!(msg.contains("did not prove the code you typed"), "{msg}");
+    assert!(msg.contains("203.0.113.5:4797"), "{msg}");
+
+    // The same on the showing side (a device entering a wrong code).
+    let mut s = one(Ok(PairingCode::generate(&mut OsRng)));
+    let Some(PairAction::Send(Control::Pair(s_start))) = s.poll() else {
+        panic!("no start")
+    };
+    let (mut guess, guess_start) = telextiles_certs::PairingSession::start(
+        PairingRole::EntersCode,
+        PairingCode::generate(&mut OsRng),
+        ide.cert_der(),
+        ids.cert_der(),
+        &mut OsRng,
+    )
+    .unwrap();
+    let telextiles_certs::PairingStep::Send(guess_confirm) = guess.handle(&s_start).unwrap() else {
+        panic!("no confirmation")
+    };
+    s.handle_message(10, Control::Pair(guess_start));
+    assert!(matches!(
+        s.poll(),
+        Some(PairAction::Send(Control::Pair(PairingMessage::Confirm(_))))
+    ));
+    s.handle_message(20, Control::Pair(guess_confirm));
+    assert!(matches!(
+        s.poll(),
+        Some(PairAction::Send(Control::Pair(PairingMessage::Abort(
+            PairingAbort::WrongCode
+        ))))
+    ));
+    s.handle_timeout(u64::MAX);
+    let (kind, msg, session_failed) = fail_of(&mut s);
+    assert_eq!(kind, ErrorKind::Pairing, "{msg}");
+    assert!(session_failed, "{msg}");
 }
