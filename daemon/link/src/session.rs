@@ -16,7 +16,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::conn::connection::{Action, Connection as ConnMachine};
 use crate::conn::duplicate::{self, Keep};
-use crate::conn::pairing::{PairAction, PairingExchange};
+use crate::conn::pairing::{PairAction, PairingExchange, STILL_LOOKING};
 use crate::conn::{ClockConfig, HandshakeConfig, Local, Role};
 use crate::discovery::Discovered;
 use crate::{
@@ -404,6 +404,12 @@ async fn dial_loop_inner(
                             after = Some(backoff);
                         }
                         Err(end) => {
+                            // One exchange per device showing a code: one
+                            // that proved no code is not dialled again
+                            // (redialling would give it another online
+                            // guess at the code each time).
+                            let attempt_over =
+                                end.kind == ErrorKind::PairingAttempt && (entering || pairing_only);
                             if end.report {
                                 report_once(
                                     &shared,
@@ -414,10 +420,14 @@ async fn dial_loop_inner(
                                 )
                                 .await;
                             }
+                            if attempt_over {
+                                return;
+                            }
                             after = match end.kind {
                                 // No quick retry: the users must act.
                                 ErrorKind::Incompatible(_)
                                 | ErrorKind::Pairing
+                                | ErrorKind::PairingAttempt
                                 | ErrorKind::RefusedByPeer => Some(shared.timing.backoff_max * 10),
                                 _ => None,
                             };
@@ -620,7 +630,9 @@ async fn run_connection(
     if let Err(end) = &result {
         let code = match end.kind {
             ErrorKind::Incompatible(_) => close_code::INCOMPATIBLE,
-            ErrorKind::Pairing | ErrorKind::RefusedPeer => close_code::PAIRING,
+            ErrorKind::Pairing | ErrorKind::PairingAttempt | ErrorKind::RefusedPeer => {
+                close_code::PAIRING
+            }
             ErrorKind::Protocol => close_code::PROTOCOL,
             _ => close_code::BYE,
         };
@@ -667,9 +679,13 @@ async fn run_connection_inner(
         return Err(End::quiet("connected to itself"));
     }
     let hs = shared.timing.handshake_timeout;
+    let paired = shared.pins.contains(&peer_id);
+    let entering = entering && matches!(*lock(&shared.pairing), Some(PairingMode::Enter(_)));
+    // This side enters a code with this device (or would, and refuses).
+    let enters_code = dialed && (!paired || entering);
     let mut ctrl = match tokio::time::timeout(hs, open_ctrl(conn, dialed)).await {
         Ok(Ok(c)) => c,
-        Ok(Err(e)) => return Err(explain(&e, addr)),
+        Ok(Err(e)) => return Err(as_attempt(explain(&e, addr), enters_code)),
         Err(_) => {
             return Err(End::err(
                 ErrorKind::Connection,
@@ -678,9 +694,7 @@ async fn run_connection_inner(
         }
     };
 
-    let paired = shared.pins.contains(&peer_id);
-    let entering = entering && matches!(*lock(&shared.pairing), Some(PairingMode::Enter(_)));
-    if dialed && (!paired || entering) {
+    if enters_code {
         tokio::time::timeout(
             hs,
             pair_as(
@@ -694,7 +708,15 @@ async fn run_connection_inner(
             ),
         )
         .await
-        .map_err(|_| End::err(ErrorKind::Pairing, "pairing timed out"))??;
+        .map_err(|_| {
+            End::err(
+                ErrorKind::PairingAttempt,
+                format!(
+                    "the device at {addr} did not prove the code within {} s (it stopped answering); {STILL_LOOKING}",
+                    hs.as_secs()
+                ),
+            )
+        })??;
     }
     // Hello phase: the sans-IO machine decides; this loop moves messages
     // and time (the acceptor learns from the first message whether the
@@ -883,10 +905,38 @@ async fn pair_as(
                 ),
             ))
         }
+        // Whatever else ended the exchange on the entering side (the
+        // device closed the stream or the connection, a write failed): it
+        // proved no code, and it had its one try.
+        Err(end) if role == PairingRole::EntersCode && end.kind != ErrorKind::PairingAttempt => {
+            Err(End::err(
+                ErrorKind::PairingAttempt,
+                format!(
+                    "device {} at {addr} left the pairing exchange without proving the code ({}); {STILL_LOOKING}",
+                    peer_id.short(),
+                    end.message
+                ),
+            ))
+        }
         other => {
             attempt.armed = false;
             other
         }
+    }
+}
+
+/// A refusal (a close with the pairing close code) from a device this side
+/// enters a code with proved nothing: one failed attempt, not the end of
+/// pairing.
+fn as_attempt(end: End, enters_code: bool) -> End {
+    if enters_code && end.kind == ErrorKind::Pairing {
+        End {
+            kind: ErrorKind::PairingAttempt,
+            message: format!("{}; {STILL_LOOKING}", end.message),
+            report: true,
+        }
+    } else {
+        end
     }
 }
 

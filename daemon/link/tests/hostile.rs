@@ -1,12 +1,13 @@
 //! Hostile peers over real QUIC on 127.0.0.1 (issue 19): floods that must
 //! stay within bounded memory, rate-limited error reports, peer text made
 //! safe to print, revocation of a live peer, re-pairing after a one-sided
-//! unpair.
+//! unpair, fake devices claiming to show a pairing code.
 //!
 //! The attackers are raw quinn clients in this process: the memory figures
 //! are the RSS of the whole test process (link + attacker). They are
 //! printed (`--nocapture`) and written to `docs/peer-protocol.md`.
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
@@ -17,7 +18,7 @@ use telextiles_certs::{
 use telextiles_link::{
     limits, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, Timing,
 };
-use telextiles_proto::peer::{encode_control, Control, Hello, PROTOCOL_VERSION};
+use telextiles_proto::peer::{encode_control, Control, FrameDecoder, Hello, PROTOCOL_VERSION};
 use tokio::sync::mpsc::Receiver;
 
 fn hello() -> HelloInfo {
@@ -708,4 +709,230 @@ async fn burnt_code_is_reported_and_pairing_mode_left_at_once() {
         "an unpinned device still got in after the code was burnt"
     );
     a.shutdown().await;
+}
+
+/// How a fake device "showing a code" answers the entering side's `Start`.
+#[derive(Clone, Copy, Debug)]
+enum Fake {
+    /// With an `Abort` (the old entering side believed it and gave up).
+    Abort,
+    /// With a `Start` and `Confirm` for a code it guessed: one online guess.
+    WrongCode,
+    /// Not at all, until the entering side gives up.
+    Stall,
+}
+
+/// A device that claims to show a pairing code but does not know it
+/// (anyone on the LAN can advertise `pair=1`): a QUIC server with its own
+/// identity that accepts any client certificate, as a device showing a
+/// code does, and answers as `how` says. Returns its address and a count
+/// of the connection attempts that reached it.
+fn fake_shower(me: &Identity, how: Fake) -> (quinn::Endpoint, SocketAddr, Arc<AtomicUsize>) {
+    let tls = telextiles_certs::server_config(me, PeerPolicy::AnyForPairing).unwrap();
+    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls).unwrap();
+    let cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    let ep = quinn::Endpoint::server(cfg, "127.0.0.1:0".parse().unwrap()).unwrap();
+    let addr = ep.local_addr().unwrap();
+    let count = Arc::new(AtomicUsize::new(0));
+    let (ep2, count2, me) = (ep.clone(), count.clone(), me.clone());
+    tokio::spawn(async move {
+        while let Some(incoming) = ep2.accept().await {
+            count2.fetch_add(1, Ordering::SeqCst);
+            let me = me.clone();
+            tokio::spawn(async move {
+                let Ok(conn) = incoming.await else { return };
+                let Ok((mut send, mut recv)) = conn.accept_bi().await else {
+                    return;
+                };
+                // The entering side's `Start`.
+                let mut dec = FrameDecoder::new();
+                let mut buf = [0u8; 4096];
+                let their_start = loop {
+                    match dec.next_message() {
+                        Ok(Some(Control::Pair(m))) => break m,
+                        Ok(Some(other)) => panic!("the entering side sent {other:?} first"),
+                        Ok(None) => {}
+                        Err(e) => panic!("bad frame from the entering side: {e}"),
+                    }
+                    match recv.read(&mut buf).await {
+                        Ok(Some(n)) => dec.push(&buf[..n]),
+                        _ => return,
+                    }
+                };
+                match how {
+                    Fake::Abort => {
+                        let abort = Control::Pair(telextiles_certs::PairingMessage::Abort(
+                            telextiles_certs::pairing::PairingAbort::CodeUsed,
+                        ));
+                        let _ = send.write_all(&encode_control(&abort).unwrap()).await;
+                    }
+                    Fake::WrongCode => {
+                        let peer_cert = conn
+                            .peer_identity()
+                            .unwrap()
+                            .downcast::<Vec<rustls::pki_types::CertificateDer<'static>>>()
+                            .unwrap()[0]
+                            .clone();
+                        let (mut session, start) = telextiles_certs::PairingSession::start(
+                            telextiles_certs::PairingRole::ShowsCode,
+                            PairingCode::generate(&mut rand::rngs::OsRng),
+                            me.cert_der(),
+                            &peer_cert,
+                            &mut rand::rngs::OsRng,
+                        )
+                        .unwrap();
+                        let telextiles_certs::PairingStep::Send(confirm) =
+                            session.handle(&their_start).unwrap()
+                        else {
+                            panic!("no confirmation")
+                        };
+                        let mut bytes = encode_control(&Control::Pair(start)).unwrap();
+                        bytes.extend(encode_control(&Control::Pair(confirm)).unwrap());
+                        let _ = send.write_all(&bytes).await;
+                    }
+                    Fake::Stall => {}
+                }
+                // Until the entering side hangs up.
+                let _ = tokio::time::timeout(Duration::from_secs(20), conn.closed()).await;
+            });
+        }
+    });
+    (ep, addr, count)
+}
+
+/// Issue 19: anyone on the LAN can advertise `pair=1`, and `pair --enter`
+/// dials every such device. Three that do not know the code: one answers
+/// the entering side's `Start` with an `Abort`, one with a confirmation
+/// for a guessed code, one not at all. None of them may end the entering
+/// side's pairing (the old link failed with `ErrorKind::Pairing` on the
+/// abort, left pairing mode and `pair --enter` exited): each is reported
+/// once as `PairingAttempt` naming its address, none is dialled again
+/// (one exchange, so one online guess, per device; the old dial loop
+/// redialled after every pairing failure), and then the device really
+/// showing the code is dialled (`--connect`'s path) and pairs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
+    let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let mut fakes = Vec::new();
+    for how in [Fake::Abort, Fake::WrongCode, Fake::Stall] {
+        let (ep, addr, count) = fake_shower(&Identity::generate().unwrap(), how);
+        fakes.push((how, ep, addr, count));
+    }
+    let (ca, typed) = show_config("alice");
+    let mut cb = config("bob");
+    cb.pairing = Some(PairingMode::Enter(typed));
+    cb.connect = fakes.iter().map(|f| f.2).collect();
+    // Quick redials: the old loop came back to a device within 0.6 s of a
+    // failed pairing (10 × backoff_max, + jitter).
+    cb.timing.backoff_min = Duration::from_millis(20);
+    cb.timing.backoff_max = Duration::from_millis(50);
+    cb.timing.handshake_timeout = Duration::from_secs(2);
+    let t0 = Instant::now();
+    let (b, mut rb) = start(cb, &ib, &[]).await;
+    let mut attempts: Vec<String> = Vec::new();
+    wait_for(
+        &mut rb,
+        Duration::from_secs(10),
+        "a failed attempt per fake device",
+        |e| match e {
+            LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::PairingAttempt,
+                message,
+                ..
+            } => {
+                attempts.push(message.clone());
+                (attempts.len() == fakes.len()).then_some(())
+            }
+            LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::Pairing,
+                message,
+                ..
+            } => panic!("a device that proved no code ended pairing: {message}"),
+            LinkEvent::Paired { .. } => panic!("paired with a fake device: {e:?}"),
+            _ => None,
+        },
+    )
+    .await;
+    println!(
+        "fake devices: {} attempts reported within {:?}:",
+        attempts.len(),
+        t0.elapsed()
+    );
+    for m in &attempts {
+        println!("  {m}");
+    }
+    for (how, _, addr, _) in &fakes {
+        let m = attempts
+            .iter()
+            .find(|m| m.contains(&addr.to_string()))
+            .unwrap_or_else(|| panic!("{how:?} at {addr} not named: {attempts:#?}"));
+        let want = match how {
+            Fake::Abort => "stopped pairing without proving the code",
+            Fake::WrongCode => "did not prove the code you typed",
+            Fake::Stall => "did not prove the code within 2 s",
+        };
+        assert!(m.contains(want), "{how:?}: {m}");
+    }
+    // Time for several redials of the old loop.
+    for e in drain(&mut rb, Duration::from_millis(1500)).await {
+        if let LinkEvent::Error { kind, message, .. } = &e {
+            assert!(
+                !matches!(
+                    kind,
+                    telextiles_link::ErrorKind::Pairing
+                        | telextiles_link::ErrorKind::PairingAttempt
+                ),
+                "after the attempts: {message}"
+            );
+        }
+        assert!(!matches!(e, LinkEvent::Paired { .. }), "{e:?}");
+    }
+    for (how, _, addr, count) in &fakes {
+        assert_eq!(
+            count.load(Ordering::SeqCst),
+            1,
+            "{how:?} at {addr} was dialled again"
+        );
+    }
+    // Still entering the code: the real device showing it pairs.
+    let (a, mut ra) = start(ca, &ia, &[]).await;
+    b.connect(a.local_addr());
+    for (rx, who, peer) in [(&mut ra, "alice", &ib), (&mut rb, "bob", &ia)] {
+        let got = wait_for(
+            rx,
+            Duration::from_secs(10),
+            &format!("Paired on {who}"),
+            |e| match e {
+                LinkEvent::Paired { peer, .. } => Some(*peer),
+                LinkEvent::Error {
+                    kind: telextiles_link::ErrorKind::Pairing,
+                    message,
+                    ..
+                } => panic!("{who}: {message}"),
+                _ => None,
+            },
+        )
+        .await;
+        assert_eq!(got, peer.device_id(), "{who}");
+    }
+    wait_for(
+        &mut rb,
+        Duration::from_secs(10),
+        "PeerUp on bob",
+        |e| match e {
+            LinkEvent::PeerUp { peer, .. } => (*peer == ia.device_id()).then_some(()),
+            _ => None,
+        },
+    )
+    .await;
+    for (how, ep, addr, count) in &fakes {
+        assert_eq!(
+            count.load(Ordering::SeqCst),
+            1,
+            "{how:?} at {addr} was dialled again"
+        );
+        ep.close(0u32.into(), b"bye");
+    }
+    a.shutdown().await;
+    b.shutdown().await;
 }
