@@ -115,6 +115,14 @@ pub fn discovery_config(cfg: &Config) -> DiscoveryConfig {
     }
 }
 
+/// Why `pair --enter` gave up at its deadline.
+pub fn enter_expired_message() -> String {
+    format!(
+        "no device proved the code within {} minutes; check the code shown on the other device (it expires after that time too) and run `telextilesd pair --enter` again",
+        DEFAULT_CODE_TTL.as_secs() / 60
+    )
+}
+
 pub fn resolve(list: &[String]) -> anyhow::Result<Vec<SocketAddr>> {
     let mut out = Vec::new();
     for s in list {
@@ -218,10 +226,15 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
         None
     };
     let pairing = mode.is_some();
-    let show_deadline = match &mode {
+    // A shown code expires; entering a code gives up after the same time
+    // (devices that fail to prove the code do not end it, see
+    // `ErrorKind::PairingAttempt`, so something must).
+    let pairing_deadline = match &mode {
         Some(PairingMode::Show(o)) => Some(o.expires_at()),
-        _ => None,
+        Some(PairingMode::Enter(_)) => Some(Instant::now() + DEFAULT_CODE_TTL),
+        None => None,
     };
+    let entering = matches!(mode, Some(PairingMode::Enter(_)));
     if !args.no_session {
         if !cfg.mdns && cfg.connect.is_empty() && matches!(mode, Some(PairingMode::Enter(_))) {
             bail!("mDNS is off and no --connect address was given: there is no way to find the device showing the code");
@@ -232,7 +245,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             cfg,
             crate::session::SessionOptions {
                 pairing: mode,
-                pairing_deadline: show_deadline,
+                pairing_deadline,
                 sim_roller_speed: args.sim_roller_speed,
                 sim_gap_frames: None,
                 latency_trace: args.latency_trace.clone(),
@@ -256,7 +269,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     let mut paired_now = !pairing;
     loop {
         let expiry = async {
-            match show_deadline {
+            match pairing_deadline {
                 Some(t) if !paired_now => {
                     tokio::time::sleep_until(tokio::time::Instant::from_std(t)).await
                 }
@@ -272,6 +285,9 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             }
             _ = expiry => {
                 link.shutdown().await;
+                if entering {
+                    bail!("{}", enter_expired_message());
+                }
                 bail!("the pairing code expired before the other device used it; run `telextilesd pair` again for a new code");
             }
         };
@@ -323,6 +339,8 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             LinkEvent::Latent(_) | LinkEvent::Control { .. } => {}
             LinkEvent::Error { kind, message, .. } => {
                 eprintln!("error: {message}");
+                // `PairingAttempt`: one device failed to prove the code;
+                // pairing goes on with the others (until the deadline).
                 if kind == ErrorKind::Pairing && pairing && !paired_now {
                     link.shutdown().await;
                     bail!("pairing failed");

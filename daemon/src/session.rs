@@ -59,8 +59,9 @@ use sensing::SensorCmd;
 pub struct SessionOptions {
     /// Pair first (the `telextilesd pair` flow).
     pub pairing: Option<PairingMode>,
-    /// A shown pairing code expires at this time: the session ends with an
-    /// error if no device used it by then.
+    /// A shown pairing code expires at this time, or entering a code gives
+    /// up at this time: the session ends with an error if pairing has not
+    /// succeeded by then.
     pub pairing_deadline: Option<std::time::Instant>,
     /// Simulated roller speed factor (1 = a real roller).
     pub sim_roller_speed: Option<f64>,
@@ -174,6 +175,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     lc.data_dir = Some(cfg.state_dir.clone());
     lc.pairing = opts.pairing.take();
     let pairing = lc.pairing.is_some();
+    let entering = matches!(lc.pairing, Some(PairingMode::Enter(_)));
     let (link, mut link_rx) = telextiles_link::Link::start(lc, identity, pins.clone()).await?;
     eprintln!(
         "{} ({}) listening on {}",
@@ -309,7 +311,11 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     tokio::select! {
         _ = shutdown_rx.wait_for(|v| *v) => {}
         _ = expiry => {
-            *lock(&state.fatal) = Some("the pairing code expired before the other device used it; run `telextilesd pair` again for a new code".into());
+            *lock(&state.fatal) = Some(if entering {
+                crate::cmd_pair::enter_expired_message()
+            } else {
+                "the pairing code expired before the other device used it; run `telextilesd pair` again for a new code".into()
+            });
         }
         _ = tokio::signal::ctrl_c() => { eprintln!("interrupted"); }
         _ = sigterm() => {}

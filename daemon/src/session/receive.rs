@@ -79,6 +79,8 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
         }
         LinkEvent::Error { kind, message, .. } => {
             eprintln!("error: {message}");
+            // `PairingAttempt`: one device failed to prove the code;
+            // pairing goes on with the others (until the deadline).
             if kind == telextiles_link::ErrorKind::Pairing && *lock(&state.pairing_pending) {
                 *lock(&state.fatal) = Some("pairing failed".into());
                 let _ = state.shutdown.send(true);
