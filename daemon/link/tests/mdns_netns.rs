@@ -1,11 +1,14 @@
 //! mDNS in a private network namespace (root needed; without it the test
 //! fails, it does not skip): the `pair=1` flag of a device showing a
-//! pairing code is withdrawn from its advert as soon as pairing ends.
+//! pairing code is withdrawn from its advert as soon as pairing ends; fake
+//! `pair=1` advertisers neither block nor end pairing.
 //!
 //! The outer test makes a namespace whose only interface is its own
 //! loopback (multicast enabled), and re-runs this test binary inside it
 //! (`ip netns exec`) for the inner test, so no multicast ever leaves it.
 use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, DEFAULT_CODE_TTL};
@@ -76,6 +79,16 @@ fn pairing_flag_is_withdrawn_from_the_advert_once_paired() {
 #[test]
 fn a_spoofed_pairing_advert_does_not_block_pairing() {
     run_inner("inner_spoofed_pairing_advert");
+}
+
+/// A `pair=1` advertiser that answers the entering side's `Start` with an
+/// `Abort` (it proved no code) must not end `pair --enter` and must not be
+/// dialled again (the old link failed pairing on the abort; its pairing
+/// dial loop redialled after every failure): the mDNS path of
+/// `hostile.rs::fake_devices_showing_a_code_neither_end_entering_nor_are_redialled`.
+#[test]
+fn an_aborting_pairing_advertiser_neither_ends_entering_nor_is_redialled() {
+    run_inner("inner_aborting_pairing_advertiser");
 }
 
 fn hello() -> HelloInfo {
@@ -212,6 +225,140 @@ async fn inner_spoofed_pairing_advert() {
         }
     }
     println!("paired with the real advertiser despite the spoofed one");
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+/// A QUIC server that accepts any client certificate (like a device
+/// showing a code) and answers the first message with an `Abort`. Returns
+/// its endpoint and how many connection attempts reached it.
+fn aborting_server(me: &Identity) -> (quinn::Endpoint, Arc<AtomicUsize>) {
+    let tls =
+        telextiles_certs::server_config(me, telextiles_certs::PeerPolicy::AnyForPairing).unwrap();
+    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls).unwrap();
+    let cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
+    let ep = quinn::Endpoint::server(cfg, "127.0.0.1:0".parse().unwrap()).unwrap();
+    let count = Arc::new(AtomicUsize::new(0));
+    let (ep2, count2) = (ep.clone(), count.clone());
+    tokio::spawn(async move {
+        while let Some(incoming) = ep2.accept().await {
+            count2.fetch_add(1, Ordering::SeqCst);
+            tokio::spawn(async move {
+                let Ok(conn) = incoming.await else { return };
+                let Ok((mut send, mut recv)) = conn.accept_bi().await else {
+                    return;
+                };
+                let mut buf = [0u8; 4096];
+                if !matches!(recv.read(&mut buf).await, Ok(Some(_))) {
+                    return;
+                }
+                let abort =
+                    telextiles_proto::peer::Control::Pair(telextiles_certs::PairingMessage::Abort(
+                        telextiles_certs::pairing::PairingAbort::NotPairing,
+                    ));
+                let _ = send
+                    .write_all(&telextiles_proto::peer::encode_control(&abort).unwrap())
+                    .await;
+                let _ = tokio::time::timeout(Duration::from_secs(20), conn.closed()).await;
+            });
+        }
+    });
+    (ep, count)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "run inside a private network namespace by an_aborting_pairing_advertiser_neither_ends_entering_nor_is_redialled"]
+async fn inner_aborting_pairing_advertiser() {
+    assert!(
+        std::env::var_os(INNER_ENV).is_some(),
+        "run by the outer test only"
+    );
+    let (ia, ib, fake) = (
+        Identity::generate().unwrap(),
+        Identity::generate().unwrap(),
+        Identity::generate().unwrap(),
+    );
+    let offer = CodeOffer::new(
+        &mut rand::rngs::OsRng,
+        std::time::Instant::now(),
+        DEFAULT_CODE_TTL,
+    );
+    let typed: PairingCode = offer.display().parse().unwrap();
+    // The fake advertiser first.
+    let (fake_ep, dials) = aborting_server(&fake);
+    let (_fake_advert, _) = Discovery::start(
+        &DiscoveryConfig::only(&["lo"]),
+        &fake.device_id(),
+        fake_ep.local_addr().unwrap().port(),
+        true,
+    )
+    .unwrap();
+    // Bob enters the code and browses; quick redials (the old loop came
+    // back within 0.6 s of a failed pairing).
+    let mut cb = LinkConfig::new("bob", "127.0.0.1:0".parse().unwrap(), hello());
+    cb.pairing = Some(PairingMode::Enter(typed));
+    cb.discovery = Some(DiscoveryConfig::only(&["lo"]));
+    cb.timing.backoff_min = Duration::from_millis(20);
+    cb.timing.backoff_max = Duration::from_millis(50);
+    let (b, mut rb) = Link::start(cb, ib.clone(), PinSet::default())
+        .await
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        match tokio::time::timeout_at(deadline, rb.recv()).await {
+            Ok(Some(LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::PairingAttempt,
+                message,
+                ..
+            })) => {
+                println!("bob: {message}");
+                break;
+            }
+            Ok(Some(LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::Pairing,
+                message,
+                ..
+            })) => panic!("the fake advertiser ended pairing: {message}"),
+            Ok(Some(_)) => {}
+            other => panic!("bob did not try the fake advertiser: {other:?}"),
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(
+        dials.load(Ordering::SeqCst),
+        1,
+        "the fake was dialled again"
+    );
+    // Then the real device shows its code.
+    let mut ca = LinkConfig::new("alice", "127.0.0.1:0".parse().unwrap(), hello());
+    ca.pairing = Some(PairingMode::Show(offer));
+    ca.discovery = Some(DiscoveryConfig::only(&["lo"]));
+    let (a, _ra) = Link::start(ca, ia.clone(), PinSet::default())
+        .await
+        .unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(15);
+    loop {
+        match tokio::time::timeout_at(deadline, rb.recv()).await {
+            Ok(Some(LinkEvent::Paired { peer, .. })) => {
+                assert_eq!(peer, ia.device_id());
+                break;
+            }
+            Ok(Some(LinkEvent::Error {
+                kind: telextiles_link::ErrorKind::Pairing,
+                message,
+                ..
+            })) => panic!("pairing ended: {message}"),
+            Ok(Some(_)) => {}
+            other => panic!("bob did not pair with the real device: {other:?}"),
+        }
+    }
+    assert_eq!(
+        dials.load(Ordering::SeqCst),
+        1,
+        "the fake was dialled again"
+    );
+    println!("paired with the real advertiser after a fake one aborted");
+    fake_ep.close(0u32.into(), b"bye");
     a.shutdown().await;
     b.shutdown().await;
 }
