@@ -1,6 +1,7 @@
 //! `telextilesd pair` end to end on 127.0.0.1 (real processes, real QUIC,
 //! mDNS off): one side shows a code, the other passes it with --code; both
-//! print the same verification code and go live. A wrong code fails on both.
+//! print the same verification code and go live. A wrong code ends the
+//! showing side and is one failed attempt on the entering side.
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
@@ -164,9 +165,19 @@ fn wrong_code_fails_on_both_sides() {
         &["--listen", &b_listen, "--connect", &addr, "--code", &wrong],
         db.path(),
     );
-    b.expect("did not match");
-    b.expect("pairing failed");
+    // b, entering the code, judged a's confirmation itself: one failed
+    // attempt (a device that proved no code cannot end `pair --code`; it
+    // keeps looking until the code's lifetime has passed). a, showing the
+    // code, used it up: its pairing fails and the command ends.
+    let eb = b.expect("did not match");
+    assert!(eb.contains("still looking"), "{eb}");
     a.expect("did not match");
-    let status = b.child.wait().unwrap();
+    a.expect("pairing failed");
+    let status = a.child.wait().unwrap();
     assert!(!status.success());
+    std::thread::sleep(Duration::from_secs(1));
+    assert!(
+        b.child.try_wait().unwrap().is_none(),
+        "pair --code ended on a failed attempt"
+    );
 }

@@ -297,8 +297,10 @@ fn link_wrong_code_fails_on_both_sides() {
             &wrong,
         ]),
     );
-    let ea = a.expect("error Pairing", Duration::from_secs(10));
-    let eb = b.expect("error Pairing", Duration::from_secs(10));
+    // a's code is used up; b, entering it, failed one attempt (a proved no
+    // code b typed) and keeps looking.
+    let ea = a.expect("error Pairing ", Duration::from_secs(10));
+    let eb = b.expect("error PairingAttempt ", Duration::from_secs(10));
     println!("a: {ea}\nb: {eb}");
     assert!(ea.contains("did not match") && eb.contains("did not match"));
     assert!(TrustStore::load(da.path()).unwrap().is_empty());
