@@ -87,6 +87,12 @@ struct SimPressesArgs {
     /// Base seed.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Simulator catalogue (1 or 2).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+    catalogue: u32,
+    /// Texture generator of catalogue 2 (1 or 2).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+    generator: u32,
 }
 
 #[derive(Args)]
@@ -147,6 +153,10 @@ struct BenchArgs {
     roller: String,
     #[command(flatten)]
     recorded: SplitArgs,
+    /// Also score every method on the cross-generator test set (the same
+    /// protocol rendered by texture generator 2; needs --catalogue 2).
+    #[arg(long)]
+    cross_generator: bool,
     /// Where the results go [default: docs/bench for the simulator;
     /// required for presses:<dir>].
     #[arg(long)]
@@ -200,6 +210,15 @@ struct DataArgs {
     /// one ONNX Runtime thread each).
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Simulator catalogue: 1 (the original lattices, bit-identical) or 2
+    /// (bolts with swatches, irregular relief, 16+ sensor units; see
+    /// docs/simulator.md).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+    catalogue: u32,
+    /// Texture generator of catalogue 2: 1 (structural; what methods are
+    /// chosen on) or 2 (Gabor noise; the cross-generator test set).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+    generator: u32,
 }
 
 impl DataArgs {
@@ -218,6 +237,8 @@ impl DataArgs {
         let mut p = Protocol::paper(self.input, self.crop);
         p.train_frames = self.train_frames;
         p.max_textiles = self.textiles;
+        p.catalogue = self.catalogue;
+        p.generator = self.generator;
         p
     }
 }
@@ -749,6 +770,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         },
         decision_frames: a.decision_frames,
         roller,
+        cross_generator: a.cross_generator,
         out: out.clone(),
     };
     let r = report::run(&cfg, &list)?;
@@ -810,7 +832,8 @@ fn sim_presses(a: SimPressesArgs) -> Result<()> {
         !a.sensors.is_empty() && !a.people.is_empty(),
         "--sensors and --people need at least one value"
     );
-    let sim = Simulator::new().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let sim =
+        Simulator::with_options(a.catalogue, a.generator).map_err(|e| anyhow::anyhow!("{e}"))?;
     let textiles: Vec<String> = if a.textiles.is_empty() {
         sim.catalogue()
             .training()

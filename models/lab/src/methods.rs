@@ -241,6 +241,11 @@ pub struct MethodResult {
     /// Frames (index and queries) whose embedding has a NaN or infinity.
     #[serde(default)]
     pub nonfinite_frames: usize,
+    /// Per-press top-1 of groups of queries against the same index:
+    /// held-out people on training units, on held-out units, and
+    /// hand-held presses.
+    #[serde(default)]
+    pub groups: Vec<GroupScore>,
 }
 
 /// Rows of an embedding matrix with a NaN or infinity.
@@ -333,6 +338,8 @@ pub struct View {
     pub heldout: ImageSet,
     /// The held-out people's presses of the unseen textiles.
     pub unseen: ImageSet,
+    /// The first held-out person's hand-held presses (training textiles).
+    pub handheld: ImageSet,
     /// The sensors' no-contact references.
     pub backgrounds: ImageSet,
 }
@@ -359,6 +366,7 @@ impl<'a> Views<'a> {
                 train_index: view_set(&self.sets.train_index, crop, input)?,
                 heldout: view_set(&self.sets.heldout, crop, input)?,
                 unseen: view_set(&self.sets.unseen, crop, input)?,
+                handheld: view_set(&self.sets.handheld, crop, input)?,
                 backgrounds: view_set(&self.sets.backgrounds, crop, input)?,
             };
             self.cache.insert((crop, input), v);
@@ -418,6 +426,44 @@ pub fn evaluate(
         by_frames.push((n, top1(&index, &labels, &q, &ql, dim)));
     }
     let press_top1 = by_frames.last().map_or(f64::NAN, |x| x.1);
+    // The same index against groups of queries: held-out people on a
+    // sensor unit the training people used, on units nobody trained on,
+    // and hand-held presses.
+    let train_units: std::collections::BTreeSet<u32> =
+        train_index.items.iter().map(|it| it.sensor).collect();
+    let mut groups = vec![
+        group_score(
+            "held-out people, training units",
+            &index,
+            &labels,
+            &qe,
+            dim,
+            heldout,
+            |it| train_units.contains(&it.sensor),
+        ),
+        group_score(
+            "held-out people, held-out units",
+            &index,
+            &labels,
+            &qe,
+            dim,
+            heldout,
+            |it| !train_units.contains(&it.sensor),
+        ),
+    ];
+    if !v.handheld.is_empty() {
+        let (he, _) = emb.embed(&v.handheld, |s| background_of(bgs, s))?;
+        groups.push(group_score(
+            "hand-held queries, jig index",
+            &index,
+            &labels,
+            &he,
+            dim,
+            &v.handheld,
+            |_| true,
+        ));
+    }
+    groups.retain(|g| g.presses > 0);
     let nonfinite_frames = nonfinite_rows(&ie, dim) + nonfinite_rows(&qe, dim);
     if nonfinite_frames > 0 {
         eprintln!(
@@ -446,7 +492,53 @@ pub fn evaluate(
         queries: qlabels.len(),
         presses: presses.len(),
         nonfinite_frames,
+        groups,
     })
+}
+
+/// Per-press top-1 of one group of queries (see [`MethodResult::groups`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct GroupScore {
+    /// What the group is.
+    pub name: String,
+    /// Query presses in it.
+    pub presses: usize,
+    /// kNN top-1 of the mean embedding of each press's frames.
+    pub press_top1: f64,
+}
+
+/// Top-1 per press of the presses of `set` whose frames pass `keep`
+/// (embeddings `qe`, rows in `set` order) against `index`.
+fn group_score(
+    name: &str,
+    index: &[f32],
+    labels: &[u32],
+    qe: &[f32],
+    dim: usize,
+    set: &ImageSet,
+    keep: impl Fn(&crate::data::FrameMeta) -> bool,
+) -> GroupScore {
+    let mut presses: std::collections::BTreeMap<(u32, u32, u32), Vec<usize>> = Default::default();
+    for (i, it) in set.items.iter().enumerate() {
+        if keep(it) {
+            presses
+                .entry((it.person, it.press, it.class))
+                .or_default()
+                .push(i);
+        }
+    }
+    let mut q = Vec::new();
+    let mut ql = Vec::new();
+    for (&(_, _, class), frames) in &presses {
+        q.extend(mean_rows(qe, dim, frames));
+        ql.push(class);
+    }
+    normalize_rows(&mut q, dim);
+    GroupScore {
+        name: name.to_string(),
+        presses: presses.len(),
+        press_top1: top1(index, labels, &q, &ql, dim),
+    }
 }
 
 /// Sum of the given rows (normalise afterwards for a mean direction).

@@ -44,6 +44,22 @@ pub struct Protocol {
     pub query_frames: usize,
     /// Only the first N training textiles.
     pub max_textiles: Option<usize>,
+    /// Simulator catalogue version (1 or 2). Left out of the cache key when
+    /// 1, so version-1 caches keep their names.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub catalogue: u32,
+    /// Texture generator of catalogue 2 (1: training and method selection;
+    /// 2: the independent cross-generator test set).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub generator: u32,
+}
+
+fn one() -> u32 {
+    1
+}
+
+fn is_one(v: &u32) -> bool {
+    *v == 1
 }
 
 impl Protocol {
@@ -59,6 +75,17 @@ impl Protocol {
             index_frames: 6,
             query_frames: 3,
             max_textiles: None,
+            catalogue: 1,
+            generator: 1,
+        }
+    }
+
+    /// The same protocol on another texture generator (the cross-generator
+    /// test set of catalogue 2).
+    pub fn with_generator(&self, generator: u32) -> Protocol {
+        Protocol {
+            generator,
+            ..self.clone()
         }
     }
 }
@@ -94,10 +121,19 @@ pub fn spread(lo: usize, hi: usize, n: usize) -> Vec<usize> {
     v
 }
 
-fn make_source(kind: SourceKind) -> Result<Box<dyn FrameSource>> {
+fn make_source(kind: SourceKind, p: &Protocol) -> Result<Box<dyn FrameSource>> {
     Ok(match kind {
-        SourceKind::Sim => Box::new(crate::simsource::SimSource::new()?),
-        SourceKind::Synth => Box::new(crate::synth::SynthSource),
+        SourceKind::Sim => Box::new(crate::simsource::SimSource::with_options(
+            p.catalogue,
+            p.generator,
+        )?),
+        SourceKind::Synth => {
+            anyhow::ensure!(
+                p.catalogue == 1 && p.generator == 1,
+                "the synth source has no catalogue versions or generators (--catalogue/--generator are for --source sim)"
+            );
+            Box::new(crate::synth::SynthSource)
+        }
     })
 }
 
@@ -182,7 +218,7 @@ pub fn load_or_build(
 /// Load the protocol's caches at [`BASE_SIDE`] (whatever `p.input` and
 /// `p.crop` say), rendering them first if needed.
 pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usize) -> Result<Sets> {
-    let source = make_source(kind)?;
+    let source = make_source(kind, p)?;
     // One cache serves every crop and input size.
     let p = &Protocol {
         input: BASE_SIDE,

@@ -1151,6 +1151,7 @@ pub fn score_all(
                 queries: s.frames,
                 presses: s.presses,
                 nonfinite_frames: s.nonfinite,
+                groups: Vec::new(),
             },
             press_top1_centroid: ratio(s.centroid_correct, s.presses),
             press_top1_decider: ratio(s.decider_correct, s.presses),

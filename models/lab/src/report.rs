@@ -46,6 +46,10 @@ pub struct BenchConfig {
     pub decision_frames: usize,
     /// Roller textiles (ids) for the user test; empty skips it.
     pub roller: Vec<String>,
+    /// Also score every method on the same protocol rendered by texture
+    /// generator 2 (catalogue 2 only): methods are chosen on generator 1
+    /// and reported on an independent construction.
+    pub cross_generator: bool,
     /// Where the results go.
     pub out: PathBuf,
 }
@@ -99,6 +103,10 @@ pub struct BenchReport {
     pub command: String,
     pub source: String,
     pub methods: Vec<MethodResult>,
+    /// The same methods on the cross-generator test set (accuracy only;
+    /// empty unless asked for).
+    #[serde(default)]
+    pub cross_generator: Vec<MethodResult>,
     pub pareto: Vec<String>,
     pub knee: Option<String>,
     pub decision: Vec<DecisionCurve>,
@@ -138,6 +146,13 @@ pub fn today() -> String {
 /// Runs the bench and writes its files.
 pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
     ensure!(!methods.is_empty(), "no methods to measure");
+    ensure!(
+        !cfg.cross_generator
+            || (cfg.source == SourceKind::Sim
+                && cfg.protocol.catalogue == 2
+                && cfg.protocol.generator == 1),
+        "the cross-generator set needs --source sim --catalogue 2 (and generator 1 for the main study)"
+    );
     let mut seconds = Vec::new();
     let t = Instant::now();
     let sets = protocol::load_base(&cfg.protocol, cfg.source, &cfg.cache_dir, cfg.threads)?;
@@ -173,6 +188,35 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
         .collect();
     let knee = methods::knee(&results).map(|i| results[i].name.clone());
     seconds.push(("speed and accuracy".to_string(), t.elapsed().as_secs_f64()));
+
+    // 1b. The cross-generator test set: the same protocol, textures from
+    // the independent generator; nothing was chosen on it.
+    let mut cross = Vec::new();
+    if cfg.cross_generator {
+        let t = Instant::now();
+        let p2 = cfg.protocol.with_generator(2);
+        let sets2 = protocol::load_base(&p2, cfg.source, &cfg.cache_dir, cfg.threads)?;
+        let mut views2 = Views::new(&sets2);
+        let bar = telextiles_progress::Progress::new(
+            "cross-generator set",
+            methods.len() as u64,
+            "methods",
+        );
+        for m in methods {
+            bar.set_message(&m.name());
+            let r = methods::evaluate(m, &mut views2, &[], 0)
+                .with_context(|| format!("method {} on the cross-generator set", m.name()))?;
+            bar.println(&format!(
+                "{} on generator 2: top-1 per press {:.2}%",
+                r.name,
+                100.0 * r.press_top1
+            ));
+            bar.inc(1);
+            cross.push(r);
+        }
+        bar.finish();
+        seconds.push(("cross-generator set".to_string(), t.elapsed().as_secs_f64()));
+    }
 
     // 2. The user test on the roller textiles.
     let t = Instant::now();
@@ -230,7 +274,9 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
     let mut decision = Vec::new();
     let mut stab = None;
     if cfg.source == SourceKind::Sim {
-        let sim = telextiles_sim::Simulator::new().map_err(|e| anyhow::anyhow!("{e}"))?;
+        let sim =
+            telextiles_sim::Simulator::with_options(cfg.protocol.catalogue, cfg.protocol.generator)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
         if cfg.decision_frames > 0 {
             let t = Instant::now();
             let training: Vec<String> = sets
@@ -272,8 +318,12 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
         machine: machine(),
         date: today(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
-        source: format!("{:?}", cfg.source).to_lowercase(),
+        source: match (cfg.source, cfg.protocol.catalogue) {
+            (SourceKind::Sim, c) if c != 1 => format!("sim, catalogue {c}"),
+            (s, _) => format!("{s:?}").to_lowercase(),
+        },
         methods: results,
+        cross_generator: cross,
         pareto,
         knee,
         decision,
@@ -357,6 +407,76 @@ fn pct(x: f64) -> String {
     }
 }
 
+/// Per-press top-1 by group of queries (held-out people on training
+/// units, on held-out units, hand-held) and on the cross-generator set.
+pub fn groups_markdown(results: &[MethodResult], cross: &[MethodResult]) -> String {
+    let mut names: Vec<String> = Vec::new();
+    for r in results {
+        for g in &r.groups {
+            if !names.contains(&g.name) {
+                names.push(g.name.clone());
+            }
+        }
+    }
+    if names.is_empty() && cross.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "## Across people, sensor units, hand-held presses and generators (top-1 per press)\n\nEvery column uses the same index (the training people's jig presses).\n\n| method | all held-out |",
+    );
+    for n in &names {
+        s.push_str(&format!(" {n} |"));
+    }
+    if !cross.is_empty() {
+        s.push_str(" cross-generator (all held-out) | cross-generator, held-out units | cross-generator, hand-held |");
+    }
+    let cols = 1 + names.len() + if cross.is_empty() { 0 } else { 3 };
+    s.push_str(&format!("\n|---|{}\n", "---:|".repeat(cols)));
+    let pct = |v: f64| {
+        if v.is_nan() {
+            "-".to_string()
+        } else {
+            format!("{:.1}%", 100.0 * v)
+        }
+    };
+    let group = |r: &MethodResult, n: &str| {
+        r.groups
+            .iter()
+            .find(|g| g.name == n)
+            .map_or(f64::NAN, |g| g.press_top1)
+    };
+    for r in results {
+        s.push_str(&format!("| {} | {} |", r.name, pct(r.press_top1)));
+        for n in &names {
+            s.push_str(&format!(" {} |", pct(group(r, n))));
+        }
+        if !cross.is_empty() {
+            match cross.iter().find(|c| c.name == r.name) {
+                Some(c) => s.push_str(&format!(
+                    " {} | {} | {} |",
+                    pct(c.press_top1),
+                    pct(group(c, "held-out people, held-out units")),
+                    pct(group(c, "hand-held queries, jig index"))
+                )),
+                None => s.push_str(" - | - | - |"),
+            }
+        }
+        s.push('\n');
+    }
+    if let Some(n) = results.first().map(|r| &r.groups) {
+        let counts: Vec<String> = n
+            .iter()
+            .map(|g| format!("{}: {} presses", g.name, g.presses))
+            .collect();
+        s.push_str(&format!(
+            "\nQuery presses per group: {}.\n",
+            counts.join("; ")
+        ));
+    }
+    s.push('\n');
+    s
+}
+
 /// The report's tables.
 pub fn markdown(r: &BenchReport) -> String {
     let mut s = String::new();
@@ -371,6 +491,7 @@ pub fn markdown(r: &BenchReport) -> String {
         r.pareto.join(", "),
         r.knee.as_deref().unwrap_or("-")
     ));
+    s.push_str(&groups_markdown(&r.methods, &r.cross_generator));
     if !r.decision.is_empty() {
         s.push_str("## Accuracy against time since first contact\n\n| method | 50 ms (3 frames) | 100 ms (6) | 250 ms (15) | 500 ms (30) | best |\n|---|---:|---:|---:|---:|---:|\n");
         for d in &r.decision {

@@ -12,10 +12,17 @@ pub struct SimSource {
 }
 
 impl SimSource {
-    /// Load the simulator (embedded calibration).
+    /// Load the simulator (embedded calibration), catalogue 1.
     pub fn new() -> Result<Self> {
+        Self::with_options(1, 1)
+    }
+
+    /// Catalogue `catalogue` (1 or 2) with texture generator `generator`
+    /// (2, the cross-generator test set, needs catalogue 2).
+    pub fn with_options(catalogue: u32, generator: u32) -> Result<Self> {
         Ok(SimSource {
-            sim: Simulator::new().map_err(|e| anyhow!("simulator: {e}"))?,
+            sim: Simulator::with_options(catalogue, generator)
+                .map_err(|e| anyhow!("simulator: {e}"))?,
         })
     }
 
@@ -31,7 +38,14 @@ impl SimSource {
 
 impl FrameSource for SimSource {
     fn describe(&self) -> String {
-        format!("telextiles-sim catalogue v{}", self.sim.catalogue().version)
+        // Version 1 keeps its old description (and so its cache names).
+        match self.sim.generator() {
+            1 => format!("telextiles-sim catalogue v{}", self.sim.catalogue().version),
+            g => format!(
+                "telextiles-sim catalogue v{} generator {g}",
+                self.sim.catalogue().version
+            ),
+        }
     }
 
     fn frames_per_press(&self) -> usize {

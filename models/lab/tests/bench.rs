@@ -52,6 +52,7 @@ fn the_bench_runs_end_to_end_on_simulated_presses() {
         }),
         decision_frames: 4,
         roller: vec!["T001".into(), "T002".into()],
+        cross_generator: false,
         out: out.clone(),
     };
     let r = report::run(&cfg, &methods).unwrap();
@@ -137,4 +138,93 @@ fn the_bench_runs_end_to_end_on_simulated_presses() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
     assert_eq!(json["knee"], serde_json::Value::String(knee));
+}
+
+/// Catalogue 2 (issue 18): the bench renders v2 caches (their own cache
+/// directory, v1's untouched), scores every method per group of queries
+/// (held-out people on training units, on held-out units, hand-held) and
+/// on the cross-generator set rendered by the other texture generator.
+#[test]
+fn the_bench_reports_catalogue_2_by_group_and_across_generators() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let mut p = Protocol::paper(64, 64);
+    p.max_textiles = Some(3);
+    p.catalogue = 2;
+    let methods: Vec<Method> = report::descriptor_methods()
+        .unwrap()
+        .into_iter()
+        .filter(|m| ["fft-radial-c64-bg", "pixels16-c64"].contains(&m.name().as_str()))
+        .collect();
+    assert_eq!(methods.len(), 2);
+    let cfg = BenchConfig {
+        source: SourceKind::Sim,
+        protocol: p.clone(),
+        cache_dir: dir.path().join("cache"),
+        threads: 2,
+        models: vec![],
+        time_threads: vec![1],
+        runs: 3,
+        stability: None,
+        decision_frames: 0,
+        roller: vec![],
+        cross_generator: true,
+        out: out.clone(),
+    };
+    let r = report::run(&cfg, &methods).unwrap();
+    assert_eq!(r.source, "sim, catalogue 2");
+    assert_eq!(r.cross_generator.len(), 2);
+    for m in r.methods.iter().chain(&r.cross_generator) {
+        let names: Vec<&str> = m.groups.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "held-out people, training units",
+                "held-out people, held-out units",
+                "hand-held queries, jig index"
+            ],
+            "{}",
+            m.name
+        );
+        // 3 textiles: person 8 on unit 0; persons 9, 10 on units 4, 5;
+        // person 8 hand-held.
+        let presses: Vec<usize> = m.groups.iter().map(|g| g.presses).collect();
+        assert_eq!(presses, [3, 6, 3], "{}", m.name);
+        for g in &m.groups {
+            assert!((0.0..=1.0).contains(&g.press_top1), "{g:?}");
+        }
+    }
+    // Two cache directories: generator 1 and generator 2 render different
+    // frames of the same protocol.
+    let caches: Vec<_> = std::fs::read_dir(dir.path().join("cache"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(caches.len(), 2, "{caches:?}");
+    let a = std::fs::read(caches[0].join("heldout.bin")).unwrap();
+    let b = std::fs::read(caches[1].join("heldout.bin")).unwrap();
+    assert_ne!(a, b);
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("cross-generator (all held-out)"), "{md}");
+    assert!(md.contains("held-out people, held-out units"), "{md}");
+    // Generator 2 without catalogue 2 is refused with a clear error.
+    let mut bad = cfg.clone();
+    bad.protocol.catalogue = 1;
+    let e = report::run(&bad, &methods).unwrap_err();
+    assert!(format!("{e:#}").contains("--catalogue 2"), "{e:#}");
+}
+
+/// Version-1 caches keep their names: the new protocol fields stay out of
+/// the cache key at their defaults.
+#[test]
+fn catalogue_1_protocol_serialises_as_before() {
+    let p = Protocol::paper(64, 168);
+    let j = serde_json::to_string(&p).unwrap();
+    assert!(!j.contains("catalogue") && !j.contains("generator"), "{j}");
+    let mut p2 = p.clone();
+    p2.catalogue = 2;
+    let j2 = serde_json::to_string(&p2).unwrap();
+    assert!(j2.contains("\"catalogue\":2"), "{j2}");
+    let back: Protocol = serde_json::from_str(&j).unwrap();
+    assert_eq!(back, p);
 }

@@ -129,6 +129,7 @@ fn result(name: &str, ms: f64, acc: f64) -> MethodResult {
         queries: 1,
         presses: 1,
         nonfinite_frames: 0,
+        groups: Vec::new(),
     }
 }
 
