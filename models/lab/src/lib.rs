@@ -20,6 +20,7 @@ pub mod recorded;
 pub mod report;
 pub mod simsource;
 pub mod stability;
+pub mod supcon;
 pub mod synth;
 pub mod train;
 pub mod usertest;

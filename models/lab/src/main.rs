@@ -49,10 +49,64 @@ enum Cmd {
     /// int8 version of an ONNX model: ONNX Runtime static quantisation
     /// calibrated on the training people's DIGIT frames.
     Quantize(QuantizeArgs),
+    /// Train the contrastive encoder with the robust recipe (issue 20):
+    /// frame minus reference, physical augmentations, supervised
+    /// contrastive positives across people, units, rotations and swatches;
+    /// exports the best checkpoint (by validation) to ONNX.
+    TrainSupcon(SupconArgs),
     /// Write simulated presses in the on-disk press format, laid out as
     /// `telextilesd record` lays out recordings (`<out>/<textile>/<press>/`):
     /// a stand-in for your own recordings to try `--source presses:<dir>`.
     SimPresses(SimPressesArgs),
+}
+
+#[derive(Args)]
+struct SupconArgs {
+    /// Architecture (fully convolutional ResNet; input size = -s<N>).
+    #[arg(long, default_value = "resnet-d1111-w16-s96")]
+    arch: String,
+    /// Deployment centre crop (px of the frame).
+    #[arg(long, default_value_t = 192)]
+    crop: u32,
+    /// Simulator catalogue and texture generator of the training presses.
+    #[arg(long, default_value_t = 2)]
+    catalogue: u32,
+    #[arg(long, default_value_t = 1)]
+    generator: u32,
+    /// Presses rendered per training textile.
+    #[arg(long, default_value_t = 14)]
+    presses_per_textile: usize,
+    /// Only the first N training textiles (quick runs).
+    #[arg(long)]
+    textiles: Option<usize>,
+    /// Training steps, and a validation every this many.
+    #[arg(long, default_value_t = 3000)]
+    steps: usize,
+    #[arg(long, default_value_t = 250)]
+    eval_every: usize,
+    /// Textiles per batch and frames (each from another press) per textile.
+    #[arg(long, default_value_t = 16)]
+    classes_per_batch: usize,
+    #[arg(long, default_value_t = 4)]
+    views_per_class: usize,
+    /// AdamW learning rate.
+    #[arg(long, default_value_t = 2e-3)]
+    lr: f64,
+    /// Wall-time budget in minutes (rendering included); the best
+    /// checkpoint so far is kept.
+    #[arg(long)]
+    max_minutes: Option<f64>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Render threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Run directory (config.json, metrics.jsonl, best.bpk).
+    #[arg(long)]
+    run: PathBuf,
+    /// Where the ONNX model goes.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -392,6 +446,7 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::Train(a) => train(a),
+        Cmd::TrainSupcon(a) => train_supcon(a),
         Cmd::Bench(a) => bench_cmd(a),
         Cmd::ExportDescriptor(a) => export_descriptor(a),
         Cmd::Quantize(a) => quantize_cmd(a),
@@ -415,6 +470,7 @@ fn main() -> Result<()> {
                     arch: arch.clone(),
                     crop: arch.input as u32,
                     train_data_hash: "untrained".into(),
+                    subtract: false,
                 };
                 models.push((
                     format!("{} (untrained)", arch.name()),
@@ -540,6 +596,85 @@ fn train(a: TrainArgs) -> Result<()> {
     Ok(())
 }
 
+fn train_supcon(a: SupconArgs) -> Result<()> {
+    use telextiles_lab::supcon::{self, SupConConfig};
+    let arch = ArchConfig::parse(&a.arch)?;
+    let mut cfg = SupConConfig::new(arch.clone());
+    cfg.crop = a.crop;
+    cfg.catalogue = a.catalogue;
+    cfg.generator = a.generator;
+    cfg.presses_per_textile = a.presses_per_textile;
+    cfg.max_textiles = a.textiles;
+    cfg.steps = a.steps;
+    cfg.eval_every = a.eval_every.max(1);
+    cfg.classes_per_batch = a.classes_per_batch;
+    cfg.views_per_class = a.views_per_class;
+    cfg.lr = a.lr;
+    cfg.max_seconds = a.max_minutes.map(|m| m * 60.0);
+    cfg.seed = a.seed;
+    cfg.warmup_steps = cfg.warmup_steps.min(cfg.steps / 5);
+    let (encoder, val) = supcon::train(&cfg, &a.run, a.threads)?;
+    let hash = {
+        use sha2::Digest;
+        let mut h = sha2::Sha256::new();
+        h.update(serde_json::to_vec(&cfg)?);
+        telextiles_lab::data::hex(&h.finalize())[..16].to_string()
+    };
+    let meta = EncoderMeta {
+        arch: arch.clone(),
+        crop: a.crop,
+        train_data_hash: hash,
+        subtract: true,
+    };
+    let bytes = export_encoder(&encoder, &meta)?;
+    // ONNX Runtime must give what burn gives on real difference frames.
+    let probe = supcon::render_set(
+        &cfg,
+        &[cfg.val_person],
+        &[cfg.val_unit],
+        1,
+        77,
+        a.threads,
+        "export check",
+    )?;
+    let n = probe.len().min(8);
+    let s = arch.input;
+    let mut x = Vec::new();
+    for i in 0..n {
+        x.extend(supcon::centre_of(probe.image(i), probe.side, s));
+    }
+    let sub = supcon::DiffSet {
+        side: s,
+        data: x.clone(),
+        class: probe.class[..n].to_vec(),
+        press: probe.press[..n].to_vec(),
+        classes: probe.classes.clone(),
+    };
+    let (want, _) = supcon::embed(&encoder, &sub, s)?;
+    let mut ort = OrtEncoder::from_bytes(&bytes, 2)?;
+    let mut got = ort.embed(&x)?;
+    telextiles_lab::knn::normalize_rows(&mut got, ort.dim);
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    ensure!(
+        diff < 1e-3,
+        "ONNX Runtime and burn differ by {diff}; not writing {}",
+        a.out.display()
+    );
+    write_atomic(&a.out, &bytes)?;
+    println!(
+        "wrote {} ({} bytes, validation top-1 per press {:.1}%, ort vs burn {:.1e})",
+        a.out.display(),
+        bytes.len(),
+        100.0 * val,
+        diff
+    );
+    Ok(())
+}
+
 fn checkpoint_dir(p: &Path) -> Result<PathBuf> {
     if p.join("state.json").exists() {
         return Ok(p.to_path_buf());
@@ -572,6 +707,7 @@ fn export(a: ExportArgs) -> Result<()> {
         arch: trainer.cfg.arch.clone(),
         crop: a.data.crop,
         train_data_hash: hash,
+        subtract: false,
     };
     let encoder = trainer.encoder();
     let bytes = export_encoder(&encoder, &meta)?;

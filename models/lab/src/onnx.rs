@@ -27,6 +27,9 @@ pub struct EncoderMeta {
     pub crop: u32,
     /// Hex hash of the training data.
     pub train_data_hash: String,
+    /// The model takes the frame minus the no-contact reference
+    /// (`telextiles.background = subtract`).
+    pub subtract: bool,
 }
 
 impl EncoderMeta {
@@ -38,7 +41,7 @@ impl EncoderMeta {
             self.arch.embedding_dim(),
             &self.arch.name(),
             &self.train_data_hash,
-            false,
+            self.subtract,
         )
     }
 }

@@ -30,6 +30,7 @@ fn the_bench_runs_end_to_end_on_simulated_presses() {
             arch,
             crop: 32,
             train_data_hash: "untrained".into(),
+            subtract: false,
         },
     )
     .unwrap();

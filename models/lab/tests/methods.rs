@@ -33,6 +33,7 @@ fn harness_scores_times_and_charts_every_method() {
             arch: arch.clone(),
             crop: 48,
             train_data_hash: "untrained".into(),
+            subtract: false,
         },
     )
     .unwrap();

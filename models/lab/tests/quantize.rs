@@ -27,6 +27,7 @@ fn int8_models_keep_the_contract_and_track_the_float_model() {
             arch,
             crop: 32,
             train_data_hash: "untrained".into(),
+            subtract: false,
         },
     )
     .unwrap();

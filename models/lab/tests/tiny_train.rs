@@ -114,6 +114,7 @@ fn tiny_training_lowers_loss_and_exports_onnx_that_matches_burn() {
         arch: tiny_arch(),
         crop: 48,
         train_data_hash: train.hash(),
+        subtract: false,
     };
     let onnx = export_encoder(&encoder, &meta).unwrap();
     let mut ort = OrtEncoder::from_bytes(&onnx, 1).unwrap();
@@ -177,6 +178,7 @@ fn ort_refuses_models_without_the_contract() {
         arch: tiny_arch(),
         crop: 168,
         train_data_hash: "00".into(),
+        subtract: false,
     };
     let onnx = export_encoder(&encoder, &meta).unwrap();
     // Strip the metadata: refused with a clear message.
