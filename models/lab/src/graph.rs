@@ -232,6 +232,59 @@ pub fn hann(n: usize) -> Vec<f32> {
 
 /// Writes `spec` as an ONNX model with the contract's metadata.
 pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
+    build_descriptor(spec, None, "none (fixed descriptor, not trained)")
+}
+
+/// A trained head on a descriptor's output: `y = W2 relu(W1 (x * scale) +
+/// b1) + b2` (weights row-major `[in, out]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MlpHead {
+    pub scale: Vec<f32>,
+    pub w1: Vec<f32>,
+    pub b1: Vec<f32>,
+    pub w2: Vec<f32>,
+    pub b2: Vec<f32>,
+    pub input: usize,
+    pub hidden: usize,
+    pub out: usize,
+}
+
+impl MlpHead {
+    /// `telextiles.arch` suffix: `+mlp<hidden>-<out>`.
+    pub fn suffix(&self) -> String {
+        format!("+mlp{}-{}", self.hidden, self.out)
+    }
+}
+
+/// The `fft` descriptor followed by a trained head, as one ONNX model with
+/// the encoder contract (the head's training-data hash in the metadata).
+pub fn descriptor_with_head(
+    spec: &DescriptorSpec,
+    head: &MlpHead,
+    train_hash: &str,
+) -> Result<Vec<u8>> {
+    ensure!(
+        spec.kind == BaselineKind::Fft,
+        "a head goes on the fft descriptor"
+    );
+    ensure!(
+        head.input == spec.dim()
+            && head.scale.len() == head.input
+            && head.w1.len() == head.input * head.hidden
+            && head.b1.len() == head.hidden
+            && head.w2.len() == head.hidden * head.out
+            && head.b2.len() == head.out,
+        "the head's shapes do not fit a {}-d descriptor",
+        spec.dim()
+    );
+    build_descriptor(spec, Some(head), train_hash)
+}
+
+fn build_descriptor(
+    spec: &DescriptorSpec,
+    head: Option<&MlpHead>,
+    train_hash: &str,
+) -> Result<Vec<u8>> {
     let n = spec.input as usize;
     ensure!(
         n.is_multiple_of(2) && (16..=240).contains(&n),
@@ -339,7 +392,21 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
             let log = b.op("Log", &[&shifted], vec![]);
             let ax1 = b.i64s("axes_1", vec![1]);
             let lmean = b.op("ReduceMean", &[&log, &ax1], vec![attr_int("keepdims", 1)]);
-            b.op("Sub", &[&log, &lmean], vec![]);
+            let spectrum = b.op("Sub", &[&log, &lmean], vec![]);
+            if let Some(h) = head {
+                let (i, hd, o) = (h.input as i64, h.hidden as i64, h.out as i64);
+                let scale = b.f32s("head_scale", &[i], h.scale.clone());
+                let x = b.op("Mul", &[&spectrum, &scale], vec![]);
+                let w1 = b.f32s("head_w1", &[i, hd], h.w1.clone());
+                let b1 = b.f32s("head_b1", &[hd], h.b1.clone());
+                let x = b.op("MatMul", &[&x, &w1], vec![]);
+                let x = b.op("Add", &[&x, &b1], vec![]);
+                let x = b.op("Relu", &[&x], vec![]);
+                let w2 = b.f32s("head_w2", &[hd, o], h.w2.clone());
+                let b2 = b.f32s("head_b2", &[o], h.b2.clone());
+                let x = b.op("MatMul", &[&x, &w2], vec![]);
+                b.op("Add", &[&x, &b2], vec![]);
+            }
             b.rename_last_output(OUTPUT_NAME);
         }
         BaselineKind::Pixels => {
@@ -371,14 +438,11 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
         }
         BaselineKind::Lbp => anyhow::bail!("LBP has no ONNX graph"),
     }
-    let props = contract_props(
-        spec.input,
-        spec.crop,
-        dim,
-        &spec.arch(),
-        "none (fixed descriptor, not trained)",
-        spec.subtract,
-    );
+    let (dim, arch) = match head {
+        Some(h) => (h.out, format!("{}{}", spec.arch(), h.suffix())),
+        None => (dim, spec.arch()),
+    };
+    let props = contract_props(spec.input, spec.crop, dim, &arch, train_hash, spec.subtract);
     b.finish(n, dim, props)
 }
 

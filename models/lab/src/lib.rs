@@ -19,6 +19,7 @@ pub mod quantize;
 pub mod recorded;
 pub mod report;
 pub mod simsource;
+pub mod spectral;
 pub mod stability;
 pub mod supcon;
 pub mod synth;

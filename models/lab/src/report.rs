@@ -493,22 +493,26 @@ pub fn markdown(r: &BenchReport) -> String {
     ));
     s.push_str(&groups_markdown(&r.methods, &r.cross_generator));
     if !r.decision.is_empty() {
-        s.push_str("## Accuracy against time since first contact\n\n| method | 50 ms (3 frames) | 100 ms (6) | 250 ms (15) | 500 ms (30) | best |\n|---|---:|---:|---:|---:|---:|\n");
+        s.push_str("## Accuracy against time since first contact\n\nTop-1 of the running mean of a press's frames from first contact (60 fps); after the slash, every frame weighted by its contact depth.\n\n| method | 50 ms (3 frames) | 100 ms (6) | 250 ms (15) | 500 ms (30) | best |\n|---|---:|---:|---:|---:|---:|\n");
         for d in &r.decision {
-            let at = |n: usize| {
-                d.top1
-                    .iter()
-                    .find(|x| x.0 == n)
-                    .map_or("-".into(), |x| pct(x.1))
+            let at = |v: &[(usize, f64)], n: usize| {
+                v.iter().find(|x| x.0 == n).map_or("-".into(), |x| pct(x.1))
+            };
+            let both = |n: usize| {
+                if d.weighted.is_empty() {
+                    at(&d.top1, n)
+                } else {
+                    format!("{} / {}", at(&d.top1, n), at(&d.weighted, n))
+                }
             };
             let best = d.top1.iter().map(|x| x.1).fold(0.0, f64::max);
             s.push_str(&format!(
                 "| {} | {} | {} | {} | {} | {} |\n",
                 d.name,
-                at(3),
-                at(6),
-                at(15),
-                at(30),
+                both(3),
+                both(6),
+                both(15),
+                both(30),
                 pct(best)
             ));
         }

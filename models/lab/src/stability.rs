@@ -827,6 +827,12 @@ pub struct DecisionCurve {
     pub name: String,
     /// (frames since first contact, top-1 of the running mean).
     pub top1: Vec<(usize, f64)>,
+    /// The same with every frame weighted by its contact depth (the mean
+    /// absolute difference from the reference in the method's view, what
+    /// the daemon's contact detector scores): the ramp's shallow frames
+    /// count less.
+    #[serde(default)]
+    pub weighted: Vec<(usize, f64)>,
 }
 
 /// Renders the held-out presses from first contact on (`frames` consecutive
@@ -881,20 +887,49 @@ pub fn decision_curve(
         presses.entry(it.press).or_default().push(i);
     }
     let longest = presses.values().map(Vec::len).max().unwrap_or(0);
+    // Contact depth of every query frame against its sensor's reference.
+    let depth: Vec<f32> = (0..qv.len())
+        .map(|i| {
+            let img = qv.image(i);
+            match background_of(&rv, qv.items[i].sensor) {
+                Some(r) => {
+                    img.iter()
+                        .zip(r)
+                        .map(|(&a, &b)| (a as f32 - b as f32).abs())
+                        .sum::<f32>()
+                        / img.len().max(1) as f32
+                }
+                None => 1.0,
+            }
+        })
+        .collect();
     let mut top1 = Vec::new();
+    let mut weighted = Vec::new();
     for n in 1..=longest {
         let mut q = Vec::new();
+        let mut qw = Vec::new();
         let mut ql = Vec::new();
         for rows in presses.values() {
-            q.extend(mean_rows(&qe, dim, &rows[..n.min(rows.len())]));
+            let rows = &rows[..n.min(rows.len())];
+            q.extend(mean_rows(&qe, dim, rows));
+            let mut m = vec![0f32; dim];
+            for &i in rows {
+                for (s, v) in m.iter_mut().zip(&qe[i * dim..(i + 1) * dim]) {
+                    *s += depth[i] * v;
+                }
+            }
+            qw.extend(m);
             ql.push(qv.items[rows[0]].class);
         }
         normalize_rows(&mut q, dim);
+        normalize_rows(&mut qw, dim);
         top1.push((n, crate::methods::top1(&ie, &labels, &q, &ql, dim)));
+        weighted.push((n, crate::methods::top1(&ie, &labels, &qw, &ql, dim)));
     }
     Ok(DecisionCurve {
         name: m.name(),
         top1,
+        weighted,
     })
 }
 

@@ -194,8 +194,8 @@ pub fn diff_input(
 
 /// A press to render: textile (class), person, unit, jig, rotation, seed.
 #[derive(Clone, Debug)]
-struct Plan {
-    class: u32,
+pub(crate) struct Plan {
+    pub(crate) class: u32,
     textile: String,
     person: u32,
     unit: u32,
@@ -217,25 +217,7 @@ pub fn render_set(
 ) -> Result<DiffSet> {
     let sim = telextiles_sim::Simulator::with_options(cfg.catalogue, cfg.generator)
         .map_err(|e| anyhow::anyhow!("simulator: {e}"))?;
-    let mut textiles: Vec<String> = sim.catalogue().training().map(|t| t.id.clone()).collect();
-    if let Some(n) = cfg.max_textiles {
-        textiles.truncate(n);
-    }
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut plans = Vec::new();
-    for (c, t) in textiles.iter().enumerate() {
-        for k in 0..presses_per_textile {
-            plans.push(Plan {
-                class: c as u32,
-                textile: t.clone(),
-                person: people[(k + c) % people.len()],
-                unit: units[rng.gen_range(0..units.len())],
-                jig: rng.gen::<f32>() >= cfg.handheld_share,
-                rotation: rng.gen_range(-180.0..180.0),
-                seed: seed.wrapping_mul(1_000_003) ^ (c as u64 * 1000 + k as u64),
-            });
-        }
-    }
+    let (textiles, plans) = make_plans(&sim, cfg, people, units, presses_per_textile, seed);
     let side = cfg.stored_side();
     let crop = cfg.stored_crop();
     let per = 3 * side * side;
@@ -286,7 +268,41 @@ pub fn render_set(
     Ok(set)
 }
 
-fn render_press(
+/// The presses of a set: every training textile `presses_per_textile`
+/// times, people in turn, a random unit of `units`, jig or hand-held, a
+/// rotation drawn over the full circle.
+pub(crate) fn make_plans(
+    sim: &telextiles_sim::Simulator,
+    cfg: &SupConConfig,
+    people: &[u32],
+    units: &[u32],
+    presses_per_textile: usize,
+    seed: u64,
+) -> (Vec<String>, Vec<Plan>) {
+    let mut textiles: Vec<String> = sim.catalogue().training().map(|t| t.id.clone()).collect();
+    if let Some(n) = cfg.max_textiles {
+        textiles.truncate(n);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut plans = Vec::new();
+    for (c, t) in textiles.iter().enumerate() {
+        for k in 0..presses_per_textile {
+            plans.push(Plan {
+                class: c as u32,
+                textile: t.clone(),
+                person: people[(k + c) % people.len()],
+                unit: units[rng.gen_range(0..units.len())],
+                jig: rng.gen::<f32>() >= cfg.handheld_share,
+                rotation: rng.gen_range(-180.0..180.0),
+                seed: seed.wrapping_mul(1_000_003) ^ (c as u64 * 1000 + k as u64),
+            });
+        }
+    }
+    (textiles, plans)
+}
+
+/// The kept frames of one press as deployment inputs (`crop` px at `side`).
+pub(crate) fn render_press(
     sim: &telextiles_sim::Simulator,
     cfg: &SupConConfig,
     p: &Plan,

@@ -1,0 +1,455 @@
+//! A trained contrastive head on the shipped spectrum (issue 20): the fixed
+//! front end is the radially averaged log power spectrum of the frame minus
+//! its reference (`fft-radial-c<crop>-bg`, the shipped descriptor, exactly
+//! its ONNX graph), and a small MLP on top is trained with supervised
+//! contrastive learning (SupCon) on presses of the same textile by other
+//! people, on other units, at other rotations, with the same physical
+//! augmentations as the CNN ([`crate::supcon::augment_diff`]).
+//!
+//! Why a head on the spectrum: the spectrum is already invariant to
+//! rotation and translation and costs 0.9 ms; what it cannot do is weigh
+//! its bands: which scales tell fabrics apart and which ones a sensor
+//! unit's blur, noise or gain colour. That is what a few thousand weights
+//! can learn from data, at almost no extra inference cost
+//! (`telextiles.arch = fft-radial-c192-bg+mlp<hidden>-<out>`).
+
+use anyhow::{ensure, Context, Result};
+use burn::module::Module;
+use burn::nn::{Linear, LinearConfig};
+use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::time::Instant;
+
+use crate::graph::{descriptor_model, descriptor_with_head, DescriptorSpec, MlpHead};
+use crate::model::l2_normalize;
+use crate::onnx::OrtEncoder;
+use crate::supcon::{augment_diff, make_plans, render_press, supcon_loss, SupConConfig};
+
+/// The head: `x * scale` → Linear → ReLU → Linear.
+#[derive(Module, Debug)]
+pub struct Head {
+    l1: Linear,
+    l2: Linear,
+}
+
+impl Head {
+    pub fn new(input: usize, hidden: usize, out: usize, device: &Device) -> Head {
+        Head {
+            l1: LinearConfig::new(input, hidden).init(device),
+            l2: LinearConfig::new(hidden, out).init(device),
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.l2.forward(relu(self.l1.forward(x)))
+    }
+
+    /// Weights as plain arrays for the ONNX graph (`w` row-major `[in,
+    /// out]`, as ONNX MatMul takes them).
+    pub fn to_mlp(&self, scale: Vec<f32>) -> Result<MlpHead> {
+        let v = |t: Tensor<2>| -> Result<Vec<f32>> {
+            t.into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| anyhow::anyhow!("{e:?}"))
+        };
+        let b = |t: Tensor<1>| -> Result<Vec<f32>> {
+            t.into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| anyhow::anyhow!("{e:?}"))
+        };
+        let [i, h] = self.l1.weight.val().dims();
+        let [_, o] = self.l2.weight.val().dims();
+        Ok(MlpHead {
+            scale,
+            w1: v(self.l1.weight.val())?,
+            b1: b(self.l1.bias.as_ref().context("layer 1 has no bias")?.val())?,
+            w2: v(self.l2.weight.val())?,
+            b2: b(self.l2.bias.as_ref().context("layer 2 has no bias")?.val())?,
+            input: i,
+            hidden: h,
+            out: o,
+        })
+    }
+}
+
+/// A run's settings.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SpectralConfig {
+    /// Presses, people, units, rotations, validation: as the CNN's recipe.
+    pub data: SupConConfig,
+    /// Augmented copies of every rendered frame.
+    pub augs_per_frame: usize,
+    pub hidden: usize,
+    pub out: usize,
+    pub steps: usize,
+    pub classes_per_batch: usize,
+    pub views_per_class: usize,
+    pub lr: f64,
+    pub temperature: f32,
+}
+
+impl SpectralConfig {
+    pub fn new() -> Self {
+        let mut data = SupConConfig::new(
+            crate::model::ArchConfig::parse("resnet-d1111-w16-s96").expect("a valid name"),
+        );
+        data.presses_per_textile = 24;
+        SpectralConfig {
+            data,
+            augs_per_frame: 3,
+            hidden: 256,
+            out: 128,
+            steps: 4000,
+            classes_per_batch: 32,
+            views_per_class: 4,
+            lr: 3e-3,
+            temperature: 0.1,
+        }
+    }
+
+    fn spec(&self) -> DescriptorSpec {
+        DescriptorSpec {
+            kind: crate::baselines::BaselineKind::Fft,
+            crop: self.data.crop,
+            input: self.data.crop,
+            subtract: true,
+            min_bin: 1,
+        }
+    }
+}
+
+impl Default for SpectralConfig {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Spectra of rendered presses: rows of `dim`, with textile and press.
+pub struct Features {
+    pub dim: usize,
+    pub rows: Vec<f32>,
+    pub class: Vec<u32>,
+    pub press: Vec<u32>,
+}
+
+/// Renders presses and returns the descriptor's spectra of `augs` augmented
+/// views of each kept frame (`augs == 0`: the frame as deployed, once).
+pub fn render_features(
+    cfg: &SpectralConfig,
+    people: &[u32],
+    units: &[u32],
+    presses_per_textile: usize,
+    augs: usize,
+    seed: u64,
+    threads: usize,
+    label: &str,
+) -> Result<Features> {
+    let d = &cfg.data;
+    let sim = telextiles_sim::Simulator::with_options(d.catalogue, d.generator)
+        .map_err(|e| anyhow::anyhow!("simulator: {e}"))?;
+    let (_, plans) = make_plans(&sim, d, people, units, presses_per_textile, seed);
+    let graph = descriptor_model(&cfg.spec())?;
+    let crop = d.crop as usize;
+    // 8 frame px of margin each side for the translation augmentation.
+    let stored = crop + 16;
+    let bar = telextiles_progress::Progress::new(label, plans.len() as u64, "presses");
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let out = std::sync::Mutex::new(Vec::new());
+    let first_err = std::sync::Mutex::new(None::<anyhow::Error>);
+    std::thread::scope(|s| {
+        for t in 0..threads.max(1) {
+            let (graph, plans, sim, bar, next, out, first_err) =
+                (&graph, &plans, &sim, &bar, &next, &out, &first_err);
+            s.spawn(move || {
+                let run = || -> Result<()> {
+                    let mut enc = OrtEncoder::from_bytes(graph, 1)?;
+                    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (t as u64 + 1) * 0x9E37);
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if i >= plans.len() {
+                            return Ok(());
+                        }
+                        let p = &plans[i];
+                        let frames = render_press(sim, d, p, stored as u32, stored)?;
+                        let mut x = Vec::new();
+                        let mut n = 0;
+                        for f in &frames {
+                            if augs == 0 {
+                                x.extend(crate::supcon::centre_of(f, stored, crop));
+                                n += 1;
+                            }
+                            for _ in 0..augs {
+                                let mut v = vec![0f32; 3 * crop * crop];
+                                augment_diff(f, stored, crop, &mut rng, &mut v);
+                                x.extend(v);
+                                n += 1;
+                            }
+                        }
+                        let rows = enc.embed(&x)?;
+                        out.lock().unwrap().push((i, p.class, n, rows));
+                        bar.inc(1);
+                    }
+                };
+                if let Err(e) = run() {
+                    first_err.lock().unwrap().get_or_insert(e);
+                }
+            });
+        }
+    });
+    bar.finish();
+    if let Some(e) = first_err.into_inner().unwrap() {
+        return Err(e);
+    }
+    let mut res = out.into_inner().unwrap();
+    res.sort_by_key(|r| r.0);
+    let dim = cfg.spec().dim();
+    let mut f = Features {
+        dim,
+        rows: Vec::new(),
+        class: Vec::new(),
+        press: Vec::new(),
+    };
+    for (i, class, n, rows) in res {
+        ensure!(rows.len() == n * dim, "descriptor rows have the wrong size");
+        f.rows.extend(rows);
+        f.class.extend(std::iter::repeat_n(class, n));
+        f.press.extend(std::iter::repeat_n(i as u32, n));
+    }
+    Ok(f)
+}
+
+fn embed_rows(head: &Head, scale: &[f32], rows: &[f32], dim: usize) -> Result<(Vec<f32>, usize)> {
+    let device = Device::flex();
+    let h = head.valid().to_device(&device);
+    let n = rows.len() / dim;
+    let x: Vec<f32> = rows
+        .chunks_exact(dim)
+        .flat_map(|r| r.iter().zip(scale).map(|(v, s)| v * s))
+        .collect();
+    let y = h.forward(Tensor::<2>::from_data(
+        TensorData::new(x, [n, dim]),
+        &device,
+    ));
+    let out_dim = y.dims()[1];
+    let mut v = y
+        .into_data()
+        .try_to_vec::<f32>()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    crate::knn::normalize_rows(&mut v, out_dim);
+    Ok((v, out_dim))
+}
+
+/// Top-1 per press: the mean of each query press's rows against every
+/// index row (cosine).
+fn press_top1(index: &[f32], il: &[u32], q: &[f32], qf: &Features, dim: usize) -> f64 {
+    let set = crate::supcon::DiffSet {
+        side: 0,
+        data: Vec::new(),
+        class: qf.class.clone(),
+        press: qf.press.clone(),
+        classes: Vec::new(),
+    };
+    crate::supcon::press_top1(index, il, q, &set, dim)
+}
+
+/// Trains the head; returns the ONNX model (descriptor graph + head) and
+/// the validation top-1 per press of the descriptor alone and with the
+/// head. Writes `config.json` and `metrics.jsonl` into `run`.
+pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8>, f64, f64)> {
+    std::fs::create_dir_all(run).with_context(|| format!("cannot create {}", run.display()))?;
+    crate::data::write_atomic(
+        &run.join("config.json"),
+        serde_json::to_string_pretty(cfg)?.as_bytes(),
+    )?;
+    let d = &cfg.data;
+    let t0 = Instant::now();
+    let train = render_features(
+        cfg,
+        &d.people,
+        &d.units,
+        d.presses_per_textile,
+        cfg.augs_per_frame,
+        d.seed,
+        threads,
+        "rendering training spectra",
+    )?;
+    let val_index = render_features(
+        cfg,
+        &d.people[..1],
+        &d.units[..1],
+        2,
+        0,
+        d.seed ^ 0xA11D,
+        threads,
+        "rendering validation index",
+    )?;
+    let val_q = render_features(
+        cfg,
+        &[d.val_person],
+        &[d.val_unit],
+        1,
+        0,
+        d.seed ^ 0xBEEF,
+        threads,
+        "rendering validation queries",
+    )?;
+    let dim = train.dim;
+    eprintln!(
+        "{} training spectra, rendered in {:.0} s",
+        train.class.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    // Inputs scaled to unit variance per band (over the training rows).
+    let n = train.class.len();
+    let mut scale = vec![0f32; dim];
+    for j in 0..dim {
+        let m = (0..n).map(|i| train.rows[i * dim + j]).sum::<f32>() / n as f32;
+        let v = (0..n)
+            .map(|i| (train.rows[i * dim + j] - m).powi(2))
+            .sum::<f32>()
+            / n as f32;
+        scale[j] = 1.0 / v.sqrt().max(1e-3);
+    }
+    // The descriptor alone on the validation split.
+    let norm = |rows: &[f32]| {
+        let mut v = rows.to_vec();
+        crate::knn::normalize_rows(&mut v, dim);
+        v
+    };
+    let base = press_top1(
+        &norm(&val_index.rows),
+        &val_index.class,
+        &norm(&val_q.rows),
+        &val_q,
+        dim,
+    );
+    eprintln!(
+        "validation top-1 per press, descriptor alone: {:.1}%",
+        100.0 * base
+    );
+    let mut by_class: Vec<std::collections::BTreeMap<u32, Vec<usize>>> = Vec::new();
+    for i in 0..n {
+        let c = train.class[i] as usize;
+        if by_class.len() <= c {
+            by_class.resize(c + 1, Default::default());
+        }
+        by_class[c].entry(train.press[i]).or_default().push(i);
+    }
+    let device = Device::flex().autodiff();
+    device.seed(d.seed);
+    let mut head = Head::new(dim, cfg.hidden, cfg.out, &device);
+    let mut optim: ModuleOptimizer = AdamWConfig::new().with_weight_decay(1e-4).init();
+    let mut rng = ChaCha8Rng::seed_from_u64(d.seed ^ 0x5E);
+    let classes: Vec<usize> = (0..by_class.len())
+        .filter(|&c| !by_class[c].is_empty())
+        .collect();
+    let mut best: (f64, Option<Head>) = (f64::NEG_INFINITY, None);
+    let mut metrics = String::new();
+    let eval_every = (cfg.steps / 20).max(1);
+    let bar = telextiles_progress::Progress::new("training the head", cfg.steps as u64, "steps");
+    let mut losses = Vec::new();
+    for step in 1..=cfg.steps {
+        let p = step as f64 / cfg.steps as f64;
+        let lr = cfg.lr * 0.5 * (1.0 + (std::f64::consts::PI * p).cos());
+        let picked: Vec<usize> = classes
+            .choose_multiple(&mut rng, cfg.classes_per_batch.min(classes.len()))
+            .copied()
+            .collect();
+        let mut x = Vec::new();
+        let mut labels = Vec::new();
+        for &c in &picked {
+            let presses: Vec<&Vec<usize>> = by_class[c].values().collect();
+            let chosen: Vec<&&Vec<usize>> = presses
+                .choose_multiple(&mut rng, cfg.views_per_class.min(presses.len()))
+                .collect();
+            for v in 0..cfg.views_per_class {
+                let rows = chosen[v % chosen.len()];
+                let i = rows[rng.gen_range(0..rows.len())];
+                x.extend(
+                    train.rows[i * dim..(i + 1) * dim]
+                        .iter()
+                        .zip(&scale)
+                        .map(|(a, s)| a * s),
+                );
+                labels.push(c as u32);
+            }
+        }
+        let b = labels.len();
+        let z = l2_normalize(head.forward(Tensor::<2>::from_data(
+            TensorData::new(x, [b, dim]),
+            &device,
+        )));
+        let loss = supcon_loss(z, &labels, cfg.temperature, &device);
+        let lv: f32 = loss
+            .clone()
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?[0];
+        ensure!(lv.is_finite(), "loss is {lv} at step {step}");
+        losses.push(lv as f64);
+        let grads = GradientsParams::from_grads(loss.backward(), &head);
+        head = optim.step(lr, head, grads);
+        bar.inc(1);
+        if step % eval_every == 0 || step == cfg.steps {
+            let h = head.valid();
+            let (ie, od) = embed_rows(&h, &scale, &val_index.rows, dim)?;
+            let (qe, _) = embed_rows(&h, &scale, &val_q.rows, dim)?;
+            let acc = press_top1(&ie, &val_index.class, &qe, &val_q, od);
+            let recent = &losses[losses.len().saturating_sub(eval_every)..];
+            let loss = recent.iter().sum::<f64>() / recent.len().max(1) as f64;
+            bar.println(&format!(
+                "step {step}: loss {loss:.3}, validation top-1 per press {:.1}% (descriptor alone {:.1}%)",
+                100.0 * acc,
+                100.0 * base
+            ));
+            metrics.push_str(&format!(
+                "{{\"step\":{step},\"loss\":{loss},\"lr\":{lr},\"val_press_top1\":{acc},\"descriptor_val_press_top1\":{base}}}\n"
+            ));
+            crate::data::write_atomic(&run.join("metrics.jsonl"), metrics.as_bytes())?;
+            if acc > best.0 {
+                best = (acc, Some(h));
+            }
+        }
+    }
+    bar.finish();
+    let head = best.1.context("no validation ran")?;
+    let mlp = head.to_mlp(scale.clone())?;
+    let hash = {
+        use sha2::Digest;
+        let mut h = sha2::Sha256::new();
+        h.update(serde_json::to_vec(cfg)?);
+        crate::data::hex(&h.finalize())[..16].to_string()
+    };
+    let bytes = descriptor_with_head(&cfg.spec(), &mlp, &hash)?;
+    // The exported graph must give what the head gives in burn.
+    let mut enc = OrtEncoder::from_bytes(&bytes, 1)?;
+    let base_graph = descriptor_model(&cfg.spec())?;
+    let mut front = OrtEncoder::from_bytes(&base_graph, 1)?;
+    // Probe at the deployment crop with a press never seen.
+    let sim = telextiles_sim::Simulator::with_options(d.catalogue, d.generator)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let (_, plans) = make_plans(&sim, d, &[d.val_person], &[d.val_unit], 1, 123);
+    let frames = render_press(&sim, d, &plans[0], d.crop, d.crop as usize)?;
+    let mut x = Vec::new();
+    for f in &frames {
+        x.extend_from_slice(f);
+    }
+    let got = enc.embed(&x)?;
+    let spectra = front.embed(&x)?;
+    let (want, od) = embed_rows(&head, &scale, &spectra, dim)?;
+    let mut got = got;
+    crate::knn::normalize_rows(&mut got, od);
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    ensure!(diff < 1e-3, "ONNX Runtime and burn differ by {diff}");
+    Ok((bytes, base, best.0))
+}
