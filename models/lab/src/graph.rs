@@ -626,6 +626,68 @@ mod tests {
     }
 
     #[test]
+    fn a_head_on_the_descriptor_computes_the_mlp_of_its_spectrum() {
+        let spec = DescriptorSpec {
+            kind: BaselineKind::Fft,
+            crop: 32,
+            input: 32,
+            subtract: true,
+            min_bin: 1,
+        };
+        let (i, h, o) = (spec.dim(), 8, 5);
+        let w = |n: usize, k: usize| -> Vec<f32> {
+            (0..n)
+                .map(|j| ((j * 31 + k) % 17) as f32 / 17.0 - 0.45)
+                .collect()
+        };
+        let head = MlpHead {
+            scale: w(i, 1).iter().map(|v| v + 1.0).collect(),
+            w1: w(i * h, 2),
+            b1: w(h, 3),
+            w2: w(h * o, 4),
+            b2: w(o, 5),
+            input: i,
+            hidden: h,
+            out: o,
+        };
+        let bytes = descriptor_with_head(&spec, &head, "test").unwrap();
+        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert_eq!(enc.dim, o);
+        assert_eq!(
+            enc.meta.get("telextiles.arch").map(String::as_str),
+            Some("fft-radial-c32-bg+mlp8-5")
+        );
+        let mut front = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
+        let imgs = images(32, 2);
+        let mut x = Vec::new();
+        crate::methods::input_into(&imgs[0], Some(&imgs[1]), 32, &mut x);
+        let got = enc.embed(&x).unwrap();
+        let spectrum = front.embed(&x).unwrap();
+        let hidden: Vec<f32> = (0..h)
+            .map(|k| {
+                let v: f32 = (0..i)
+                    .map(|j| spectrum[j] * head.scale[j] * head.w1[j * h + k])
+                    .sum::<f32>()
+                    + head.b1[k];
+                v.max(0.0)
+            })
+            .collect();
+        for k in 0..o {
+            let want: f32 =
+                (0..h).map(|j| hidden[j] * head.w2[j * o + k]).sum::<f32>() + head.b2[k];
+            assert!(
+                (got[k] - want).abs() < 1e-3,
+                "output {k}: {} vs {want}",
+                got[k]
+            );
+        }
+        // Shapes that do not fit are refused.
+        let mut bad = head.clone();
+        bad.b1.pop();
+        assert!(descriptor_with_head(&spec, &bad, "test").is_err());
+    }
+
+    #[test]
     fn bad_specs_are_refused() {
         let spec = |kind, crop, input| DescriptorSpec {
             kind,

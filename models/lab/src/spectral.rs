@@ -138,6 +138,7 @@ pub struct Features {
     pub press: Vec<u32>,
 }
 
+#[allow(clippy::too_many_arguments)]
 /// Renders presses and returns the descriptor's spectra of `augs` augmented
 /// views of each kept frame (`augs == 0`: the frame as deployed, once).
 pub fn render_features(
@@ -169,7 +170,7 @@ pub fn render_features(
             s.spawn(move || {
                 let run = || -> Result<()> {
                     let mut enc = OrtEncoder::from_bytes(graph, 1)?;
-                    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (t as u64 + 1) * 0x9E37);
+                    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((t as u64 + 1) * 0x9E37));
                     loop {
                         let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         if i >= plans.len() {
@@ -307,15 +308,16 @@ pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8
     );
     // Inputs scaled to unit variance per band (over the training rows).
     let n = train.class.len();
-    let mut scale = vec![0f32; dim];
-    for j in 0..dim {
-        let m = (0..n).map(|i| train.rows[i * dim + j]).sum::<f32>() / n as f32;
-        let v = (0..n)
-            .map(|i| (train.rows[i * dim + j] - m).powi(2))
-            .sum::<f32>()
-            / n as f32;
-        scale[j] = 1.0 / v.sqrt().max(1e-3);
-    }
+    let scale: Vec<f32> = (0..dim)
+        .map(|j| {
+            let m = (0..n).map(|i| train.rows[i * dim + j]).sum::<f32>() / n as f32;
+            let v = (0..n)
+                .map(|i| (train.rows[i * dim + j] - m).powi(2))
+                .sum::<f32>()
+                / n as f32;
+            1.0 / v.sqrt().max(1e-3)
+        })
+        .collect();
     // The descriptor alone on the validation split.
     let norm = |rows: &[f32]| {
         let mut v = rows.to_vec();
