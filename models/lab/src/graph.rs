@@ -672,14 +672,10 @@ mod tests {
                 v.max(0.0)
             })
             .collect();
-        for k in 0..o {
+        for (k, g) in got.iter().enumerate().take(o) {
             let want: f32 =
                 (0..h).map(|j| hidden[j] * head.w2[j * o + k]).sum::<f32>() + head.b2[k];
-            assert!(
-                (got[k] - want).abs() < 1e-3,
-                "output {k}: {} vs {want}",
-                got[k]
-            );
+            assert!((g - want).abs() < 1e-3, "output {k}: {g} vs {want}");
         }
         // Shapes that do not fit are refused.
         let mut bad = head.clone();
