@@ -135,10 +135,17 @@ struct SpectralArgs {
     /// Simulator catalogue of the training presses.
     #[arg(long, default_value_t = 2)]
     catalogue: u32,
+    /// Weight of the attribute objective (0: off): the embedding also
+    /// predicts the training textiles' measured tactile attributes.
+    #[arg(long, default_value_t = 0.0)]
+    attr_weight: f32,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Cache of rendered spectra (shared by runs with the same data).
+    #[arg(long, default_value = "target/telextiles-lab/cache")]
+    cache_dir: PathBuf,
     /// Run directory (config.json, metrics.jsonl).
     #[arg(long)]
     run: PathBuf,
@@ -496,7 +503,9 @@ fn main() -> Result<()> {
             cfg.hidden = a.hidden;
             cfg.out = a.dim;
             cfg.lr = a.lr;
-            let (bytes, base, val) = telextiles_lab::spectral::train(&cfg, &a.run, a.threads)?;
+            cfg.attr_weight = a.attr_weight;
+            let (bytes, base, val) =
+                telextiles_lab::spectral::train(&cfg, &a.run, &a.cache_dir, a.threads)?;
             write_atomic(&a.out, &bytes)?;
             println!(
                 "wrote {} ({} bytes); validation top-1 per press {:.1}% (the descriptor alone {:.1}%)",

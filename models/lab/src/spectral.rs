@@ -31,18 +31,22 @@ use crate::model::l2_normalize;
 use crate::onnx::OrtEncoder;
 use crate::supcon::{augment_diff, make_plans, render_press, supcon_loss, SupConConfig};
 
-/// The head: `x * scale` → Linear → ReLU → Linear.
+/// The head: `x * scale` → Linear → ReLU → Linear. `attr` (training only,
+/// never exported) predicts the textile's measured attributes from the
+/// embedding when the attribute objective is on.
 #[derive(Module, Debug)]
 pub struct Head {
     l1: Linear,
     l2: Linear,
+    attr: Option<Linear>,
 }
 
 impl Head {
-    pub fn new(input: usize, hidden: usize, out: usize, device: &Device) -> Head {
+    pub fn new(input: usize, hidden: usize, out: usize, attrs: usize, device: &Device) -> Head {
         Head {
             l1: LinearConfig::new(input, hidden).init(device),
             l2: LinearConfig::new(hidden, out).init(device),
+            attr: (attrs > 0).then(|| LinearConfig::new(out, attrs).init(device)),
         }
     }
 
@@ -92,6 +96,13 @@ pub struct SpectralConfig {
     pub views_per_class: usize,
     pub lr: f64,
     pub temperature: f32,
+    /// Weight of the attribute objective (0: off): the embedding must also
+    /// predict the textile's tactile attributes (the maker's measured
+    /// properties of its own sample book: roughness, density, softness,
+    /// ...; standardised), so that unseen fabrics land near perceptually
+    /// close known ones.
+    #[serde(default)]
+    pub attr_weight: f32,
 }
 
 impl SpectralConfig {
@@ -110,6 +121,7 @@ impl SpectralConfig {
             views_per_class: 4,
             lr: 3e-3,
             temperature: 0.1,
+            attr_weight: 0.0,
         }
     }
 
@@ -136,6 +148,99 @@ pub struct Features {
     pub rows: Vec<f32>,
     pub class: Vec<u32>,
     pub press: Vec<u32>,
+}
+
+impl Features {
+    fn write(&self, path: &Path) -> Result<()> {
+        let mut b = Vec::with_capacity(16 + self.rows.len() * 4 + self.class.len() * 8);
+        b.extend((self.dim as u64).to_le_bytes());
+        b.extend((self.class.len() as u64).to_le_bytes());
+        b.extend(self.rows.iter().flat_map(|v| v.to_le_bytes()));
+        b.extend(self.class.iter().flat_map(|v| v.to_le_bytes()));
+        b.extend(self.press.iter().flat_map(|v| v.to_le_bytes()));
+        crate::data::write_atomic(path, &b)
+    }
+
+    fn read(path: &Path) -> Result<Features> {
+        let b = std::fs::read(path)?;
+        ensure!(b.len() >= 16, "{}: truncated", path.display());
+        let u = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().expect("8 bytes")) as usize;
+        let (dim, n) = (u(0), u(8));
+        ensure!(
+            b.len() == 16 + n * dim * 4 + n * 8,
+            "{}: wrong size",
+            path.display()
+        );
+        let f32s = |at: usize, k: usize| -> Vec<f32> {
+            b[at..at + 4 * k]
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect()
+        };
+        let u32s = |at: usize, k: usize| -> Vec<u32> {
+            b[at..at + 4 * k]
+                .chunks_exact(4)
+                .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect()
+        };
+        let rows = f32s(16, n * dim);
+        let class = u32s(16 + 4 * n * dim, n);
+        let press = u32s(16 + 4 * n * dim + 4 * n, n);
+        Ok(Features {
+            dim,
+            rows,
+            class,
+            press,
+        })
+    }
+}
+
+/// [`render_features`] through a cache file in `cache_dir` named after
+/// everything that decides its content.
+#[allow(clippy::too_many_arguments)]
+pub fn cached_features(
+    cache_dir: &Path,
+    cfg: &SpectralConfig,
+    people: &[u32],
+    units: &[u32],
+    presses_per_textile: usize,
+    augs: usize,
+    seed: u64,
+    threads: usize,
+    label: &str,
+) -> Result<Features> {
+    use sha2::Digest;
+    let mut h = sha2::Sha256::new();
+    h.update(serde_json::to_vec(&(
+        &cfg.data,
+        people,
+        units,
+        presses_per_textile,
+        augs,
+        seed,
+        "spectral-features-1",
+    ))?);
+    let path = cache_dir.join(format!(
+        "spectra-{}.bin",
+        &crate::data::hex(&h.finalize())[..16]
+    ));
+    if let Ok(f) = Features::read(&path) {
+        eprintln!("{label}: using {}", path.display());
+        return Ok(f);
+    }
+    let f = render_features(
+        cfg,
+        people,
+        units,
+        presses_per_textile,
+        augs,
+        seed,
+        threads,
+        label,
+    )?;
+    std::fs::create_dir_all(cache_dir)?;
+    f.write(&path)?;
+    Ok(f)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -262,7 +367,12 @@ fn press_top1(index: &[f32], il: &[u32], q: &[f32], qf: &Features, dim: usize) -
 /// Trains the head; returns the ONNX model (descriptor graph + head) and
 /// the validation top-1 per press of the descriptor alone and with the
 /// head. Writes `config.json` and `metrics.jsonl` into `run`.
-pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8>, f64, f64)> {
+pub fn train(
+    cfg: &SpectralConfig,
+    run: &Path,
+    cache_dir: &Path,
+    threads: usize,
+) -> Result<(Vec<u8>, f64, f64)> {
     std::fs::create_dir_all(run).with_context(|| format!("cannot create {}", run.display()))?;
     crate::data::write_atomic(
         &run.join("config.json"),
@@ -270,7 +380,8 @@ pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8
     )?;
     let d = &cfg.data;
     let t0 = Instant::now();
-    let train = render_features(
+    let train = cached_features(
+        cache_dir,
         cfg,
         &d.people,
         &d.units,
@@ -280,7 +391,8 @@ pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8
         threads,
         "rendering training spectra",
     )?;
-    let val_index = render_features(
+    let val_index = cached_features(
+        cache_dir,
         cfg,
         &d.people[..1],
         &d.units[..1],
@@ -290,7 +402,8 @@ pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8
         threads,
         "rendering validation index",
     )?;
-    let val_q = render_features(
+    let val_q = cached_features(
+        cache_dir,
         cfg,
         &[d.val_person],
         &[d.val_unit],
@@ -343,9 +456,38 @@ pub fn train(cfg: &SpectralConfig, run: &Path, threads: usize) -> Result<(Vec<u8
         }
         by_class[c].entry(train.press[i]).or_default().push(i);
     }
+    // The training textiles' attributes, standardised (attribute
+    // objective only).
+    let attrs: Vec<Vec<f32>> = if cfg.attr_weight > 0.0 {
+        let sim = telextiles_sim::Simulator::with_options(d.catalogue, d.generator)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let raw: Vec<Vec<f32>> = sim
+            .catalogue()
+            .training()
+            .take(by_class.len())
+            .map(|t| t.attributes.to_vec().to_vec())
+            .collect();
+        let k = raw.first().map_or(0, Vec::len);
+        let mean: Vec<f32> = (0..k)
+            .map(|j| raw.iter().map(|r| r[j]).sum::<f32>() / raw.len() as f32)
+            .collect();
+        let sd: Vec<f32> = (0..k)
+            .map(|j| {
+                (raw.iter().map(|r| (r[j] - mean[j]).powi(2)).sum::<f32>() / raw.len() as f32)
+                    .sqrt()
+                    .max(1e-6)
+            })
+            .collect();
+        raw.iter()
+            .map(|r| (0..k).map(|j| (r[j] - mean[j]) / sd[j]).collect())
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let n_attr = attrs.first().map_or(0, Vec::len);
     let device = Device::flex().autodiff();
     device.seed(d.seed);
-    let mut head = Head::new(dim, cfg.hidden, cfg.out, &device);
+    let mut head = Head::new(dim, cfg.hidden, cfg.out, n_attr, &device);
     let mut optim: ModuleOptimizer = AdamWConfig::new().with_weight_decay(1e-4).init();
     let mut rng = ChaCha8Rng::seed_from_u64(d.seed ^ 0x5E);
     let classes: Vec<usize> = (0..by_class.len())
