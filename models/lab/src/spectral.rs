@@ -525,11 +525,21 @@ pub fn train(
             }
         }
         let b = labels.len();
-        let z = l2_normalize(head.forward(Tensor::<2>::from_data(
+        let e = head.forward(Tensor::<2>::from_data(
             TensorData::new(x, [b, dim]),
             &device,
-        )));
-        let loss = supcon_loss(z, &labels, cfg.temperature, &device);
+        ));
+        let z = l2_normalize(e);
+        let mut loss = supcon_loss(z.clone(), &labels, cfg.temperature, &device);
+        if let Some(a) = &head.attr {
+            let target: Vec<f32> = labels
+                .iter()
+                .flat_map(|&c| attrs[c as usize].iter().copied())
+                .collect();
+            let t = Tensor::<2>::from_data(TensorData::new(target, [b, n_attr]), &device);
+            let mse = (a.forward(z) - t).powf_scalar(2.0).mean();
+            loss = loss + mse.mul_scalar(cfg.attr_weight);
+        }
         let lv: f32 = loss
             .clone()
             .into_data()
