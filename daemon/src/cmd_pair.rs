@@ -50,6 +50,18 @@ pub struct Args {
         env = "TELEXTILESD_LATENCY_TRACE"
     )]
     pub latency_trace: Option<std::path::PathBuf>,
+    /// Lifetime of a shown code and how long entering a code keeps trying,
+    /// in ms (tests; default: the code lifetime, 5 minutes)
+    #[arg(long, hide = true, env = "TELEXTILESD_PAIRING_TTL_MS")]
+    pub pairing_ttl_ms: Option<u64>,
+}
+
+impl Args {
+    /// The code lifetime this run uses.
+    pub fn code_ttl(&self) -> std::time::Duration {
+        self.pairing_ttl_ms
+            .map_or(DEFAULT_CODE_TTL, std::time::Duration::from_millis)
+    }
 }
 
 fn say(line: &str) {
@@ -115,11 +127,15 @@ pub fn discovery_config(cfg: &Config) -> DiscoveryConfig {
     }
 }
 
-/// Why `pair --enter` gave up at its deadline.
-pub fn enter_expired_message() -> String {
+/// Why `pair --enter` gave up at its deadline (`ttl`: how long it tried).
+pub fn enter_expired_message(ttl: std::time::Duration) -> String {
+    let took = if ttl.as_secs() >= 120 {
+        format!("{} minutes", ttl.as_secs() / 60)
+    } else {
+        format!("{:.1} s", ttl.as_secs_f64())
+    };
     format!(
-        "no device proved the code within {} minutes; check the code shown on the other device (it expires after that time too) and run `telextilesd pair --enter` again",
-        DEFAULT_CODE_TTL.as_secs() / 60
+        "no device proved the code within {took}; check the code shown on the other device (it expires after that time too) and run `telextilesd pair --enter` again"
     )
 }
 
@@ -211,11 +227,11 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     } else if let Some(c) = &args.code {
         Some(PairingMode::Enter(c.parse::<PairingCode>()?))
     } else if args.show || store.is_empty() {
-        let offer = CodeOffer::new(&mut rand::rngs::OsRng, Instant::now(), DEFAULT_CODE_TTL);
+        let offer = CodeOffer::new(&mut rand::rngs::OsRng, Instant::now(), args.code_ttl());
         say(&format!(
             "Pairing code: {}   (valid {} minutes, one try)",
             offer.display(),
-            DEFAULT_CODE_TTL.as_secs() / 60
+            args.code_ttl().as_secs() / 60
         ));
         say("On the other device run:  telextilesd pair --enter   and type this code.");
         Some(PairingMode::Show(offer))
@@ -231,7 +247,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     // `ErrorKind::PairingAttempt`, so something must).
     let pairing_deadline = match &mode {
         Some(PairingMode::Show(o)) => Some(o.expires_at()),
-        Some(PairingMode::Enter(_)) => Some(Instant::now() + DEFAULT_CODE_TTL),
+        Some(PairingMode::Enter(_)) => Some(Instant::now() + args.code_ttl()),
         None => None,
     };
     let entering = matches!(mode, Some(PairingMode::Enter(_)));
@@ -246,6 +262,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             crate::session::SessionOptions {
                 pairing: mode,
                 pairing_deadline,
+                code_ttl: args.code_ttl(),
                 sim_roller_speed: args.sim_roller_speed,
                 sim_gap_frames: None,
                 latency_trace: args.latency_trace.clone(),
@@ -286,7 +303,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             _ = expiry => {
                 link.shutdown().await;
                 if entering {
-                    bail!("{}", enter_expired_message());
+                    bail!("{}", enter_expired_message(args.code_ttl()));
                 }
                 bail!("the pairing code expired before the other device used it; run `telextilesd pair` again for a new code");
             }

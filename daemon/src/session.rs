@@ -63,6 +63,8 @@ pub struct SessionOptions {
     /// up at this time: the session ends with an error if pairing has not
     /// succeeded by then.
     pub pairing_deadline: Option<std::time::Instant>,
+    /// The pairing code lifetime (for the message at the deadline).
+    pub code_ttl: std::time::Duration,
     /// Simulated roller speed factor (1 = a real roller).
     pub sim_roller_speed: Option<f64>,
     /// No-contact frames between simulated presses.
@@ -312,7 +314,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         _ = shutdown_rx.wait_for(|v| *v) => {}
         _ = expiry => {
             *lock(&state.fatal) = Some(if entering {
-                crate::cmd_pair::enter_expired_message()
+                crate::cmd_pair::enter_expired_message(opts.code_ttl)
             } else {
                 "the pairing code expired before the other device used it; run `telextilesd pair` again for a new code".into()
             });

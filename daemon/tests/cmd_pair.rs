@@ -181,3 +181,72 @@ fn wrong_code_fails_on_both_sides() {
         "pair --code ended on a failed attempt"
     );
 }
+
+/// Devices that prove no code never end `pair --code`, so its deadline
+/// must: with nothing answering at the given address it gives up once the
+/// code's lifetime has passed (shortened here), says why and fails.
+#[test]
+fn entering_a_code_gives_up_after_the_code_lifetime() {
+    // Both front ends: pairing only, and pairing before a live session.
+    for no_session in [true, false] {
+        gives_up(no_session);
+    }
+}
+
+fn gives_up(no_session: bool) {
+    let d = tempfile::tempdir().unwrap();
+    let nobody = format!("127.0.0.1:{}", free_port());
+    let listen = format!("127.0.0.1:{}", free_port());
+    let code = (0..10)
+        .map(|d| format!("1234567{d}"))
+        .find(|c| c.parse::<telextiles_certs::PairingCode>().is_ok())
+        .expect("one check digit fits");
+    let t0 = Instant::now();
+    let mut child = Command::new(BIN)
+        .arg("pair")
+        .args(["--listen", &listen, "--connect", &nobody, "--code", &code])
+        .args(["--state-dir", d.path().to_str().unwrap(), "--mdns=false"])
+        .args(["--data-dir", d.path().to_str().unwrap()])
+        .args(["--runtime-dir", d.path().to_str().unwrap()])
+        .arg("--config")
+        .arg(none_toml(d.path()))
+        .args([
+            "--sensor",
+            "sim",
+            "--roller",
+            "sim",
+            "--map=false",
+            "--no-session",
+        ])
+        .env_remove("TELEXTILESD_CONFIG")
+        .env("TELEXTILESD_PAIRING_TTL_MS", "1500")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Give it up to 30 s (a loaded machine), then look at what it said.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("pair --code did not give up");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let out = child.wait_with_output().unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!status.success(), "no_session {no_session}: {text}");
+    assert!(
+        text.contains("no device proved the code within 1.5 s"),
+        "{text}"
+    );
+    assert!(t0.elapsed() >= Duration::from_millis(1500), "{text}");
+}
