@@ -18,6 +18,7 @@ pub mod protocol;
 pub mod quantize;
 pub mod recorded;
 pub mod report;
+pub mod rule;
 pub mod simsource;
 pub mod spectral;
 pub mod stability;

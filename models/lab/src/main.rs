@@ -58,6 +58,10 @@ enum Cmd {
     /// same data, positives and augmentations as train-supcon); writes the
     /// descriptor graph with the head as one ONNX model.
     TrainSpectral(SpectralArgs),
+    /// Apply the written rule for the shipped default (docs/benchmarks.md)
+    /// to a bench.json: the worst case over held-out people, units,
+    /// hand-held, cross-generator, rotation, force and 100 ms, within 1 ms.
+    Rule(RuleArgs),
     /// Write simulated presses in the on-disk press format, laid out as
     /// `telextilesd record` lays out recordings (`<out>/<textile>/<press>/`):
     /// a stand-in for your own recordings to try `--source presses:<dir>`.
@@ -111,6 +115,16 @@ struct SupconArgs {
     /// Where the ONNX model goes.
     #[arg(long)]
     out: PathBuf,
+}
+
+#[derive(Args)]
+struct RuleArgs {
+    /// The bench's bench.json.
+    #[arg(long)]
+    bench: PathBuf,
+    /// The method shipped now.
+    #[arg(long, default_value = "fft-radial-c192-bg")]
+    incumbent: String,
 }
 
 #[derive(Args)]
@@ -492,6 +506,16 @@ fn main() -> Result<()> {
         }
         Cmd::Train(a) => train(a),
         Cmd::TrainSupcon(a) => train_supcon(a),
+        Cmd::Rule(a) => {
+            let v: serde_json::Value = serde_json::from_slice(
+                &std::fs::read(&a.bench)
+                    .with_context(|| format!("cannot read {}", a.bench.display()))?,
+            )
+            .with_context(|| format!("{} is not JSON", a.bench.display()))?;
+            let o = telextiles_lab::rule::apply(&v, &a.incumbent)?;
+            print!("{}", telextiles_lab::rule::markdown(&o));
+            Ok(())
+        }
         Cmd::TrainSpectral(a) => {
             let mut cfg = telextiles_lab::spectral::SpectralConfig::new();
             cfg.data.presses_per_textile = a.presses_per_textile;
