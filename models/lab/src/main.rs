@@ -146,6 +146,9 @@ struct SpectralArgs {
     dim: usize,
     #[arg(long, default_value_t = 3e-3)]
     lr: f64,
+    /// SupCon temperature.
+    #[arg(long, default_value_t = 0.1)]
+    temperature: f32,
     /// Simulator catalogue of the training presses.
     #[arg(long, default_value_t = 2)]
     catalogue: u32,
@@ -528,6 +531,7 @@ fn main() -> Result<()> {
             cfg.out = a.dim;
             cfg.lr = a.lr;
             cfg.attr_weight = a.attr_weight;
+            cfg.temperature = a.temperature;
             let (bytes, base, val) =
                 telextiles_lab::spectral::train(&cfg, &a.run, &a.cache_dir, a.threads)?;
             write_atomic(&a.out, &bytes)?;
