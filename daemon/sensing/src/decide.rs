@@ -201,6 +201,28 @@ fn normalise(v: &mut [f32]) {
     }
 }
 
+/// Contact depth (contact score, DN) at which a frame's weight reaches
+/// 1 - 1/e.
+pub const WEIGHT_DEPTH_DN: f32 = 4.0;
+
+/// The weight of a frame in a press's running mean, from its contact depth
+/// (the contact detector's score, mean |frame - reference| in DN):
+/// `1 - exp(-score / WEIGHT_DEPTH_DN)`, in [0.001, 1]. Frames of the ramp,
+/// where the fabric has barely touched the gel (a DN or two), count less
+/// than frames in full contact; it saturates, so a frame far from the
+/// reference (a dropped-out or overexposed frame) counts no more than one
+/// in full contact. Measured in `docs/benchmarks.md` ("Simulator v2",
+/// time to decision). The same function weights frames locally
+/// ([`crate::pipeline::Pipeline`]), in the lab's decision curve and, as the
+/// length of each streamed latent, on the receiving daemon.
+pub fn contact_weight(score: f32) -> f32 {
+    if score.is_finite() {
+        (1.0 - (-score.max(0.0) / WEIGHT_DEPTH_DN).exp()).clamp(1e-3, 1.0)
+    } else {
+        1e-3
+    }
+}
+
 /// Decider tuning.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DecideConfig {
@@ -361,6 +383,23 @@ impl Decider {
         t_us: u64,
         emb: &[f32],
     ) -> Option<DecideStep> {
+        self.on_embedding_weighted(index, t_us, emb, 1.0)
+    }
+
+    /// [`Decider::on_embedding`] with the frame's weight in the running
+    /// mean ([`contact_weight`] of its contact score): the ramp's shallow
+    /// frames count less than the deep ones. None also for a weight that is
+    /// not finite and positive.
+    pub fn on_embedding_weighted<I: TextileIndex + ?Sized>(
+        &mut self,
+        index: &I,
+        t_us: u64,
+        emb: &[f32],
+        weight: f32,
+    ) -> Option<DecideStep> {
+        if !(weight.is_finite() && weight > 0.0) {
+            return None;
+        }
         if !self.in_press {
             let nearest = index.nearest2(emb)?;
             return Some(DecideStep {
@@ -369,7 +408,7 @@ impl Decider {
                 changed: false,
             });
         }
-        self.accumulate(emb)?;
+        self.accumulate_weighted(emb, weight)?;
         let nearest = index.nearest2(&self.mean)?;
         Some(self.decide(index, t_us, nearest))
     }
@@ -379,7 +418,17 @@ impl Decider {
     /// None (and nothing changes) for an embedding of the wrong dimension,
     /// with non-finite values, or of zero length.
     pub fn accumulate(&mut self, emb: &[f32]) -> Option<&[f32]> {
-        if emb.len() != self.sum.len() || emb.iter().any(|v| !v.is_finite()) {
+        self.accumulate_weighted(emb, 1.0)
+    }
+
+    /// [`Decider::accumulate`] with the frame's weight in the mean (see
+    /// [`contact_weight`]); None (and nothing changes) also for a weight
+    /// that is not finite and positive.
+    pub fn accumulate_weighted(&mut self, emb: &[f32], weight: f32) -> Option<&[f32]> {
+        if emb.len() != self.sum.len()
+            || emb.iter().any(|v| !v.is_finite())
+            || !(weight.is_finite() && weight > 0.0)
+        {
             return None;
         }
         let n = norm(emb);
@@ -388,7 +437,7 @@ impl Decider {
         }
         if self.in_press {
             for (s, v) in self.sum.iter_mut().zip(emb) {
-                *s += v / n;
+                *s += weight * v / n;
             }
             self.frames += 1;
             self.mean.copy_from_slice(&self.sum);

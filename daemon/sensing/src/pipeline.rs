@@ -246,7 +246,7 @@ impl<I: TextileIndex> Pipeline<I> {
             // checks), which the index shares (checked in `new`).
             let nearest = self
                 .decider
-                .accumulate(emb)
+                .accumulate_weighted(emb, crate::decide::contact_weight(c.score))
                 .and_then(|mean| self.index.nearest2(mean));
             let t4 = Instant::now();
             step = nearest.map(|n| self.decider.decide(&self.index, t, n));

@@ -379,3 +379,57 @@ fn malformed_embeddings_are_refused_without_a_panic_and_change_nothing() {
     }
     assert!(decided);
 }
+
+/// Frames count in a press's mean by their contact depth: a few shallow
+/// frames of the ramp that look like B do not outweigh deep frames of A,
+/// which they do when every frame counts the same. Weights that are not
+/// finite and positive are refused and change nothing.
+#[test]
+fn deep_frames_outweigh_shallow_ones_in_the_mean() {
+    use telextiles_sensing::decide::contact_weight;
+    let idx = toy_index();
+    let a = unit(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let b = unit(&[0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // Ramp: 4 frames like B at 0.3 DN of contact; then 2 deep frames like
+    // A at 12 DN.
+    let frames = [
+        (&b, 0.3),
+        (&b, 0.3),
+        (&b, 0.3),
+        (&b, 0.3),
+        (&a, 12.0),
+        (&a, 12.0),
+    ];
+    let nearest = |weighted: bool| {
+        let mut d = Decider::new(DecideConfig::default(), 8);
+        d.press_start(0);
+        for (e, score) in frames {
+            let w = if weighted { contact_weight(score) } else { 1.0 };
+            d.accumulate_weighted(e, w).unwrap();
+        }
+        idx.nearest2(d.mean()).unwrap().best
+    };
+    assert_eq!(idx.id(nearest(false)), "B");
+    assert_eq!(idx.id(nearest(true)), "A");
+    // The weight function: rises with depth and saturates, so a frame far
+    // from the reference (a dropout) weighs no more than full contact.
+    assert!((contact_weight(4.0) - (1.0 - (-1.0f32).exp())).abs() < 1e-6);
+    assert!(contact_weight(0.5) < contact_weight(2.0));
+    assert!(contact_weight(20.0) > 0.99);
+    assert_eq!(contact_weight(200.0), 1.0);
+    assert_eq!(contact_weight(0.0), 1e-3);
+    assert_eq!(contact_weight(-3.0), 1e-3);
+    assert_eq!(contact_weight(f32::NAN), 1e-3);
+    let mut d = Decider::new(DecideConfig::default(), 8);
+    d.press_start(0);
+    d.accumulate_weighted(&a, 0.5).unwrap();
+    let mean = d.mean().to_vec();
+    for w in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        assert!(d.accumulate_weighted(&b, w).is_none(), "{w}");
+        assert!(
+            d.on_embedding_weighted(&idx, 16_667, &b, w).is_none(),
+            "{w}"
+        );
+        assert_eq!(d.mean(), &mean[..]);
+    }
+}

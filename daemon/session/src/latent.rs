@@ -19,10 +19,32 @@ pub enum LatentError {
     Zero,
 }
 
-/// An L2-normalised, finite embedding of a known dimension. The only way to
-/// make one is [`Latent::new`], which checks all three.
+/// An L2-normalised, finite embedding of a known dimension, with its weight
+/// in a press's running mean. The only way to make one is [`Latent::new`],
+/// which checks all three.
+///
+/// On the wire a latent is its direction times its weight
+/// ([`Latent::wire`]): the sender weights each frame by its contact depth
+/// (`telextiles_sensing::decide::contact_weight`, in (0, 1]) and the
+/// receiver reads the length back as the weight, clamped to
+/// [[`MIN_WEIGHT`], 1]. A sender that sends unit vectors gives every frame
+/// weight 1, as before.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Latent(Box<[f32]>);
+pub struct Latent {
+    v: Box<[f32]>,
+    weight: f32,
+}
+
+/// The smallest weight a latent carries.
+pub const MIN_WEIGHT: f32 = 1e-3;
+
+fn clamp_weight(w: f64) -> f32 {
+    if w.is_finite() {
+        (w as f32).clamp(MIN_WEIGHT, 1.0)
+    } else {
+        1.0
+    }
+}
 
 impl Latent {
     /// Check `v` (dimension `dim`, finite, not zero) and normalise it to
@@ -50,17 +72,37 @@ impl Latent {
         if out.iter().any(|x| !x.is_finite()) || out.iter().all(|x| *x == 0.0) {
             return Err(LatentError::Zero);
         }
-        Ok(Latent(out))
+        Ok(Latent {
+            v: out,
+            weight: clamp_weight(n),
+        })
+    }
+
+    /// The same direction with weight `w` (clamped to [[`MIN_WEIGHT`], 1];
+    /// not finite: 1).
+    pub fn with_weight(mut self, w: f32) -> Latent {
+        self.weight = clamp_weight(w as f64);
+        self
     }
 
     /// The values (unit length).
     pub fn as_slice(&self) -> &[f32] {
-        &self.0
+        &self.v
+    }
+
+    /// Its weight in a press's running mean, in [[`MIN_WEIGHT`], 1].
+    pub fn weight(&self) -> f32 {
+        self.weight
+    }
+
+    /// What goes on the wire: the direction times the weight.
+    pub fn wire(&self) -> Vec<f32> {
+        self.v.iter().map(|x| x * self.weight).collect()
     }
 
     /// Its dimension.
     pub fn dim(&self) -> usize {
-        self.0.len()
+        self.v.len()
     }
 
     /// The mean direction of several latents (None when there are none or
@@ -68,29 +110,50 @@ impl Latent {
     pub fn mean<'a>(latents: impl IntoIterator<Item = &'a Latent>) -> Option<Latent> {
         let mut it = latents.into_iter();
         let first = it.next()?;
-        let mut sum: Vec<f64> = first.0.iter().map(|&x| x as f64).collect();
+        let mut sum: Vec<f64> = first.v.iter().map(|&x| x as f64).collect();
         for l in it {
             if l.dim() != sum.len() {
                 return None;
             }
-            for (s, &x) in sum.iter_mut().zip(l.0.iter()) {
+            for (s, &x) in sum.iter_mut().zip(l.v.iter()) {
                 *s += x as f64;
             }
         }
         let v: Vec<f32> = sum.iter().map(|&x| x as f32).collect();
-        Latent::new(&v, v.len()).ok()
+        Latent::new(&v, v.len()).ok().map(|l| l.with_weight(1.0))
     }
 }
 
 impl AsRef<[f32]> for Latent {
     fn as_ref(&self) -> &[f32] {
-        &self.0
+        &self.v
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_length_sent_is_the_weight_within_bounds() {
+        let l = Latent::new(&[0.0, 0.25], 2).unwrap();
+        assert_eq!((l.as_slice(), l.weight()), (&[0.0, 1.0][..], 0.25));
+        assert_eq!(l.wire(), vec![0.0, 0.25]);
+        // A unit vector (what senders without weights send) weighs 1; long
+        // and tiny vectors are clamped; a weight round-trips through the
+        // wire.
+        assert_eq!(Latent::new(&[0.6, 0.8], 2).unwrap().weight(), 1.0);
+        assert_eq!(Latent::new(&[3.0, 4.0], 2).unwrap().weight(), 1.0);
+        assert_eq!(Latent::new(&[f32::MAX, f32::MAX], 2).unwrap().weight(), 1.0);
+        assert_eq!(
+            Latent::new(&[f32::MIN_POSITIVE, 0.0], 2).unwrap().weight(),
+            MIN_WEIGHT
+        );
+        let w = Latent::new(&[1.0, 1.0], 2).unwrap().with_weight(0.3);
+        let back = Latent::new(&w.wire(), 2).unwrap();
+        assert!((back.weight() - 0.3).abs() < 1e-6);
+        assert_eq!(w.with_weight(f32::NAN).weight(), 1.0);
+    }
 
     #[test]
     fn only_valid_vectors_become_latents_and_they_have_unit_length() {

@@ -248,10 +248,12 @@ impl<I: TextileIndex> ReceiverCore<I> {
                         latent: latent.clone(),
                     });
                 }
-                let Some(step) = p
-                    .decider
-                    .on_embedding(&*index, capture_us, latent.as_slice())
-                else {
+                let Some(step) = p.decider.on_embedding_weighted(
+                    &*index,
+                    capture_us,
+                    latent.as_slice(),
+                    latent.weight(),
+                ) else {
                     return;
                 };
                 if let (true, Some(d)) = (step.changed, step.decision) {

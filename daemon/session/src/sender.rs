@@ -80,6 +80,20 @@ impl SenderCore {
         embedding: Option<&[f32]>,
         out: &mut Vec<TxAction>,
     ) {
+        self.on_frame_weighted(capture_us, event, embedding, 1.0, out)
+    }
+
+    /// [`SenderCore::on_frame`] with the frame's weight in the press's mean
+    /// (`telextiles_sensing::decide::contact_weight` of its contact score),
+    /// which the latent carries as its length ([`Latent::wire`]).
+    pub fn on_frame_weighted(
+        &mut self,
+        capture_us: u64,
+        event: Option<ContactEvent>,
+        embedding: Option<&[f32]>,
+        weight: f32,
+        out: &mut Vec<TxAction>,
+    ) {
         match event {
             Some(ContactEvent::PressStart { .. }) => {
                 if self.in_press {
@@ -104,8 +118,10 @@ impl SenderCore {
         let Some(latent) = embedding.and_then(|e| Latent::new(e, self.dim).ok()) else {
             return;
         };
+        let latent = latent.with_weight(weight);
+        let w = latent.weight() as f64;
         for (s, &v) in self.sum.iter_mut().zip(latent.as_slice()) {
-            *s += v as f64;
+            *s += w * v as f64;
         }
         self.frames += 1;
         out.push(TxAction::Latent {
@@ -149,6 +165,33 @@ mod tests {
             t_us: t,
             reason: telextiles_sensing::contact::EndReason::Released,
         })
+    }
+
+    #[test]
+    fn latents_carry_their_contact_weight_and_the_final_mean_uses_it() {
+        let mut s = SenderCore::new(2);
+        let mut out = Vec::new();
+        s.on_frame_weighted(20, start(20), Some(&[1.0, 0.0]), 0.9, &mut out);
+        s.on_frame_weighted(30, None, Some(&[0.0, 1.0]), 0.1, &mut out);
+        s.on_frame(40, end(40), None, &mut out);
+        match &out[1] {
+            TxAction::Latent { latent, .. } => {
+                assert_eq!(latent.weight(), 0.9);
+                assert_eq!(latent.wire(), vec![0.9, 0.0]);
+            }
+            other => panic!("{other:?}"),
+        }
+        match &out[3] {
+            TxAction::PressStop {
+                final_latent: Some(m),
+                ..
+            } => {
+                // 0.9 (1, 0) + 0.1 (0, 1), normalised: mostly the deep frame.
+                let n = (0.81f32 + 0.01).sqrt();
+                assert!((m.as_slice()[0] - 0.9 / n).abs() < 1e-6, "{m:?}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

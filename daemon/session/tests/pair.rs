@@ -171,7 +171,8 @@ impl Net {
                         press_id: *press_id,
                         seq: *capture_us / PERIOD,
                         capture_us: *capture_us,
-                        vector: latent.as_slice(),
+                        // What the wire carries: direction times weight.
+                        vector: &latent.wire(),
                         one_way_latency_us: latency,
                     },
                     &mut acts,
@@ -612,4 +613,69 @@ proptest::proptest! {
 
 fn idx_dim_check() -> usize {
     index().dim()
+}
+
+/// The length of a streamed latent is the frame's weight (its contact
+/// depth): the receiver's running mean lets a deep frame outweigh shallow
+/// ramp frames, exactly as the sender's local pipeline does; unit vectors
+/// (a sender without weights) count alike.
+#[test]
+fn the_receiver_weights_frames_by_the_length_the_sender_gave_them() {
+    let idx = index();
+    let a = centroid(&idx, 2);
+    let b = centroid(&idx, 5);
+    let final_decision = |weighted: bool| {
+        let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
+        let mut out = Vec::new();
+        rx.handle(
+            "p",
+            RxInput::PressStart {
+                press_id: 1,
+                capture_us: 0,
+            },
+            &mut out,
+        );
+        // A long shallow ramp like B (decided first either way), then deep
+        // frames like A: weighted, the mean turns to A and the decision
+        // switches; unweighted, 30 frames of B keep it.
+        let frames: Vec<(Vec<f32>, f32)> = (0..30)
+            .map(|_| (b.clone(), 0.01))
+            .chain((0..15).map(|_| (a.clone(), 0.5)))
+            .collect();
+        for (k, (v, w)) in frames.iter().enumerate() {
+            let wire: Vec<f32> = if weighted {
+                v.iter().map(|x| x * w).collect()
+            } else {
+                v.clone()
+            };
+            rx.handle(
+                "p",
+                RxInput::Latent {
+                    press_id: 1,
+                    seq: k as u64,
+                    capture_us: (k as u64 + 1) * PERIOD,
+                    vector: &wire,
+                    one_way_latency_us: None,
+                },
+                &mut out,
+            );
+        }
+        rx.handle(
+            "p",
+            RxInput::PressStop {
+                press_id: 1,
+                capture_us: 60 * PERIOD,
+                final_latent: None,
+            },
+            &mut out,
+        );
+        out.iter()
+            .find_map(|a| match a {
+                RxAction::Decision(d) if d.final_decision => Some(d.entry),
+                _ => None,
+            })
+            .expect("a final decision")
+    };
+    assert_eq!(final_decision(false), 5);
+    assert_eq!(final_decision(true), 2);
 }

@@ -204,7 +204,13 @@ pub(crate) fn sensing_thread(
                 score: Some(up.score),
             });
         }
-        sender.on_frame(capture_us, up.event, out.embedding, &mut actions);
+        sender.on_frame_weighted(
+            capture_us,
+            up.event,
+            out.embedding,
+            telextiles_sensing::decide::contact_weight(up.score),
+            &mut actions,
+        );
         let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
         send(&state, &mut actions, [capture_us, contact_us, encoded_us]);
     }
@@ -233,7 +239,7 @@ fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
                 if let Ok(sent) =
                     state
                         .link
-                        .send_latent_timed(press_id, latent.as_slice(), capture_us, false)
+                        .send_latent_timed(press_id, &latent.wire(), capture_us, false)
                 {
                     let sent_us = now_us();
                     lock(&state.counters).latents_sent += 1;

@@ -249,6 +249,9 @@ pub struct PressEmbedding {
     /// Milliseconds from the press start (first frame over the contact
     /// threshold) to each row's frame, from the recording's timestamps.
     pub t_ms: Vec<f64>,
+    /// Each row's weight in the press's running mean (the daemon's
+    /// `contact_weight` of the frame's contact score); empty: all 1.
+    pub weights: Vec<f32>,
 }
 
 impl PressEmbedding {
@@ -439,6 +442,8 @@ impl Processor {
                         e.rows.extend(f);
                         e.frames.push(c.index);
                         e.t_ms.push(c.t_us.saturating_sub(start) as f64 / 1e3);
+                        e.weights
+                            .push(telextiles_sensing::decide::contact_weight(c.score));
                     }
                 }
                 Runner::Front(fe) => {
@@ -457,6 +462,8 @@ impl Processor {
                             e.frames.push(i);
                             let s = press_start.unwrap_or(f.timestamp_us);
                             e.t_ms.push(f.timestamp_us.saturating_sub(s) as f64 / 1e3);
+                            e.weights
+                                .push(telextiles_sensing::decide::contact_weight(o.contact.score));
                         }
                     }
                 }
@@ -762,7 +769,8 @@ fn decide_press(index: &FlatIndex, e: &PressEmbedding) -> (Option<String>, Optio
     d.press_start(0);
     for k in 0..e.len() {
         let t_us = (e.t_ms[k] * 1000.0).round().max(0.0) as u64;
-        d.on_embedding(index, t_us, e.row(k));
+        let w = e.weights.get(k).copied().unwrap_or(1.0);
+        d.on_embedding_weighted(index, t_us, e.row(k), w);
     }
     let end = e.t_ms.last().map_or(0, |t| (t * 1000.0).round() as u64);
     match d.press_end(end) {

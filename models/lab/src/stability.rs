@@ -827,10 +827,10 @@ pub struct DecisionCurve {
     pub name: String,
     /// (frames since first contact, top-1 of the running mean).
     pub top1: Vec<(usize, f64)>,
-    /// The same with every frame weighted by its contact depth (the mean
-    /// absolute difference from the reference in the method's view, what
-    /// the daemon's contact detector scores): the ramp's shallow frames
-    /// count less.
+    /// The same with every frame weighted by its contact depth (the
+    /// daemon's `contact_weight` of the mean absolute difference from the
+    /// reference in the method's view, what its contact detector scores):
+    /// the ramp's shallow frames count less.
     #[serde(default)]
     pub weighted: Vec<(usize, f64)>,
 }
@@ -892,13 +892,14 @@ pub fn decision_curve(
         .map(|i| {
             let img = qv.image(i);
             match background_of(&rv, qv.items[i].sensor) {
-                Some(r) => {
+                // The daemon's weight of this depth.
+                Some(r) => telextiles_sensing::decide::contact_weight(
                     img.iter()
                         .zip(r)
                         .map(|(&a, &b)| (a as f32 - b as f32).abs())
                         .sum::<f32>()
-                        / img.len().max(1) as f32
-                }
+                        / img.len().max(1) as f32,
+                ),
                 None => 1.0,
             }
         })
