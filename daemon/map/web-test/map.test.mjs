@@ -132,6 +132,9 @@ try {
   if (Math.abs(Number(t1.x) - sc.press_end[0]) > 1e-4 || Math.abs(Number(t1.y) - sc.press_end[1]) > 1e-4) {
     throw new Error(`live point at ${t1.x},${t1.y}, the press ended at ${sc.press_end}`);
   }
+  // Plotly redraws the layers asynchronously after an update: wait until
+  // all seven traces are back before counting their points.
+  await page.waitForFunction(() => document.querySelectorAll('#map .scatterlayer .trace').length >= 7);
   const layer = await page.evaluate(() => {
     const traces = document.querySelectorAll('#map .scatterlayer .trace');
     return { near: traces[3].querySelectorAll('.point').length, trail: traces[5].querySelectorAll('.point').length,
