@@ -19,8 +19,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::optim::{AdamWConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
-use rand::seq::SliceRandom;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -29,7 +28,9 @@ use std::time::Instant;
 use crate::graph::{descriptor_model, descriptor_with_head, DescriptorSpec, MlpHead};
 use crate::model::l2_normalize;
 use crate::onnx::OrtEncoder;
-use crate::supcon::{augment_diff, make_plans, render_press, supcon_loss, SupConConfig};
+use crate::supcon::{
+    augment_diff, make_plans, press_top1, render_press, supcon_loss, PressGroups, SupConConfig,
+};
 
 /// The head: `x * scale` → Linear → ReLU → Linear. `attr` (training only,
 /// never exported) predicts the textile's measured attributes from the
@@ -351,19 +352,6 @@ fn embed_rows(head: &Head, scale: &[f32], rows: &[f32], dim: usize) -> Result<(V
     Ok((v, out_dim))
 }
 
-/// Top-1 per press: the mean of each query press's rows against every
-/// index row (cosine).
-fn press_top1(index: &[f32], il: &[u32], q: &[f32], qf: &Features, dim: usize) -> f64 {
-    let set = crate::supcon::DiffSet {
-        side: 0,
-        data: Vec::new(),
-        class: qf.class.clone(),
-        press: qf.press.clone(),
-        classes: Vec::new(),
-    };
-    crate::supcon::press_top1(index, il, q, &set, dim)
-}
-
 /// Trains the head; returns the ONNX model (descriptor graph + head) and
 /// the validation top-1 per press of the descriptor alone and with the
 /// head. Writes `config.json` and `metrics.jsonl` into `run`.
@@ -441,21 +429,15 @@ pub fn train(
         &norm(&val_index.rows),
         &val_index.class,
         &norm(&val_q.rows),
-        &val_q,
+        &val_q.press,
+        &val_q.class,
         dim,
     );
     eprintln!(
         "validation top-1 per press, descriptor alone: {:.1}%",
         100.0 * base
     );
-    let mut by_class: Vec<std::collections::BTreeMap<u32, Vec<usize>>> = Vec::new();
-    for i in 0..n {
-        let c = train.class[i] as usize;
-        if by_class.len() <= c {
-            by_class.resize(c + 1, Default::default());
-        }
-        by_class[c].entry(train.press[i]).or_default().push(i);
-    }
+    let groups = PressGroups::new(&train.class, &train.press);
     // The training textiles' attributes, standardised (attribute
     // objective only).
     let attrs: Vec<Vec<f32>> = if cfg.attr_weight > 0.0 {
@@ -464,7 +446,7 @@ pub fn train(
         let raw: Vec<Vec<f32>> = sim
             .catalogue()
             .training()
-            .take(by_class.len())
+            .take(groups.classes())
             .map(|t| t.attributes.to_vec().to_vec())
             .collect();
         let k = raw.first().map_or(0, Vec::len);
@@ -490,9 +472,6 @@ pub fn train(
     let mut head = Head::new(dim, cfg.hidden, cfg.out, n_attr, &device);
     let mut optim: ModuleOptimizer = AdamWConfig::new().with_weight_decay(1e-4).init();
     let mut rng = ChaCha8Rng::seed_from_u64(d.seed ^ 0x5E);
-    let classes: Vec<usize> = (0..by_class.len())
-        .filter(|&c| !by_class[c].is_empty())
-        .collect();
     let mut best: (f64, Option<Head>) = (f64::NEG_INFINITY, None);
     let mut metrics = String::new();
     let eval_every = (cfg.steps / 20).max(1);
@@ -501,29 +480,22 @@ pub fn train(
     for step in 1..=cfg.steps {
         let p = step as f64 / cfg.steps as f64;
         let lr = cfg.lr * 0.5 * (1.0 + (std::f64::consts::PI * p).cos());
-        let picked: Vec<usize> = classes
-            .choose_multiple(&mut rng, cfg.classes_per_batch.min(classes.len()))
-            .copied()
-            .collect();
         let mut x = Vec::new();
         let mut labels = Vec::new();
-        for &c in &picked {
-            let presses: Vec<&Vec<usize>> = by_class[c].values().collect();
-            let chosen: Vec<&&Vec<usize>> = presses
-                .choose_multiple(&mut rng, cfg.views_per_class.min(presses.len()))
-                .collect();
-            for v in 0..cfg.views_per_class {
-                let rows = chosen[v % chosen.len()];
-                let i = rows[rng.gen_range(0..rows.len())];
+        groups.batch(
+            cfg.classes_per_batch,
+            cfg.views_per_class,
+            &mut rng,
+            |_, i, c| {
                 x.extend(
                     train.rows[i * dim..(i + 1) * dim]
                         .iter()
                         .zip(&scale)
                         .map(|(a, s)| a * s),
                 );
-                labels.push(c as u32);
-            }
-        }
+                labels.push(c);
+            },
+        );
         let b = labels.len();
         let e = head.forward(Tensor::<2>::from_data(
             TensorData::new(x, [b, dim]),
@@ -554,7 +526,7 @@ pub fn train(
             let h = head.valid();
             let (ie, od) = embed_rows(&h, &scale, &val_index.rows, dim)?;
             let (qe, _) = embed_rows(&h, &scale, &val_q.rows, dim)?;
-            let acc = press_top1(&ie, &val_index.class, &qe, &val_q, od);
+            let acc = press_top1(&ie, &val_index.class, &qe, &val_q.press, &val_q.class, od);
             let recent = &losses[losses.len().saturating_sub(eval_every)..];
             let loss = recent.iter().sum::<f64>() / recent.len().max(1) as f64;
             bar.println(&format!(

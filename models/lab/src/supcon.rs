@@ -528,17 +528,19 @@ pub fn embed(enc: &Encoder, set: &DiffSet, size: usize) -> Result<(Vec<f32>, usi
     Ok((out, dim))
 }
 
-/// Top-1 per press of `queries` (mean of each press's frames) against every
-/// frame of `index`, cosine nearest neighbour.
+/// Top-1 per press of `queries` (mean of each press's frames; row `i`
+/// belongs to press `press[i]` of class `class[i]`) against every row of
+/// `index`, cosine nearest neighbour.
 pub fn press_top1(
     index: &[f32],
     index_labels: &[u32],
     queries: &[f32],
-    query_set: &DiffSet,
+    press: &[u32],
+    class: &[u32],
     dim: usize,
 ) -> f64 {
     let mut presses: std::collections::BTreeMap<u32, (u32, Vec<f32>)> = Default::default();
-    for (i, (&p, &c)) in query_set.press.iter().zip(&query_set.class).enumerate() {
+    for (i, (&p, &c)) in press.iter().zip(class).enumerate() {
         let e = presses.entry(p).or_insert((c, vec![0f32; dim]));
         for (s, v) in e.1.iter_mut().zip(&queries[i * dim..(i + 1) * dim]) {
             *s += v;
@@ -555,6 +557,68 @@ pub fn press_top1(
         right += usize::from(best == Some(*c));
     }
     right as f64 / presses.len().max(1) as f64
+}
+
+/// Rows of every class grouped by press (in press order): what a SupCon
+/// batch draws its positives from.
+pub struct PressGroups {
+    by_class: Vec<Vec<Vec<usize>>>,
+    nonempty: Vec<usize>,
+}
+
+impl PressGroups {
+    /// Groups rows `i` by `class[i]` and `press[i]`.
+    pub fn new(class: &[u32], press: &[u32]) -> PressGroups {
+        let mut maps: Vec<std::collections::BTreeMap<u32, Vec<usize>>> = Vec::new();
+        for (i, (&c, &p)) in class.iter().zip(press).enumerate() {
+            let c = c as usize;
+            if maps.len() <= c {
+                maps.resize(c + 1, Default::default());
+            }
+            maps[c].entry(p).or_default().push(i);
+        }
+        let by_class: Vec<Vec<Vec<usize>>> = maps
+            .into_iter()
+            .map(|m| m.into_values().collect())
+            .collect();
+        let nonempty = (0..by_class.len())
+            .filter(|&c| !by_class[c].is_empty())
+            .collect();
+        PressGroups { by_class, nonempty }
+    }
+
+    /// Number of classes (the highest class + 1).
+    pub fn classes(&self) -> usize {
+        self.by_class.len()
+    }
+
+    /// One batch: `classes` textiles drawn at random, `views` rows of each,
+    /// every row from another press while the textile has enough; `f(rng,
+    /// row, class)` is called for each, in batch order, with the same
+    /// generator (augmentations draw from it in turn).
+    pub fn batch<R: Rng>(
+        &self,
+        classes: usize,
+        views: usize,
+        rng: &mut R,
+        mut f: impl FnMut(&mut R, usize, u32),
+    ) {
+        let picked: Vec<usize> = self
+            .nonempty
+            .choose_multiple(rng, classes.min(self.nonempty.len()))
+            .copied()
+            .collect();
+        for c in picked {
+            let chosen: Vec<&Vec<usize>> = self.by_class[c]
+                .choose_multiple(rng, views.min(self.by_class[c].len()))
+                .collect();
+            for v in 0..views {
+                let rows = chosen[v % chosen.len()];
+                let i = rows[rng.gen_range(0..rows.len())];
+                f(rng, i, c as u32);
+            }
+        }
+    }
 }
 
 /// One line of `metrics.jsonl`.
@@ -619,15 +683,7 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
         val_q.len() / cfg.frames_per_press.max(1),
         t0.elapsed().as_secs_f64()
     );
-    // Frames of each textile, grouped by press.
-    let mut by_class: Vec<std::collections::BTreeMap<u32, Vec<usize>>> =
-        vec![Default::default(); train_set.classes.len()];
-    for i in 0..train_set.len() {
-        by_class[train_set.class[i] as usize]
-            .entry(train_set.press[i])
-            .or_default()
-            .push(i);
-    }
+    let groups = PressGroups::new(&train_set.class, &train_set.press);
     let device = Device::flex().autodiff();
     device.seed(cfg.seed);
     let mut enc: Encoder = cfg.arch.init_encoder(&device);
@@ -642,7 +698,6 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
     let mut losses = Vec::new();
     let bar = telextiles_progress::Progress::new("training", cfg.steps as u64, "steps");
     let t_train = Instant::now();
-    let classes: Vec<usize> = (0..train_set.classes.len()).collect();
     for step in 1..=cfg.steps {
         let lr = if step <= cfg.warmup_steps {
             cfg.lr * step as f64 / cfg.warmup_steps as f64
@@ -650,32 +705,25 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
             let p = (step - cfg.warmup_steps) as f64 / (cfg.steps - cfg.warmup_steps).max(1) as f64;
             cfg.lr * 0.5 * (1.0 + (std::f64::consts::PI * p).cos())
         };
-        let picked: Vec<usize> = classes
-            .choose_multiple(&mut rng, cfg.classes_per_batch.min(classes.len()))
-            .copied()
-            .collect();
         let mut labels = Vec::new();
-        let mut x = vec![0f32; picked.len() * cfg.views_per_class * per];
-        let mut k = 0;
-        for &c in &picked {
-            let presses: Vec<&Vec<usize>> = by_class[c].values().collect();
-            let chosen: Vec<&&Vec<usize>> = presses
-                .choose_multiple(&mut rng, cfg.views_per_class.min(presses.len()))
-                .collect();
-            for v in 0..cfg.views_per_class {
-                let frames = chosen[v % chosen.len()];
-                let i = frames[rng.gen_range(0..frames.len())];
+        let mut x = vec![0f32; cfg.classes_per_batch * cfg.views_per_class * per];
+        groups.batch(
+            cfg.classes_per_batch,
+            cfg.views_per_class,
+            &mut rng,
+            |rng, i, c| {
+                let k = labels.len();
                 augment_diff(
                     train_set.image(i),
                     train_set.side,
                     s,
-                    &mut rng,
+                    rng,
                     &mut x[k * per..(k + 1) * per],
                 );
-                labels.push(c as u32);
-                k += 1;
-            }
-        }
+                labels.push(c);
+            },
+        );
+        x.truncate(labels.len() * per);
         let n = labels.len();
         let xt = Tensor::<4>::from_data(TensorData::new(x, [n, 3, s, s]), &device);
         let z = l2_normalize(enc.forward(xt));
@@ -694,7 +742,7 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
             let e = enc.valid();
             let (ie, dim) = embed(&e, &val_index, s)?;
             let (qe, _) = embed(&e, &val_q, s)?;
-            let acc = press_top1(&ie, &val_index.class, &qe, &val_q, dim);
+            let acc = press_top1(&ie, &val_index.class, &qe, &val_q.press, &val_q.class, dim);
             let recent = &losses[losses.len().saturating_sub(cfg.eval_every)..];
             let m = StepMetrics {
                 step,
@@ -753,6 +801,45 @@ pub fn load_best(run: &Path) -> Result<(Encoder, SupConConfig)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_batch_takes_each_view_from_another_press_of_its_textile() {
+        // 3 textiles: 4, 2 and 0 presses of 2 rows each (textile 2 has none
+        // and is never drawn).
+        let (mut class, mut press) = (Vec::new(), Vec::new());
+        for (c, n) in [(0u32, 4u32), (1, 2)] {
+            for p in 0..n {
+                class.extend([c, c]);
+                press.extend([c * 10 + p, c * 10 + p]);
+            }
+        }
+        class.push(5);
+        press.push(99);
+        let g = PressGroups::new(&class, &press);
+        assert_eq!(g.classes(), 6);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for _ in 0..20 {
+            let mut got: Vec<(usize, u32)> = Vec::new();
+            g.batch(2, 3, &mut rng, |_, i, c| got.push((i, c)));
+            assert_eq!(got.len(), 6);
+            for c in [0u32, 1, 5] {
+                let rows: Vec<usize> = got.iter().filter(|x| x.1 == c).map(|x| x.0).collect();
+                assert!(rows.iter().all(|&i| class[i] == c));
+                let mut p: Vec<u32> = rows.iter().map(|&i| press[i]).collect();
+                p.sort_unstable();
+                p.dedup();
+                // Textile 0 has 4 presses: 3 views, 3 presses; textile 1
+                // has 2: both used; textile 5 has one.
+                let want = match (c, rows.len()) {
+                    (_, 0) => 0,
+                    (0, _) => 3,
+                    (1, _) => 2,
+                    _ => 1,
+                };
+                assert_eq!(p.len(), want, "class {c}: {got:?}");
+            }
+        }
+    }
 
     #[test]
     fn supcon_loss_prefers_embeddings_that_group_by_label() {
