@@ -270,18 +270,22 @@ pub fn render_features(
     let out = std::sync::Mutex::new(Vec::new());
     let first_err = std::sync::Mutex::new(None::<anyhow::Error>);
     std::thread::scope(|s| {
-        for t in 0..threads.max(1) {
+        for _ in 0..threads.max(1) {
             let (graph, plans, sim, bar, next, out, first_err) =
                 (&graph, &plans, &sim, &bar, &next, &out, &first_err);
             s.spawn(move || {
                 let run = || -> Result<()> {
                     let mut enc = OrtEncoder::from_bytes(graph, 1)?;
-                    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((t as u64 + 1) * 0x9E37));
                     loop {
                         let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                         if i >= plans.len() {
                             return Ok(());
                         }
+                        // Per press, not per thread: the same spectra
+                        // whichever thread renders the press.
+                        let mut rng = ChaCha8Rng::seed_from_u64(
+                            seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                        );
                         let p = &plans[i];
                         let frames = render_press(sim, d, p, stored as u32, stored)?;
                         let mut x = Vec::new();

@@ -128,3 +128,19 @@ fn the_spectral_head_trains_with_and_without_attributes() {
         "the attribute term adds to the loss"
     );
 }
+
+/// Augmented spectra depend on the press, not on which render thread drew
+/// it (runs are reproducible with any thread count).
+#[test]
+fn augmented_spectra_do_not_depend_on_the_thread_count() {
+    let mut cfg = SpectralConfig::new();
+    cfg.data.crop = 64;
+    cfg.data.max_textiles = Some(3);
+    cfg.data.frames_per_press = 2;
+    let render = |threads| {
+        spectral::render_features(&cfg, &[0, 1], &[0, 2], 2, 2, 7, threads, "test").unwrap()
+    };
+    let (a, b) = (render(1), render(2));
+    assert!(!a.rows.is_empty());
+    assert_eq!((a.rows, a.class, a.press), (b.rows, b.class, b.press));
+}
