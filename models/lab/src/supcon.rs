@@ -68,6 +68,9 @@ pub struct SupConConfig {
     /// Validation person and unit (neither trained on nor reported).
     pub val_person: u32,
     pub val_unit: u32,
+    /// Validation presses per textile (each a query of the validation top-1).
+    #[serde(default = "one")]
+    pub val_presses: usize,
     /// Batch: textiles x frames (each frame from another press).
     pub classes_per_batch: usize,
     pub views_per_class: usize,
@@ -104,6 +107,7 @@ impl SupConConfig {
             max_textiles: None,
             val_person: 7,
             val_unit: 15,
+            val_presses: 1,
             classes_per_batch: 16,
             views_per_class: 4,
             temperature: 0.1,
@@ -134,6 +138,10 @@ impl SupConConfig {
     fn stored_crop(&self) -> u32 {
         (self.stored_side() as f32 * self.crop as f32 / self.arch.input as f32).round() as u32
     }
+}
+
+fn one() -> usize {
+    1
 }
 
 /// Rendered frames: each the normalised frame minus the normalised
@@ -671,7 +679,7 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
         cfg,
         &[cfg.val_person],
         &[cfg.val_unit],
-        1,
+        cfg.val_presses.max(1),
         cfg.seed ^ 0xBEEF,
         threads,
         "rendering validation queries",

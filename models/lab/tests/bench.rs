@@ -229,3 +229,55 @@ fn catalogue_1_protocol_serialises_as_before() {
     let back: Protocol = serde_json::from_str(&j).unwrap();
     assert_eq!(back, p);
 }
+
+/// More held-out people (`--heldout-people`) give every group of the study
+/// more presses (persons 8, 9, 10, 11, ... on units 0, 4, 5 in turn;
+/// hand-held presses by those on the training unit), while the paper's
+/// three stay the default with the same cache key.
+#[test]
+fn more_heldout_people_enlarge_every_group() {
+    let paper = Protocol::paper(64, 64);
+    assert_eq!(paper.with_heldout_people(3), paper);
+    assert_eq!(paper.handheld_people(), [(8, 0)]);
+    let six = paper.with_heldout_people(6);
+    assert_eq!(
+        six.heldout,
+        [(8, 0), (9, 4), (10, 5), (11, 0), (12, 4), (13, 5)]
+    );
+    assert_eq!(six.handheld_people(), [(8, 0), (11, 0)]);
+    assert_ne!(
+        serde_json::to_string(&six).unwrap(),
+        serde_json::to_string(&paper).unwrap()
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = six;
+    p.max_textiles = Some(2);
+    p.catalogue = 2;
+    let methods: Vec<Method> = report::descriptor_methods()
+        .unwrap()
+        .into_iter()
+        .filter(|m| m.name() == "fft-radial-c64-bg")
+        .collect();
+    let cfg = BenchConfig {
+        source: SourceKind::Sim,
+        protocol: p,
+        cache_dir: dir.path().join("cache"),
+        threads: 2,
+        models: vec![],
+        time_threads: vec![1],
+        runs: 3,
+        stability: None,
+        decision_frames: 0,
+        roller: vec![],
+        cross_generator: false,
+        out: dir.path().join("out"),
+    };
+    let r = report::run(&cfg, &methods).unwrap();
+    let m = &r.methods[0];
+    // 2 textiles: persons 8 and 11 on unit 0; 9, 10, 12, 13 on units 4, 5;
+    // 8 and 11 hand-held.
+    let presses: Vec<usize> = m.groups.iter().map(|g| g.presses).collect();
+    assert_eq!(presses, [4, 8, 4]);
+    assert_eq!(m.presses, 12);
+}
