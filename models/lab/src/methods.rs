@@ -543,10 +543,22 @@ fn group_score(
 
 /// Sum of the given rows (normalise afterwards for a mean direction).
 pub fn mean_rows(e: &[f32], dim: usize, rows: &[usize]) -> Vec<f32> {
+    weighted_sum_rows(e, dim, rows, |_| 1.0)
+}
+
+/// The sum of rows `rows` of `e`, row `i` times `weight(i)` (the daemon
+/// weights each frame by its contact depth; normalise afterwards).
+pub fn weighted_sum_rows(
+    e: &[f32],
+    dim: usize,
+    rows: &[usize],
+    weight: impl Fn(usize) -> f32,
+) -> Vec<f32> {
     let mut m = vec![0f32; dim];
     for &i in rows {
+        let w = weight(i);
         for (s, v) in m.iter_mut().zip(&e[i * dim..(i + 1) * dim]) {
-            *s += v;
+            *s += w * v;
         }
     }
     m

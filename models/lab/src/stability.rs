@@ -913,13 +913,9 @@ pub fn decision_curve(
         for rows in presses.values() {
             let rows = &rows[..n.min(rows.len())];
             q.extend(mean_rows(&qe, dim, rows));
-            let mut m = vec![0f32; dim];
-            for &i in rows {
-                for (s, v) in m.iter_mut().zip(&qe[i * dim..(i + 1) * dim]) {
-                    *s += depth[i] * v;
-                }
-            }
-            qw.extend(m);
+            qw.extend(crate::methods::weighted_sum_rows(&qe, dim, rows, |i| {
+                depth[i]
+            }));
             ql.push(qv.items[rows[0]].class);
         }
         normalize_rows(&mut q, dim);
