@@ -487,7 +487,7 @@ pub fn markdown(r: &BenchReport) -> String {
     s.push_str("## Methods (held-out people; index: training people)\n\n");
     s.push_str(&methods::markdown(&r.methods));
     s.push_str(&format!(
-        "\nPareto frontier: {}. Knee (shipped default): **{}**.\n\n",
+        "\nPareto frontier: {}. Knee: **{}** (the shipped default is chosen by `telextiles-lab rule`, docs/benchmarks.md).\n\n",
         r.pareto.join(", "),
         r.knee.as_deref().unwrap_or("-")
     ));
