@@ -38,6 +38,12 @@ pub struct BuildArgs {
     /// Use simulated presses of the built-in catalogue instead.
     #[arg(long)]
     pub sim: bool,
+    /// The simulator catalogue (1 or 2, docs/simulator.md) whose presses
+    /// --sim renders and whose textile ids (T001.., U01..) give names,
+    /// structures and attributes; recordings of catalogue-2 presses
+    /// (`telextiles-lab sim-presses --catalogue 2`) need 2 too.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=2))]
+    pub catalogue: u32,
     /// Simulated people (0..N) whose presses build the index (with --sim).
     #[arg(long, default_value_t = 3)]
     pub people: u32,
@@ -195,7 +201,8 @@ fn build(a: BuildArgs) -> Result<()> {
     .with_context(|| format!("cannot load the encoder {}", a.model.display()))?;
     let info = enc.info().clone();
     let mut front = FrontEnd::new(enc, ContactConfig::default(), None);
-    let cat = Catalogue::builtin();
+    let cat = Catalogue::version(a.catalogue)
+        .with_context(|| format!("no simulator catalogue {}", a.catalogue))?;
     // textile id -> (frame embeddings, per-press means)
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
     // Names of the user's own fabrics (`telextilesd record --name`).
@@ -236,7 +243,7 @@ fn build(a: BuildArgs) -> Result<()> {
         }
         progress.finish();
     } else if a.sim {
-        let sim = Simulator::new()?;
+        let sim = Simulator::with_options(a.catalogue, 1)?;
         let protocol = sim_protocol(
             &a,
             if a.include_unseen {
@@ -296,7 +303,7 @@ fn build(a: BuildArgs) -> Result<()> {
     // one jig press of each by each simulated person, mean embedding.
     let mut unseen = Vec::new();
     if a.sim && !a.include_unseen {
-        let sim = Simulator::new()?;
+        let sim = Simulator::with_options(a.catalogue, 1)?;
         let protocol = sim_protocol(&a, Some(Book::Unseen))?;
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
@@ -632,6 +639,99 @@ mod tests {
             .collect();
         assert_eq!(names, [("denim", "blue denim"), ("wool", "wool")]);
         assert!(index.entries.iter().all(|e| e.exemplars.len() == 2));
+    }
+
+    /// Catalogue-2 recordings take their names and attributes from
+    /// catalogue 2 with `--catalogue 2` (the same ids mean other fabrics
+    /// in catalogue 1), and the index says which catalogue it is of.
+    #[test]
+    fn catalogue_2_presses_are_labelled_from_catalogue_2() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = dir.path().join("rec");
+        let sim = Simulator::with_options(2, 1).unwrap();
+        for id in ["T001", "T002"] {
+            let p = sim
+                .render_press(&telextiles_sim::PressSpec {
+                    frames: 40,
+                    ..telextiles_sim::PressSpec::new(id, 1)
+                })
+                .unwrap();
+            telextiles_sim::recording::write_press(&rec.join(id).join("0001"), &p).unwrap();
+        }
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            b: BuildArgs,
+        }
+        use clap::Parser;
+        let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_encoder.onnx");
+        let build_with = |extra: &[&str]| {
+            let out = dir.path().join(format!("i{}.tlxi", extra.len()));
+            let mut argv = vec![
+                "index-build",
+                "--model",
+                model.to_str().unwrap(),
+                "--presses",
+                rec.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ];
+            argv.extend_from_slice(extra);
+            build(Cli::try_parse_from(argv).unwrap().b).unwrap();
+            Index::read(&out).unwrap()
+        };
+        let v2 = build_with(&["--catalogue", "2"]);
+        let v1 = build_with(&[]);
+        assert_eq!(v2.catalogue_version, 2);
+        assert_eq!(v1.catalogue_version, 1);
+        for (cat, index) in [(2, &v2), (1, &v1)] {
+            let c = Catalogue::version(cat).unwrap();
+            for e in &index.entries {
+                let t = c.get(&e.id).unwrap();
+                assert_eq!(e.name, t.name);
+                let want: Vec<f32> = t.attributes.to_vec().to_vec();
+                let got: Vec<f32> = e.attributes.iter().map(|a| a.1).collect();
+                assert_eq!(got, want, "{} in catalogue {cat}", e.id);
+            }
+        }
+        assert_ne!(v1.entries[0].attributes, v2.entries[0].attributes);
+        // --sim renders catalogue 2: every training textile, labelled
+        // from it.
+        let out = dir.path().join("sim.tlxi");
+        build(
+            Cli::try_parse_from([
+                "index-build",
+                "--model",
+                model.to_str().unwrap(),
+                "--sim",
+                "--catalogue",
+                "2",
+                "--people",
+                "1",
+                "--sensors",
+                "0",
+                "--stride",
+                "16",
+                "-o",
+                out.to_str().unwrap(),
+            ])
+            .unwrap()
+            .b,
+        )
+        .unwrap();
+        let sim_index = Index::read(&out).unwrap();
+        assert_eq!(sim_index.catalogue_version, 2);
+        let c2 = Catalogue::version(2).unwrap();
+        assert_eq!(sim_index.entries.len(), c2.training().count());
+        let e = &sim_index.entries[0];
+        assert_eq!(e.name, c2.get(&e.id).unwrap().name);
+        #[derive(clap::Parser)]
+        struct Bad {
+            #[command(flatten)]
+            b: BuildArgs,
+        }
+        assert!(Bad::try_parse_from(["x", "--model", "m", "--sim", "--catalogue", "3"]).is_err());
     }
 
     #[test]
