@@ -174,7 +174,8 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     };
     let mut n = 0usize;
     if let Some(id) = &args.sim {
-        let sim = Arc::new(Simulator::new()?);
+        // The fabrics of the index's simulator catalogue.
+        let sim = Arc::new(crate::session::models::simulator_for(&index)?);
         let spec = PressSpec {
             person: args.person,
             sensor: args.sensor,

@@ -25,7 +25,7 @@
 
 mod control;
 mod map;
-mod models;
+pub(crate) mod models;
 mod receive;
 mod roller;
 mod sensing;
@@ -201,7 +201,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
 
     // Sensing thread.
     let (sensor_tx, sensor_rx) = std_mpsc::channel();
-    let (source, sim, sensor_desc) = sensing::open_source(&cfg, &opts)?;
+    let (source, sim, sensor_desc) = sensing::open_source(&cfg, &opts, &index)?;
     let (shutdown, mut shutdown_rx) = watch::channel(false);
     let state = Arc::new(State {
         name: cfg.name.clone(),

@@ -44,3 +44,49 @@ pub(crate) fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index
     }
     Ok((enc, index))
 }
+
+/// The simulator whose fabrics an index's textile ids name: the index's
+/// catalogue (an index of the user's own recordings, catalogue 0, gets the
+/// default catalogue 1). The simulated DIGIT of `run`/`pair` and
+/// `classify --sim` press with it, so that a catalogue-2 index is queried
+/// with catalogue-2 fabrics.
+pub(crate) fn simulator_for(index: &Index) -> Result<telextiles_sim::Simulator> {
+    let version = index.catalogue_version.max(1);
+    telextiles_sim::Simulator::with_options(version, 1).with_context(|| {
+        format!("the index is of simulator catalogue {version}, which this build cannot render")
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use telextiles_index::{IndexBuilder, TextileRecord};
+
+    fn index_of(catalogue: u32) -> Index {
+        let mut b = IndexBuilder::new("0".repeat(64).as_str(), "test", 2, catalogue);
+        b.roller_n = 1;
+        b.add(TextileRecord {
+            id: "T001".into(),
+            name: "one".into(),
+            seen: true,
+            structure: String::new(),
+            attributes: Vec::new(),
+            embeddings: vec![vec![1.0, 0.0]],
+            exemplars: Vec::new(),
+        })
+        .unwrap();
+        b.build().unwrap()
+    }
+
+    #[test]
+    fn the_simulated_sensor_presses_fabrics_of_the_index_catalogue() {
+        for (index, sim) in [(0, 1), (1, 1), (2, 2)] {
+            let s = simulator_for(&index_of(index)).unwrap();
+            assert_eq!(s.catalogue().version, sim, "index of catalogue {index}");
+        }
+        let Err(e) = simulator_for(&index_of(9)) else {
+            panic!("catalogue 9 was accepted");
+        };
+        assert!(format!("{e:#}").contains("catalogue 9"), "{e:#}");
+    }
+}

@@ -50,11 +50,18 @@ pub(crate) type OpenedSource = (
     String,
 );
 
-pub(crate) fn open_source(cfg: &Config, opts: &SessionOptions) -> Result<OpenedSource> {
+/// Opens the configured frame source. A simulated DIGIT presses fabrics
+/// of the index's simulator catalogue (so that its textile ids mean the
+/// fabrics the index was built from).
+pub(crate) fn open_source(
+    cfg: &Config,
+    opts: &SessionOptions,
+    index: &telextiles_index::Index,
+) -> Result<OpenedSource> {
     // A simulated DIGIT: pressing `textile` again and again, or (None)
     // lifted until `ctl sensor sim <textile>` asks for a press.
     let sim_source = |textile: Option<&str>, why: &str| -> Result<OpenedSource> {
-        let simulator = Arc::new(telextiles_sim::Simulator::new()?);
+        let simulator = Arc::new(super::models::simulator_for(index)?);
         let spec = telextiles_sim::PressSpec::new(textile.unwrap_or("T001"), 1);
         let (src, handle) = SimSource::new(
             simulator.clone(),
