@@ -14,7 +14,7 @@ use telextiles_sensing::front::recording_reference;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
-use telextiles_sim::{PressSpec, Simulator};
+use telextiles_sim::PressSpec;
 
 /// Options of `telextilesd classify`.
 #[derive(clap::Args, Debug)]
@@ -242,6 +242,7 @@ mod tests {
     use std::path::Path;
     use telextiles_index::{IndexBuilder, TextileRecord};
     use telextiles_sensing::encoder::file_sha256;
+    use telextiles_sim::Simulator;
 
     const TEXTILES: [&str; 4] = ["T010", "T030", "T080", "T110"];
 
