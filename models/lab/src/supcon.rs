@@ -636,6 +636,9 @@ pub struct StepMetrics {
     pub loss: f64,
     pub lr: f64,
     pub val_press_top1: f64,
+    /// Validation query presses behind it.
+    #[serde(default)]
+    pub val_presses: usize,
     pub seconds: f64,
 }
 
@@ -688,9 +691,18 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
         "{} training frames of {} presses, {} validation presses; rendered in {:.0} s",
         train_set.len(),
         train_set.press.last().map_or(0, |p| p + 1),
-        val_q.len() / cfg.frames_per_press.max(1),
+        {
+            let mut p = val_q.press.clone();
+            p.dedup();
+            p.len()
+        },
         t0.elapsed().as_secs_f64()
     );
+    let val_presses_n = {
+        let mut p = val_q.press.clone();
+        p.dedup();
+        p.len()
+    };
     let groups = PressGroups::new(&train_set.class, &train_set.press);
     let device = Device::flex().autodiff();
     device.seed(cfg.seed);
@@ -757,6 +769,7 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
                 loss: recent.iter().sum::<f64>() / recent.len().max(1) as f64,
                 lr,
                 val_press_top1: acc,
+                val_presses: val_presses_n,
                 seconds: t_train.elapsed().as_secs_f64(),
             };
             bar.println(&format!(

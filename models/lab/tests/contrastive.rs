@@ -58,10 +58,16 @@ fn the_cnn_recipe_trains_and_the_daemon_runs_it_as_trained() {
     cfg.steps = 6;
     cfg.eval_every = 3;
     cfg.warmup_steps = 1;
+    cfg.val_presses = 3;
     let (enc, val) = supcon::train(&cfg, dir.path(), 2).unwrap();
     assert!((0.0..=1.0).contains(&val));
     let metrics = std::fs::read_to_string(dir.path().join("metrics.jsonl")).unwrap();
     assert_eq!(metrics.lines().count(), 2, "{metrics}");
+    // 4 textiles x 3 validation presses.
+    for line in metrics.lines() {
+        let m: supcon::StepMetrics = serde_json::from_str(line).unwrap();
+        assert_eq!(m.val_presses, 12, "{line}");
+    }
     assert!(dir.path().join("best.bpk").exists());
     let (reloaded, _) = supcon::load_best(dir.path()).unwrap();
     let bytes = export_encoder(
