@@ -82,24 +82,17 @@ pub struct RuleOutcome {
     pub why: String,
 }
 
-fn group(m: &Value, name: &str) -> (Option<f64>, Option<usize>) {
-    let g = m["groups"]
-        .as_array()
-        .and_then(|g| g.iter().find(|g| g["name"] == name));
+/// Top-1 per press and the presses behind it, of a score object of the
+/// report (a group, a cross-generator result, a stability level).
+fn top1_and_presses(v: Option<&Value>) -> (Option<f64>, Option<usize>) {
     (
-        g.and_then(|g| g["press_top1"].as_f64()),
-        g.and_then(|g| g["presses"].as_u64()).map(|n| n as usize),
+        v.and_then(|v| v["press_top1"].as_f64()),
+        v.and_then(|v| v["presses"].as_u64()).map(|n| n as usize),
     )
 }
 
-fn worst(stab: &Value, method: &str, factor: &str) -> (Option<f64>, Option<usize>) {
-    let level = worst_level(stab, method, factor);
-    (
-        level.and_then(|l| l["press_top1"].as_f64()),
-        level
-            .and_then(|l| l["presses"].as_u64())
-            .map(|n| n as usize),
-    )
+fn group<'a>(m: &'a Value, name: &str) -> Option<&'a Value> {
+    m["groups"].as_array()?.iter().find(|g| g["name"] == name)
 }
 
 fn worst_level<'a>(stab: &'a Value, method: &str, factor: &str) -> Option<&'a Value> {
@@ -114,11 +107,9 @@ fn worst_level<'a>(stab: &'a Value, method: &str, factor: &str) -> Option<&'a Va
     c["levels"]
         .as_array()?
         .iter()
-        .filter(|l| l["press_top1"].as_f64().is_some())
-        .min_by(|a, b| {
-            let (a, b) = (a["press_top1"].as_f64(), b["press_top1"].as_f64());
-            a.unwrap_or(0.0).total_cmp(&b.unwrap_or(0.0))
-        })
+        .filter_map(|l| Some((l["press_top1"].as_f64()?, l)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, l)| l)
 }
 
 /// Applies the rule to a `bench.json` (as written by `bench`).
@@ -130,15 +121,9 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
     for m in methods {
         let name = m["name"].as_str().context("a method without a name")?;
         let ms = m["latency"][0][1].as_f64().unwrap_or(f64::NAN);
-        let cross_m = report["cross_generator"]
+        let cross = report["cross_generator"]
             .as_array()
             .and_then(|c| c.iter().find(|c| c["name"] == name));
-        let cross = (
-            cross_m.and_then(|c| c["press_top1"].as_f64()),
-            cross_m
-                .and_then(|c| c["presses"].as_u64())
-                .map(|n| n as usize),
-        );
         // The decision curve runs over the held-out jig presses.
         let held_presses = m["presses"].as_u64().map(|n| n as usize);
         let at100 = report["decision"]
@@ -153,12 +138,12 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
             });
         let stab = &report["stability"];
         let cols = [
-            group(m, "held-out people, training units"),
-            group(m, "held-out people, held-out units"),
-            group(m, "hand-held queries, jig index"),
-            cross,
-            worst(stab, name, "Rotation"),
-            worst(stab, name, "Force"),
+            top1_and_presses(group(m, "held-out people, training units")),
+            top1_and_presses(group(m, "held-out people, held-out units")),
+            top1_and_presses(group(m, "hand-held queries, jig index")),
+            top1_and_presses(cross),
+            top1_and_presses(worst_level(stab, name, "Rotation")),
+            top1_and_presses(worst_level(stab, name, "Force")),
             (at100, held_presses),
         ];
         let columns: Vec<Option<f64>> = cols.iter().map(|c| c.0.map(|v| 100.0 * v)).collect();
@@ -204,7 +189,6 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
         .find(|r| r.name == incumbent)
         .with_context(|| format!("the incumbent {incumbent} is not in the report"))?;
     let inc_score = inc.score;
-    let inc_row = inc.clone();
     // The best eligible challenger: highest score, the faster within the
     // margin.
     let mut best: Option<&RuleRow> = None;
@@ -224,7 +208,7 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
     let best_name = best.map(|b| b.name.clone());
     let (chosen, why) = match (best, inc_score) {
         (Some(b), Some(i))
-            if b.name != incumbent && b.score.unwrap_or(0.0) >= i + b.needed_lead(&inc_row) =>
+            if b.name != incumbent && b.score.unwrap_or(0.0) >= i + b.needed_lead(inc) =>
         {
             (
                 b.name.clone(),
@@ -234,7 +218,7 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
                     b.score.unwrap_or(0.0),
                     i,
                     b.score.unwrap_or(0.0) - i,
-                    b.needed_lead(&inc_row)
+                    b.needed_lead(inc)
                 ),
             )
         }
@@ -246,7 +230,7 @@ pub fn apply(report: &Value, incumbent: &str) -> Result<RuleOutcome> {
                 b.score.unwrap_or(0.0),
                 i,
                 b.score.unwrap_or(0.0) - i,
-                b.needed_lead(&inc_row)
+                b.needed_lead(inc)
             ),
         ),
         (_, Some(i)) => (
