@@ -141,6 +141,25 @@ fn the_bench_runs_end_to_end_on_simulated_presses() {
     assert_eq!(json["knee"], serde_json::Value::String(knee));
 }
 
+/// A bench of accuracy per group only (no stability suite, decision
+/// curve or user test; 3 timed runs), writing under `dir`.
+fn accuracy_only(protocol: Protocol, dir: &std::path::Path) -> BenchConfig {
+    BenchConfig {
+        source: SourceKind::Sim,
+        protocol,
+        cache_dir: dir.join("cache"),
+        threads: 2,
+        models: vec![],
+        time_threads: vec![1],
+        runs: 3,
+        stability: None,
+        decision_frames: 0,
+        roller: vec![],
+        cross_generator: false,
+        out: dir.join("out"),
+    }
+}
+
 /// Catalogue 2 (issue 18): the bench renders v2 caches (their own cache
 /// directory, v1's untouched), scores every method per group of queries
 /// (held-out people on training units, on held-out units, hand-held) and
@@ -159,18 +178,8 @@ fn the_bench_reports_catalogue_2_by_group_and_across_generators() {
         .collect();
     assert_eq!(methods.len(), 2);
     let cfg = BenchConfig {
-        source: SourceKind::Sim,
-        protocol: p.clone(),
-        cache_dir: dir.path().join("cache"),
-        threads: 2,
-        models: vec![],
-        time_threads: vec![1],
-        runs: 3,
-        stability: None,
-        decision_frames: 0,
-        roller: vec![],
         cross_generator: true,
-        out: out.clone(),
+        ..accuracy_only(p.clone(), dir.path())
     };
     let r = report::run(&cfg, &methods).unwrap();
     assert_eq!(r.source, "sim, catalogue 2");
@@ -259,20 +268,7 @@ fn more_heldout_people_enlarge_every_group() {
         .into_iter()
         .filter(|m| m.name() == "fft-radial-c64-bg")
         .collect();
-    let cfg = BenchConfig {
-        source: SourceKind::Sim,
-        protocol: p,
-        cache_dir: dir.path().join("cache"),
-        threads: 2,
-        models: vec![],
-        time_threads: vec![1],
-        runs: 3,
-        stability: None,
-        decision_frames: 0,
-        roller: vec![],
-        cross_generator: false,
-        out: dir.path().join("out"),
-    };
+    let cfg = accuracy_only(p, dir.path());
     let r = report::run(&cfg, &methods).unwrap();
     let m = &r.methods[0];
     // 2 textiles: persons 8 and 11 on unit 0; 9, 10, 12, 13 on units 4, 5;
