@@ -481,6 +481,19 @@ fn inspect(a: InspectArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use clap::Parser;
+
+    /// `telextilesd index build`'s arguments alone.
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        b: BuildArgs,
+    }
+
+    fn fixture_model() -> std::path::PathBuf {
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_encoder.onnx")
+    }
 
     /// Rows of the report: (method, numbers).
     fn rows(r: &str) -> Vec<(String, Vec<f32>)> {
@@ -496,12 +509,6 @@ mod tests {
 
     #[test]
     fn simulated_index_presses_cover_every_person_on_every_sensor() {
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            b: BuildArgs,
-        }
-        use clap::Parser;
         let parse = |args: &[&str]| {
             Cli::try_parse_from(
                 ["index-build", "--model", "m.onnx", "--sim"]
@@ -538,12 +545,6 @@ mod tests {
 
     #[test]
     fn own_recordings_keep_per_press_exemplars_by_default() {
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            b: BuildArgs,
-        }
-        use clap::Parser;
         let parse = |args: &[&str]| {
             Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
                 .unwrap()
@@ -610,14 +611,7 @@ mod tests {
         )
         .unwrap();
         let out = dir.path().join("my.tlxi");
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            b: BuildArgs,
-        }
-        use clap::Parser;
-        let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("sensing/tests/fixtures/fixture_encoder.onnx");
+        let model = fixture_model();
         let a = Cli::try_parse_from([
             "index-build",
             "--model",
@@ -658,14 +652,7 @@ mod tests {
                 .unwrap();
             telextiles_sim::recording::write_press(&rec.join(id).join("0001"), &p).unwrap();
         }
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            b: BuildArgs,
-        }
-        use clap::Parser;
-        let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("sensing/tests/fixtures/fixture_encoder.onnx");
+        let model = fixture_model();
         let build_with = |extra: &[&str]| {
             let out = dir.path().join(format!("i{}.tlxi", extra.len()));
             let mut argv = vec![
@@ -690,9 +677,8 @@ mod tests {
             for e in &index.entries {
                 let t = c.get(&e.id).unwrap();
                 assert_eq!(e.name, t.name);
-                let want: Vec<f32> = t.attributes.to_vec().to_vec();
                 let got: Vec<f32> = e.attributes.iter().map(|a| a.1).collect();
-                assert_eq!(got, want, "{} in catalogue {cat}", e.id);
+                assert_eq!(got, t.attributes.to_vec(), "{} in catalogue {cat}", e.id);
             }
         }
         assert_ne!(v1.entries[0].attributes, v2.entries[0].attributes);
@@ -726,12 +712,7 @@ mod tests {
         assert_eq!(sim_index.entries.len(), c2.training().count());
         let e = &sim_index.entries[0];
         assert_eq!(e.name, c2.get(&e.id).unwrap().name);
-        #[derive(clap::Parser)]
-        struct Bad {
-            #[command(flatten)]
-            b: BuildArgs,
-        }
-        assert!(Bad::try_parse_from(["x", "--model", "m", "--sim", "--catalogue", "3"]).is_err());
+        assert!(Cli::try_parse_from(["x", "--model", "m", "--sim", "--catalogue", "3"]).is_err());
     }
 
     #[test]
