@@ -11,7 +11,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use telextiles_sensing::contact::{ContactEvent, EndReason};
 use telextiles_sensing::decide::{FlatIndex, TextileIndex};
-use telextiles_session::{ReceiverConfig, ReceiverCore, RxAction, RxInput, SenderCore, TxAction};
+use telextiles_session::{
+    Latent, ReceiverConfig, ReceiverCore, RxAction, RxInput, SenderCore, TxAction,
+};
 
 const DIM: usize = 16;
 const PERIOD: u64 = 16_667;
@@ -643,8 +645,9 @@ fn the_receiver_weights_frames_by_the_length_the_sender_gave_them() {
             .chain((0..15).map(|_| (a.clone(), 0.5)))
             .collect();
         for (k, (v, w)) in frames.iter().enumerate() {
+            // The sender's wire form of a latent of that weight.
             let wire: Vec<f32> = if weighted {
-                v.iter().map(|x| x * w).collect()
+                Latent::new(v, v.len()).unwrap().with_weight(*w).wire()
             } else {
                 v.clone()
             };
