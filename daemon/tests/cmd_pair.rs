@@ -22,37 +22,41 @@ struct Proc {
     seen: Vec<String>,
 }
 
+/// `telextilesd pair <args>` with everything of its own under `dir`.
+fn pair_command(args: &[&str], dir: &std::path::Path) -> Command {
+    let mut c = Command::new(BIN);
+    c.arg("pair")
+        .args(args)
+        .args(["--state-dir", dir.to_str().unwrap(), "--mdns=false"])
+        .args([
+            "--data-dir",
+            dir.to_str().unwrap(),
+            "--runtime-dir",
+            dir.to_str().unwrap(),
+        ])
+        // Nothing of the host: no configuration file, no camera, no
+        // serial port; the shipped model and index.
+        .arg("--config")
+        .arg(none_toml(dir))
+        .args(["--sensor", "sim", "--roller", "sim", "--map=false"])
+        .args([
+            "--model",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
+        ])
+        .args([
+            "--index",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
+        ])
+        .env_remove("TELEXTILESD_CONFIG")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    c
+}
+
 impl Proc {
     fn spawn(args: &[&str], dir: &std::path::Path) -> Proc {
-        let mut child = Command::new(BIN)
-            .arg("pair")
-            .args(args)
-            .args(["--state-dir", dir.to_str().unwrap(), "--mdns=false"])
-            .args([
-                "--data-dir",
-                dir.to_str().unwrap(),
-                "--runtime-dir",
-                dir.to_str().unwrap(),
-            ])
-            // Nothing of the host: no configuration file, no camera, no
-            // serial port; the shipped model and index.
-            .arg("--config")
-            .arg(none_toml(dir))
-            .args(["--sensor", "sim", "--roller", "sim", "--map=false"])
-            .args([
-                "--model",
-                concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
-            ])
-            .args([
-                "--index",
-                concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
-            ])
-            .env_remove("TELEXTILESD_CONFIG")
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("run telextilesd");
+        let mut child = pair_command(args, dir).spawn().expect("run telextilesd");
         let (tx, rx) = mpsc::channel();
         for out in [
             Box::new(child.stdout.take().unwrap()) as Box<dyn std::io::Read + Send>,
@@ -202,27 +206,12 @@ fn gives_up(no_session: bool) {
         .find(|c| c.parse::<telextiles_certs::PairingCode>().is_ok())
         .expect("one check digit fits");
     let t0 = Instant::now();
-    let mut child = Command::new(BIN)
-        .arg("pair")
-        .args(["--listen", &listen, "--connect", &nobody, "--code", &code])
-        .args(["--state-dir", d.path().to_str().unwrap(), "--mdns=false"])
-        .args(["--data-dir", d.path().to_str().unwrap()])
-        .args(["--runtime-dir", d.path().to_str().unwrap()])
-        .arg("--config")
-        .arg(none_toml(d.path()))
-        .args([
-            "--sensor",
-            "sim",
-            "--roller",
-            "sim",
-            "--map=false",
-            "--no-session",
-        ])
-        .env_remove("TELEXTILESD_CONFIG")
+    let mut args = vec!["--listen", &listen, "--connect", &nobody, "--code", &code];
+    if no_session {
+        args.push("--no-session");
+    }
+    let mut child = pair_command(&args, d.path())
         .env("TELEXTILESD_PAIRING_TTL_MS", "1500")
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     // Give it up to 30 s (a loaded machine), then look at what it said.
