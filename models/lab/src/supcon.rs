@@ -163,6 +163,11 @@ impl DiffSet {
         self.class.is_empty()
     }
 
+    /// Presses in the set (frames carry their press's index, in order).
+    pub fn presses(&self) -> usize {
+        self.press.last().map_or(0, |p| *p as usize + 1)
+    }
+
     pub fn image(&self, i: usize) -> &[f32] {
         let n = 3 * self.side * self.side;
         &self.data[i * n..(i + 1) * n]
@@ -690,19 +695,10 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
     eprintln!(
         "{} training frames of {} presses, {} validation presses; rendered in {:.0} s",
         train_set.len(),
-        train_set.press.last().map_or(0, |p| p + 1),
-        {
-            let mut p = val_q.press.clone();
-            p.dedup();
-            p.len()
-        },
+        train_set.presses(),
+        val_q.presses(),
         t0.elapsed().as_secs_f64()
     );
-    let val_presses_n = {
-        let mut p = val_q.press.clone();
-        p.dedup();
-        p.len()
-    };
     let groups = PressGroups::new(&train_set.class, &train_set.press);
     let device = Device::flex().autodiff();
     device.seed(cfg.seed);
@@ -769,7 +765,7 @@ pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder,
                 loss: recent.iter().sum::<f64>() / recent.len().max(1) as f64,
                 lr,
                 val_press_top1: acc,
-                val_presses: val_presses_n,
+                val_presses: val_q.presses(),
                 seconds: t_train.elapsed().as_secs_f64(),
             };
             bar.println(&format!(
