@@ -23,6 +23,10 @@ pub enum BaselineKind {
     Lbp,
     /// Radially averaged log power spectrum of the Hann-windowed grey crop (63 bins).
     Fft,
+    /// The colour-whitened power spectrum: radial log bins and rotation-
+    /// invariant angular harmonics ([`crate::wspec`]); on the image
+    /// averaged over 2x2 blocks when it is large enough.
+    WSpec,
 }
 
 /// A descriptor and whether it sees background-subtracted frames.
@@ -52,6 +56,7 @@ impl Baseline {
             BaselineKind::Pixels => "pixels16",
             BaselineKind::Lbp => "lbp-riu2",
             BaselineKind::Fft => "fft-radial",
+            BaselineKind::WSpec => "wspec",
         };
         if self.bgsub {
             format!("{k} -bg")
@@ -64,12 +69,19 @@ impl Baseline {
     /// `bg` is the no-contact reference of the same size (used when `bgsub`).
     pub fn features(&self, img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
         let bg = if self.bgsub { bg } else { None };
+        if self.kind == BaselineKind::WSpec {
+            assert_eq!(w, h, "wspec takes a square image");
+            let mut f = crate::wspec::of_image(img, w, bg, (w / 2).min(120) & !1);
+            l2(&mut f);
+            return f;
+        }
         let n = crop_side(w, h);
         let rgb = centre_crop_f32(img, w, h, n, bg);
         let mut f = match self.kind {
             BaselineKind::Pixels => pixels(&rgb, n),
             BaselineKind::Lbp => lbp(&grey(&rgb), n),
             BaselineKind::Fft => fft_radial(&grey(&rgb), n),
+            BaselineKind::WSpec => unreachable!("handled above"),
         };
         l2(&mut f);
         f

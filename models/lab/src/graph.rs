@@ -172,6 +172,239 @@ impl Builder {
     }
 }
 
+/// The DFT of `x` (`[N, C, n, n]`, real) on the half plane of row
+/// frequencies 0..=n/2 and all column frequencies, as (real, imaginary)
+/// parts `[N, C, n/2 + 1, n]`: two pairs of matrix products with fixed
+/// cosine and sine matrices (`W = C - iS`, symmetric). Along rows first,
+/// then along columns for the row frequencies 0..=n/2 only: the power
+/// spectrum of a real image is point-symmetric, `P[ky, kx] = P[-ky, -kx]`.
+fn half_plane_dft(b: &mut Builder, x: &str, n: usize) -> (String, String) {
+    let ni = n as i64;
+    let h = n / 2 + 1;
+    let (mut cm, mut sm) = (vec![0f32; n * n], vec![0f32; n * n]);
+    for k in 0..n {
+        for j in 0..n {
+            let a = 2.0 * PI * ((k * j) % n) as f64 / n as f64;
+            cm[k * n + j] = a.cos() as f32;
+            sm[k * n + j] = a.sin() as f32;
+        }
+    }
+    let c = b.f32s("dft_cos", &[ni, ni], cm.clone());
+    let s = b.f32s("dft_sin", &[ni, ni], sm.clone());
+    let c_half = b.f32s("dft_cos_half", &[h as i64, ni], cm[..h * n].to_vec());
+    let s_half = b.f32s("dft_sin_half", &[h as i64, ni], sm[..h * n].to_vec());
+    let xc = b.op("MatMul", &[x, &c], vec![]);
+    let xs = b.op("MatMul", &[x, &s], vec![]);
+    let cxc = b.op("MatMul", &[&c_half, &xc], vec![]);
+    let sxs = b.op("MatMul", &[&s_half, &xs], vec![]);
+    let cxs = b.op("MatMul", &[&c_half, &xs], vec![]);
+    let sxc = b.op("MatMul", &[&s_half, &xc], vec![]);
+    let re = b.op("Sub", &[&cxc, &sxs], vec![]);
+    let im = b.op("Add", &[&cxs, &sxc], vec![]);
+    (re, im)
+}
+
+/// `[N, bins]`: for each row of `flat` (`[N, cells]`), the sum of
+/// `weight[i] * flat[cells[i]]` per bin `bin[i]` (a gather and a
+/// scatter-add, so no dense cells x bins matrix is stored).
+fn scatter_bins(
+    b: &mut Builder,
+    flat: &str,
+    (cells, bin, weight): (Vec<i32>, Vec<i32>, Vec<f32>),
+    bin_hint: &str,
+    bins: usize,
+) -> String {
+    let m = cells.len() as i64;
+    let cells = b.i32s("bin_cells", &[m], cells);
+    let gathered = b.op("Gather", &[flat, &cells], vec![attr_int("axis", 1)]);
+    let weight = b.f32s("bin_weights", &[m], weight);
+    let weighted = b.op("Mul", &[&gathered, &weight], vec![]);
+    let bin = b.i32s(bin_hint, &[1, m], bin);
+    let wshape = b.op("Shape", &[&weighted], vec![]);
+    let bin = b.op("Expand", &[&bin, &wshape], vec![]);
+    let (zero, one) = (b.i64s("zero", vec![0]), b.i64s("one", vec![1]));
+    let batch = b.op("Slice", &[&wshape, &zero, &one], vec![]);
+    let dims = b.i64s("bins_dim", vec![bins as i64]);
+    let zshape = b.op("Concat", &[&batch, &dims], vec![attr_int("axis", 0)]);
+    let zeros = b.op("ConstantOfShape", &[&zshape], vec![]);
+    b.op(
+        "ScatterElements",
+        &[&zeros, &bin, &weighted],
+        vec![attr_int("axis", 1), attr_str("reduction", "add")],
+    )
+}
+
+/// The trained head on a descriptor's output `x` (`[N, input]`).
+fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
+    let (i, hd, o) = (h.input as i64, h.hidden as i64, h.out as i64);
+    let scale = b.f32s("head_scale", &[i], h.scale.clone());
+    let x = b.op("Mul", &[x, &scale], vec![]);
+    let first = if h.hidden == 0 { o } else { hd };
+    let w1 = b.f32s("head_w1", &[i, first], h.w1.clone());
+    let b1 = b.f32s("head_b1", &[first], h.b1.clone());
+    let x = b.op("MatMul", &[&x, &w1], vec![]);
+    let x = b.op("Add", &[&x, &b1], vec![]);
+    if h.hidden == 0 {
+        return x;
+    }
+    let x = b.op("Relu", &[&x], vec![]);
+    let w2 = b.f32s("head_w2", &[hd, o], h.w2.clone());
+    let b2 = b.f32s("head_b2", &[o], h.b2.clone());
+    let x = b.op("MatMul", &[&x, &w2], vec![]);
+    b.op("Add", &[&x, &b2], vec![])
+}
+
+/// The colour-whitened spectrum of the input (`[N, 3, n, n]`, the
+/// normalised frame minus the normalised reference): radial log bins and
+/// angular harmonics, `[N, wspec::dim(n)]`, as [`crate::wspec::reference`]
+/// computes them.
+fn wspec_graph(b: &mut Builder, n: usize) -> String {
+    use crate::wspec::{self, BANDS, HARMONICS, SECTORS};
+    let ni = n as i64;
+    let plane = (n * n) as i64;
+    // Back to grey levels (the reference's offset is already gone).
+    let w: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_STD[c]).collect();
+    let w = b.f32s("dn_scale", &[1, 3, 1, 1], w);
+    let x = b.op("Mul", &[INPUT_NAME, &w], vec![]);
+    let hw = b.i64s("axes_hw", vec![2, 3]);
+    let mean = b.op("ReduceMean", &[&x, &hw], vec![attr_int("keepdims", 1)]);
+    let centred = b.op("Sub", &[&x, &mean], vec![]);
+    let h = hann(n);
+    let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
+    let win = b.f32s("hann2d", &[ni, ni], win);
+    let xw = b.op("Mul", &[&centred, &win], vec![]);
+    // Colour covariance [N, 3, 3] of the windowed difference, with the ridge.
+    let shape = b.i64s("chan_flat", vec![0, 3, plane]);
+    let flat = b.op("Reshape", &[&xw, &shape], vec![]);
+    let flat_t = b.op("Transpose", &[&flat], vec![attr_ints("perm", &[0, 2, 1])]);
+    let gram = b.op("MatMul", &[&flat, &flat_t], vec![]);
+    let inv_plane = b.f32s("inv_plane", &[1], vec![1.0 / (n * n) as f32]);
+    let cov = b.op("Mul", &[&gram, &inv_plane], vec![]);
+    let eye: Vec<f32> = (0..9).map(|i| if i % 4 == 0 { 1.0 } else { 0.0 }).collect();
+    let eye = b.f32s("eye3", &[3, 3], eye);
+    let diag = b.op("Mul", &[&cov, &eye], vec![]);
+    let ax12 = b.i64s("axes_12", vec![1, 2]);
+    let trace = b.op("ReduceSum", &[&diag, &ax12], vec![attr_int("keepdims", 1)]);
+    let rel = b.f32s("ridge_rel", &[1], vec![(wspec::RIDGE_REL / 3.0) as f32]);
+    let abs = b.f32s("ridge_abs", &[1], vec![wspec::RIDGE_ABS as f32]);
+    let ridge = b.op("Mul", &[&trace, &rel], vec![]);
+    let ridge = b.op("Add", &[&ridge, &abs], vec![]);
+    let ridge = b.op("Mul", &[&ridge, &eye], vec![]);
+    let cov = b.op("Add", &[&cov, &ridge], vec![]);
+    // Its inverse: adjugate over determinant (symmetric 3x3).
+    let nine = b.i64s("flat9", vec![-1, 9]);
+    let c9 = b.op("Reshape", &[&cov, &nine], vec![]);
+    let mut e = Vec::new();
+    for k in [0i32, 1, 2, 4, 5, 8] {
+        let idx = b.i32s("cov_entry", &[1], vec![k]);
+        e.push(b.op("Gather", &[&c9, &idx], vec![attr_int("axis", 1)]));
+    }
+    let (a, bb, c, d, ee, f) = (&e[0], &e[1], &e[2], &e[3], &e[4], &e[5]);
+    let mut minor = |p: &str, q: &str, r: &str, s: &str| {
+        let pq = b.op("Mul", &[p, q], vec![]);
+        let rs = b.op("Mul", &[r, s], vec![]);
+        b.op("Sub", &[&pq, &rs], vec![])
+    };
+    let a00 = minor(d, f, ee, ee);
+    let a01 = minor(c, ee, bb, f);
+    let a02 = minor(bb, ee, c, d);
+    let a11 = minor(a, f, c, c);
+    let a12 = minor(bb, c, a, ee);
+    let a22 = minor(a, d, bb, bb);
+    let adj = b.op(
+        "Concat",
+        &[&a00, &a01, &a02, &a01, &a11, &a12, &a02, &a12, &a22],
+        vec![attr_int("axis", 1)],
+    );
+    let t0 = b.op("Mul", &[a, &a00], vec![]);
+    let t1 = b.op("Mul", &[bb, &a01], vec![]);
+    let t2 = b.op("Mul", &[c, &a02], vec![]);
+    let det = b.op("Add", &[&t0, &t1], vec![]);
+    let det = b.op("Add", &[&det, &t2], vec![]);
+    let inv = b.op("Div", &[&adj, &det], vec![]);
+    let s33 = b.i64s("shape33", vec![-1, 3, 3]);
+    let inv = b.op("Reshape", &[&inv, &s33], vec![]);
+    // P(k) = F(k)^H inv F(k) / n^2 on the half plane.
+    let (re, im) = half_plane_dft(b, &xw, n);
+    let hn = ((n / 2 + 1) * n) as i64;
+    let s3 = b.i64s("chan_half", vec![0, 3, hn]);
+    let re = b.op("Reshape", &[&re, &s3], vec![]);
+    let im = b.op("Reshape", &[&im, &s3], vec![]);
+    let wre = b.op("MatMul", &[&inv, &re], vec![]);
+    let wim = b.op("MatMul", &[&inv, &im], vec![]);
+    let pr = b.op("Mul", &[&wre, &re], vec![]);
+    let pi = b.op("Mul", &[&wim, &im], vec![]);
+    let p = b.op("Add", &[&pr, &pi], vec![]);
+    let ax1 = b.i64s("axes_1", vec![1]);
+    let p = b.op("ReduceSum", &[&p, &ax1], vec![attr_int("keepdims", 0)]);
+    let p = b.op("Mul", &[&p, &inv_plane], vec![]);
+    // Radial log bins, their mean removed.
+    let cells = wspec::cells(n);
+    let (rw, aw) = wspec::bin_weights(n);
+    let (mut ci, mut bi, mut wi) = (Vec::new(), Vec::new(), Vec::new());
+    for cell in cells.iter().filter(|c| c.radial.is_some()) {
+        ci.push(cell.cell as i32);
+        bi.push(cell.radial.unwrap_or(0) as i32);
+        wi.push(cell.weight as f32);
+    }
+    let nr = rw.len();
+    let sums = scatter_bins(b, &p, (ci, bi, wi), "bin_radius", nr);
+    let inv_w: Vec<f32> = rw.iter().map(|w| (1.0 / w) as f32).collect();
+    let inv_w = b.f32s("radial_inv_weight", &[nr as i64], inv_w);
+    let radial = b.op("Mul", &[&sums, &inv_w], vec![]);
+    let eps = b.f32s("log_eps", &[1], vec![wspec::LOG_EPS as f32]);
+    let radial = b.op("Add", &[&radial, &eps], vec![]);
+    let log = b.op("Log", &[&radial], vec![]);
+    let lmean = b.op("ReduceMean", &[&log, &ax1], vec![attr_int("keepdims", 1)]);
+    let log = b.op("Sub", &[&log, &lmean], vec![]);
+    // Angular profile per band, its harmonics' magnitudes over its total.
+    let (mut ci, mut bi, mut wi) = (Vec::new(), Vec::new(), Vec::new());
+    for cell in &cells {
+        if let Some((band, sector)) = cell.angular {
+            ci.push(cell.cell as i32);
+            bi.push((band * SECTORS + sector) as i32);
+            wi.push(cell.weight as f32);
+        }
+    }
+    let sums = scatter_bins(b, &p, (ci, bi, wi), "bin_band_sector", BANDS * SECTORS);
+    let inv_w: Vec<f32> = aw
+        .iter()
+        .map(|&w| if w > 0.0 { (1.0 / w) as f32 } else { 0.0 })
+        .collect();
+    let inv_w = b.f32s("angular_inv_weight", &[(BANDS * SECTORS) as i64], inv_w);
+    let profile = b.op("Mul", &[&sums, &inv_w], vec![]);
+    let sb = b.i64s("bands_sectors", vec![-1, BANDS as i64, SECTORS as i64]);
+    let profile = b.op("Reshape", &[&profile, &sb], vec![]);
+    let (mut hc, mut hs) = (Vec::new(), Vec::new());
+    for s in 0..SECTORS {
+        for m in 1..=HARMONICS {
+            let t = -2.0 * PI * (m * s) as f64 / SECTORS as f64;
+            hc.push(t.cos() as f32);
+            hs.push(t.sin() as f32);
+        }
+    }
+    let hc = b.f32s("harm_cos", &[SECTORS as i64, HARMONICS as i64], hc);
+    let hs = b.f32s("harm_sin", &[SECTORS as i64, HARMONICS as i64], hs);
+    let hr = b.op("MatMul", &[&profile, &hc], vec![]);
+    let hi = b.op("MatMul", &[&profile, &hs], vec![]);
+    let hr2 = b.op("Mul", &[&hr, &hr], vec![]);
+    let hi2 = b.op("Mul", &[&hi, &hi], vec![]);
+    let mag = b.op("Add", &[&hr2, &hi2], vec![]);
+    let mag = b.op("Sqrt", &[&mag], vec![]);
+    let ax2 = b.i64s("axes_2", vec![2]);
+    let total = b.op(
+        "ReduceSum",
+        &[&profile, &ax2],
+        vec![attr_int("keepdims", 1)],
+    );
+    let heps = b.f32s("harm_eps", &[1], vec![wspec::HARM_EPS as f32]);
+    let total = b.op("Add", &[&total, &heps], vec![]);
+    let harm = b.op("Div", &[&mag, &total], vec![]);
+    let fh = b.i64s("harm_flat", vec![-1, (BANDS * HARMONICS) as i64]);
+    let harm = b.op("Reshape", &[&harm, &fh], vec![]);
+    b.op("Concat", &[&log, &harm], vec![attr_int("axis", 1)])
+}
+
 /// A fixed descriptor as an ONNX model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DescriptorSpec {
@@ -199,6 +432,7 @@ impl DescriptorSpec {
             BaselineKind::Fft => "fft-radial",
             BaselineKind::Pixels => "pixels16",
             BaselineKind::Lbp => "lbp-riu2",
+            BaselineKind::WSpec => "wspec",
         };
         let bg = if self.subtract { "-bg" } else { "" };
         let r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
@@ -219,6 +453,7 @@ impl DescriptorSpec {
             BaselineKind::Fft => self.input as usize / 2 - self.min_bin.max(1) as usize,
             BaselineKind::Pixels => 16 * 16 * 3,
             BaselineKind::Lbp => 30,
+            BaselineKind::WSpec => crate::wspec::dim(self.input as usize),
         }
     }
 }
@@ -236,7 +471,9 @@ pub fn descriptor_model(spec: &DescriptorSpec) -> Result<Vec<u8>> {
 }
 
 /// A trained head on a descriptor's output: `y = W2 relu(W1 (x * scale) +
-/// b1) + b2` (weights row-major `[in, out]`).
+/// b1) + b2` (weights row-major `[in, out]`), or, with `hidden == 0`, the
+/// linear map `y = W1 (x * scale) + b1` (`w1` is `[in, out]`, `w2` and `b2`
+/// are empty).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MlpHead {
     pub scale: Vec<f32>,
@@ -252,7 +489,31 @@ pub struct MlpHead {
 impl MlpHead {
     /// `telextiles.arch` suffix: `+mlp<hidden>-<out>`.
     pub fn suffix(&self) -> String {
-        format!("+mlp{}-{}", self.hidden, self.out)
+        if self.hidden == 0 {
+            format!("+lin{}", self.out)
+        } else {
+            format!("+mlp{}-{}", self.hidden, self.out)
+        }
+    }
+
+    /// Whether the shapes fit an `input`-long descriptor.
+    fn fits(&self, input: usize) -> bool {
+        let first = if self.hidden == 0 {
+            self.out
+        } else {
+            self.hidden
+        };
+        let (w2, b2) = if self.hidden == 0 {
+            (0, 0)
+        } else {
+            (self.hidden * self.out, self.out)
+        };
+        self.input == input
+            && self.scale.len() == input
+            && self.w1.len() == input * first
+            && self.b1.len() == first
+            && self.w2.len() == w2
+            && self.b2.len() == b2
     }
 }
 
@@ -264,16 +525,11 @@ pub fn descriptor_with_head(
     train_hash: &str,
 ) -> Result<Vec<u8>> {
     ensure!(
-        spec.kind == BaselineKind::Fft,
-        "a head goes on the fft descriptor"
+        matches!(spec.kind, BaselineKind::Fft | BaselineKind::WSpec),
+        "a head goes on the fft or wspec descriptor"
     );
     ensure!(
-        head.input == spec.dim()
-            && head.scale.len() == head.input
-            && head.w1.len() == head.input * head.hidden
-            && head.b1.len() == head.hidden
-            && head.w2.len() == head.hidden * head.out
-            && head.b2.len() == head.out,
+        head.fits(spec.dim()),
         "the head's shapes do not fit a {}-d descriptor",
         spec.dim()
     );
@@ -320,34 +576,11 @@ fn build_descriptor(
             let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
             let win = b.f32s("hann2d", &[ni, ni], win);
             let x = b.op("Mul", &[&centred, &win], vec![]);
-            // DFT matrices (symmetric): W = C - iS. Along rows first (all n
-            // column frequencies), then along columns for the row
-            // frequencies 0..=n/2 only: the power spectrum of a real image
-            // is point-symmetric, P[ky, kx] = P[-ky, -kx].
-            let h = n / 2 + 1;
-            let (mut cm, mut sm) = (vec![0f32; n * n], vec![0f32; n * n]);
-            for k in 0..n {
-                for j in 0..n {
-                    let a = 2.0 * PI * ((k * j) % n) as f64 / n as f64;
-                    cm[k * n + j] = a.cos() as f32;
-                    sm[k * n + j] = a.sin() as f32;
-                }
-            }
-            let c = b.f32s("dft_cos", &[ni, ni], cm.clone());
-            let s = b.f32s("dft_sin", &[ni, ni], sm.clone());
-            let c_half = b.f32s("dft_cos_half", &[h as i64, ni], cm[..h * n].to_vec());
-            let s_half = b.f32s("dft_sin_half", &[h as i64, ni], sm[..h * n].to_vec());
-            let xc = b.op("MatMul", &[&x, &c], vec![]);
-            let xs = b.op("MatMul", &[&x, &s], vec![]);
-            let cxc = b.op("MatMul", &[&c_half, &xc], vec![]);
-            let sxs = b.op("MatMul", &[&s_half, &xs], vec![]);
-            let cxs = b.op("MatMul", &[&c_half, &xs], vec![]);
-            let sxc = b.op("MatMul", &[&s_half, &xc], vec![]);
-            let re = b.op("Sub", &[&cxc, &sxs], vec![]);
-            let im = b.op("Add", &[&cxs, &sxc], vec![]);
+            let (re, im) = half_plane_dft(&mut b, &x, n);
             let re2 = b.op("Mul", &[&re, &re], vec![]);
             let im2 = b.op("Mul", &[&im, &im], vec![]);
             let power = b.op("Add", &[&re2, &im2], vec![]);
+            let h = n / 2 + 1;
             let shape = b.i64s("flat_shape", vec![-1, (h * n) as i64]);
             let flat = b.op("Reshape", &[&power, &shape], vec![]);
             // Radial mean over bins 1..n/2: gather the half-plane cells of
@@ -366,24 +599,7 @@ fn build_descriptor(
                     2.0
                 });
             }
-            let m = cells.len() as i64;
-            let cells = b.i32s("bin_cells", &[m], cells);
-            let gathered = b.op("Gather", &[&flat, &cells], vec![attr_int("axis", 1)]);
-            let weight = b.f32s("bin_weights", &[m], weight);
-            let weighted = b.op("Mul", &[&gathered, &weight], vec![]);
-            let radius = b.i32s("bin_radius", &[1, m], radius);
-            let wshape = b.op("Shape", &[&weighted], vec![]);
-            let radius = b.op("Expand", &[&radius, &wshape], vec![]);
-            let (zero, one) = (b.i64s("zero", vec![0]), b.i64s("one", vec![1]));
-            let batch = b.op("Slice", &[&wshape, &zero, &one], vec![]);
-            let dims = b.i64s("bins_dim", vec![dim as i64]);
-            let zshape = b.op("Concat", &[&batch, &dims], vec![attr_int("axis", 0)]);
-            let zeros = b.op("ConstantOfShape", &[&zshape], vec![]);
-            let sums = b.op(
-                "ScatterElements",
-                &[&zeros, &radius, &weighted],
-                vec![attr_int("axis", 1), attr_str("reduction", "add")],
-            );
+            let sums = scatter_bins(&mut b, &flat, (cells, radius, weight), "bin_radius", dim);
             let inv: Vec<f32> = (r0..r0 + dim).map(|r| 1.0 / counts[r] as f32).collect();
             let inv = b.f32s("bin_inv_count", &[dim as i64], inv);
             let radial = b.op("Mul", &[&sums, &inv], vec![]);
@@ -394,18 +610,18 @@ fn build_descriptor(
             let lmean = b.op("ReduceMean", &[&log, &ax1], vec![attr_int("keepdims", 1)]);
             let spectrum = b.op("Sub", &[&log, &lmean], vec![]);
             if let Some(h) = head {
-                let (i, hd, o) = (h.input as i64, h.hidden as i64, h.out as i64);
-                let scale = b.f32s("head_scale", &[i], h.scale.clone());
-                let x = b.op("Mul", &[&spectrum, &scale], vec![]);
-                let w1 = b.f32s("head_w1", &[i, hd], h.w1.clone());
-                let b1 = b.f32s("head_b1", &[hd], h.b1.clone());
-                let x = b.op("MatMul", &[&x, &w1], vec![]);
-                let x = b.op("Add", &[&x, &b1], vec![]);
-                let x = b.op("Relu", &[&x], vec![]);
-                let w2 = b.f32s("head_w2", &[hd, o], h.w2.clone());
-                let b2 = b.f32s("head_b2", &[o], h.b2.clone());
-                let x = b.op("MatMul", &[&x, &w2], vec![]);
-                b.op("Add", &[&x, &b2], vec![]);
+                append_head(&mut b, &spectrum, h);
+            }
+            b.rename_last_output(OUTPUT_NAME);
+        }
+        BaselineKind::WSpec => {
+            ensure!(
+                spec.subtract,
+                "wspec is defined on frame minus reference: export it with the reference subtracted"
+            );
+            let spectrum = wspec_graph(&mut b, n);
+            if let Some(h) = head {
+                append_head(&mut b, &spectrum, h);
             }
             b.rename_last_output(OUTPUT_NAME);
         }
@@ -681,6 +897,83 @@ mod tests {
         let mut bad = head.clone();
         bad.b1.pop();
         assert!(descriptor_with_head(&spec, &bad, "test").is_err());
+    }
+
+    #[test]
+    fn wspec_graph_computes_its_reference_with_and_without_a_linear_head() {
+        let n = 32;
+        let spec = DescriptorSpec {
+            kind: BaselineKind::WSpec,
+            crop: 64,
+            input: n as u32,
+            subtract: true,
+            min_bin: 1,
+        };
+        assert_eq!(spec.arch(), "wspec-c64-s32-bg");
+        let bytes = descriptor_model(&spec).unwrap();
+        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert_eq!(enc.dim, crate::wspec::dim(n));
+        assert_eq!(enc.meta["telextiles.background"], "subtract");
+        let imgs = images(n, 3);
+        let mut x = Vec::new();
+        for pair in [(0, 1), (2, 0)] {
+            crate::methods::input_into(&imgs[pair.0], Some(&imgs[pair.1]), n, &mut x);
+        }
+        let got = enc.embed(&x).unwrap();
+        let d = spec.dim();
+        for (k, pair) in [(0, 1), (2, 0)].into_iter().enumerate() {
+            let plane = n * n;
+            let mut diff = vec![0f64; 3 * plane];
+            for i in 0..plane {
+                for c in 0..3 {
+                    diff[c * plane + i] =
+                        imgs[pair.0][i * 3 + c] as f64 - imgs[pair.1][i * 3 + c] as f64;
+                }
+            }
+            let want = crate::wspec::reference(&diff, n);
+            let err = got[k * d..(k + 1) * d]
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
+            assert!(err < 2e-3, "frame {k}: max diff {err}");
+        }
+        // A frame equal to its reference: zeros, not NaN.
+        let mut blank = Vec::new();
+        crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
+        assert!(enc.embed(&blank).unwrap().iter().all(|v| *v == 0.0));
+        // A linear head: y = W (x * scale) + b.
+        let o = 6;
+        let head = MlpHead {
+            scale: (0..d).map(|j| 1.0 + (j % 5) as f32 * 0.1).collect(),
+            w1: (0..d * o)
+                .map(|j| ((j * 13) % 7) as f32 / 7.0 - 0.4)
+                .collect(),
+            b1: (0..o).map(|j| j as f32 * 0.01).collect(),
+            w2: Vec::new(),
+            b2: Vec::new(),
+            input: d,
+            hidden: 0,
+            out: o,
+        };
+        let bytes = descriptor_with_head(&spec, &head, "test").unwrap();
+        let mut lin = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert_eq!(lin.dim, o);
+        assert_eq!(lin.meta["telextiles.arch"], "wspec-c64-s32-bg+lin6");
+        let y = lin.embed(&x[..3 * n * n]).unwrap();
+        for (k, g) in y.iter().enumerate() {
+            let want: f32 = (0..d)
+                .map(|j| got[j] * head.scale[j] * head.w1[j * o + k])
+                .sum::<f32>()
+                + head.b1[k];
+            assert!((g - want).abs() < 1e-3, "output {k}: {g} vs {want}");
+        }
+        // wspec is defined on frame minus reference only.
+        let raw = DescriptorSpec {
+            subtract: false,
+            ..spec
+        };
+        assert!(descriptor_model(&raw).is_err());
     }
 
     #[test]

@@ -26,3 +26,4 @@ pub mod supcon;
 pub mod synth;
 pub mod train;
 pub mod usertest;
+pub mod wspec;

@@ -142,11 +142,24 @@ struct SpectralArgs {
     /// Augmented copies of every kept frame.
     #[arg(long, default_value_t = 3)]
     augs: usize,
+    /// Frames kept per press (one from the contact ramp, the rest over the
+    /// hold).
+    #[arg(long, default_value_t = 4)]
+    frames_per_press: usize,
+    /// Validation presses per textile (person 7 on unit 15; each a query).
+    #[arg(long, default_value_t = 1)]
+    val_presses: usize,
     /// Only the first N training textiles (quick runs).
     #[arg(long)]
     textiles: Option<usize>,
     #[arg(long, default_value_t = 4000)]
     steps: usize,
+    /// The fixed descriptor under the head: `fft` (the luma spectrum of the
+    /// 192-px crop) or `wspec` (the colour-whitened spectrum with angular
+    /// harmonics of the 240-px crop at 120 px).
+    #[arg(long, default_value = "fft")]
+    front: telextiles_lab::spectral::Front,
+    /// Hidden units of the head (0: a linear head).
     #[arg(long, default_value_t = 256)]
     hidden: usize,
     #[arg(long, default_value_t = 128)]
@@ -288,12 +301,18 @@ struct BenchArgs {
 
 #[derive(Args)]
 struct ExportDescriptorArgs {
-    /// `fft` (radially averaged log power spectrum) or `pixels`.
+    /// `fft` (radially averaged log power spectrum of the grey crop),
+    /// `wspec` (colour-whitened spectrum with angular harmonics; needs
+    /// --subtract) or `pixels`.
     #[arg(long, default_value = "fft")]
     kind: String,
-    /// Centre crop of the frame in px (= input size; even, up to 240).
+    /// Centre crop of the frame in px (even, up to 240).
     #[arg(long, default_value_t = 64)]
     crop: u32,
+    /// Side of the model's input (the crop resized to it; default: the
+    /// crop, no resampling).
+    #[arg(long)]
+    input: Option<u32>,
     /// The model takes the frame minus the no-contact reference
     /// (`telextiles.background = subtract`).
     #[arg(long)]
@@ -534,10 +553,13 @@ fn main() -> Result<()> {
         Cmd::TrainSpectral(a) => {
             let mut cfg = telextiles_lab::spectral::SpectralConfig::new();
             cfg.data.presses_per_textile = a.presses_per_textile;
+            cfg.data.frames_per_press = a.frames_per_press;
+            cfg.data.val_presses = a.val_presses;
             cfg.data.max_textiles = a.textiles;
             cfg.data.catalogue = a.catalogue;
             cfg.data.seed = a.seed;
             cfg.augs_per_frame = a.augs;
+            cfg.front = a.front;
             cfg.steps = a.steps;
             cfg.hidden = a.hidden;
             cfg.out = a.dim;
@@ -1138,12 +1160,13 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
     let kind = match a.kind.as_str() {
         "fft" => BaselineKind::Fft,
         "pixels" => BaselineKind::Pixels,
-        k => bail!("--kind {k:?}: expected fft or pixels"),
+        "wspec" => BaselineKind::WSpec,
+        k => bail!("--kind {k:?}: expected fft, wspec or pixels"),
     };
     let spec = DescriptorSpec {
         kind,
         crop: a.crop,
-        input: a.crop,
+        input: a.input.unwrap_or(a.crop),
         subtract: a.subtract,
         min_bin: a.min_bin,
     };

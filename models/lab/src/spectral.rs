@@ -32,27 +32,58 @@ use crate::supcon::{
     augment_diff, make_plans, press_top1, render_press, supcon_loss, PressGroups, SupConConfig,
 };
 
-/// The head: `x * scale` → Linear → ReLU → Linear. `attr` (training only,
-/// never exported) predicts the textile's measured attributes from the
-/// embedding when the attribute objective is on.
+/// The fixed front end a head is trained on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Front {
+    /// `fft-radial-c192-bg`: the luma spectrum of the 192-px crop (the
+    /// first shipped descriptor).
+    #[default]
+    Fft,
+    /// `wspec-c240-s120-bg`: the colour-whitened spectrum with angular
+    /// harmonics of the 240-px crop at 120 px ([`crate::wspec`]).
+    WSpec,
+}
+
+impl std::str::FromStr for Front {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fft" => Ok(Front::Fft),
+            "wspec" => Ok(Front::WSpec),
+            o => Err(format!("unknown front end {o:?}: expected fft or wspec")),
+        }
+    }
+}
+
+/// The head: `x * scale` → Linear → ReLU → Linear, or, with no hidden
+/// layer, `x * scale` → Linear. `attr` (training only, never exported)
+/// predicts the textile's measured attributes from the embedding when the
+/// attribute objective is on.
 #[derive(Module, Debug)]
 pub struct Head {
     l1: Linear,
-    l2: Linear,
+    l2: Option<Linear>,
     attr: Option<Linear>,
 }
 
 impl Head {
+    /// `hidden == 0`: a linear head.
     pub fn new(input: usize, hidden: usize, out: usize, attrs: usize, device: &Device) -> Head {
+        let first = if hidden == 0 { out } else { hidden };
         Head {
-            l1: LinearConfig::new(input, hidden).init(device),
-            l2: LinearConfig::new(hidden, out).init(device),
+            l1: LinearConfig::new(input, first).init(device),
+            l2: (hidden > 0).then(|| LinearConfig::new(hidden, out).init(device)),
             attr: (attrs > 0).then(|| LinearConfig::new(out, attrs).init(device)),
         }
     }
 
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
-        self.l2.forward(relu(self.l1.forward(x)))
+        let x = self.l1.forward(x);
+        match &self.l2 {
+            Some(l2) => l2.forward(relu(x)),
+            None => x,
+        }
     }
 
     /// Weights as plain arrays for the ONNX graph (`w` row-major `[in,
@@ -69,13 +100,27 @@ impl Head {
                 .map_err(|e| anyhow::anyhow!("{e:?}"))
         };
         let [i, h] = self.l1.weight.val().dims();
-        let [_, o] = self.l2.weight.val().dims();
+        let w1 = v(self.l1.weight.val())?;
+        let b1 = b(self.l1.bias.as_ref().context("layer 1 has no bias")?.val())?;
+        let Some(l2) = &self.l2 else {
+            return Ok(MlpHead {
+                scale,
+                w1,
+                b1,
+                w2: Vec::new(),
+                b2: Vec::new(),
+                input: i,
+                hidden: 0,
+                out: h,
+            });
+        };
+        let [_, o] = l2.weight.val().dims();
         Ok(MlpHead {
             scale,
-            w1: v(self.l1.weight.val())?,
-            b1: b(self.l1.bias.as_ref().context("layer 1 has no bias")?.val())?,
-            w2: v(self.l2.weight.val())?,
-            b2: b(self.l2.bias.as_ref().context("layer 2 has no bias")?.val())?,
+            w1,
+            b1,
+            w2: v(l2.weight.val())?,
+            b2: b(l2.bias.as_ref().context("layer 2 has no bias")?.val())?,
             input: i,
             hidden: h,
             out: o,
@@ -88,6 +133,9 @@ impl Head {
 pub struct SpectralConfig {
     /// Presses, people, units, rotations, validation: as the CNN's recipe.
     pub data: SupConConfig,
+    /// The fixed descriptor under the head.
+    #[serde(default)]
+    pub front: Front,
     /// Augmented copies of every rendered frame.
     pub augs_per_frame: usize,
     pub hidden: usize,
@@ -114,6 +162,7 @@ impl SpectralConfig {
         data.presses_per_textile = 24;
         SpectralConfig {
             data,
+            front: Front::Fft,
             augs_per_frame: 3,
             hidden: 256,
             out: 128,
@@ -126,13 +175,24 @@ impl SpectralConfig {
         }
     }
 
-    fn spec(&self) -> DescriptorSpec {
-        DescriptorSpec {
-            kind: crate::baselines::BaselineKind::Fft,
-            crop: self.data.crop,
-            input: self.data.crop,
-            subtract: true,
-            min_bin: 1,
+    /// The front end's descriptor (the 192-px crop of the recipe for
+    /// `fft`; the whole 240-px width at 120 px for `wspec`).
+    pub fn spec(&self) -> DescriptorSpec {
+        match self.front {
+            Front::Fft => DescriptorSpec {
+                kind: crate::baselines::BaselineKind::Fft,
+                crop: self.data.crop,
+                input: self.data.crop,
+                subtract: true,
+                min_bin: 1,
+            },
+            Front::WSpec => DescriptorSpec {
+                kind: crate::baselines::BaselineKind::WSpec,
+                crop: 240,
+                input: 120,
+                subtract: true,
+                min_bin: 1,
+            },
         }
     }
 }
@@ -214,6 +274,7 @@ pub fn cached_features(
     let mut h = sha2::Sha256::new();
     h.update(serde_json::to_vec(&(
         &cfg.data,
+        cfg.spec().arch(),
         people,
         units,
         presses_per_textile,
@@ -261,10 +322,13 @@ pub fn render_features(
     let sim = telextiles_sim::Simulator::with_options(d.catalogue, d.generator)
         .map_err(|e| anyhow::anyhow!("simulator: {e}"))?;
     let (_, plans) = make_plans(&sim, d, people, units, presses_per_textile, seed);
-    let graph = descriptor_model(&cfg.spec())?;
-    let crop = d.crop as usize;
-    // 8 frame px of margin each side for the translation augmentation.
-    let stored = crop + 16;
+    let spec = cfg.spec();
+    let graph = descriptor_model(&spec)?;
+    let (crop, size) = (spec.crop as usize, spec.input as usize);
+    // 8 frame px of margin each side for the translation augmentation,
+    // where the frame's width leaves them; stored at the input's scale.
+    let stored_crop = (crop + 16).min(240);
+    let stored = stored_crop * size / crop;
     let bar = telextiles_progress::Progress::new(label, plans.len() as u64, "presses");
     let next = std::sync::atomic::AtomicUsize::new(0);
     let out = std::sync::Mutex::new(Vec::new());
@@ -287,17 +351,17 @@ pub fn render_features(
                             seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15),
                         );
                         let p = &plans[i];
-                        let frames = render_press(sim, d, p, stored as u32, stored)?;
+                        let frames = render_press(sim, d, p, stored_crop as u32, stored)?;
                         let mut x = Vec::new();
                         let mut n = 0;
                         for f in &frames {
                             if augs == 0 {
-                                x.extend(crate::supcon::centre_of(f, stored, crop));
+                                x.extend(crate::supcon::centre_of(f, stored, size));
                                 n += 1;
                             }
                             for _ in 0..augs {
-                                let mut v = vec![0f32; 3 * crop * crop];
-                                augment_diff(f, stored, crop, &mut rng, &mut v);
+                                let mut v = vec![0f32; 3 * size * size];
+                                augment_diff(f, stored, size, &mut rng, &mut v);
                                 x.extend(v);
                                 n += 1;
                             }
@@ -399,7 +463,7 @@ pub fn train(
         cfg,
         &[d.val_person],
         &[d.val_unit],
-        1,
+        d.val_presses.max(1),
         0,
         d.seed ^ 0xBEEF,
         threads,
@@ -565,7 +629,8 @@ pub fn train(
     let sim = telextiles_sim::Simulator::with_options(d.catalogue, d.generator)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let (_, plans) = make_plans(&sim, d, &[d.val_person], &[d.val_unit], 1, 123);
-    let frames = render_press(&sim, d, &plans[0], d.crop, d.crop as usize)?;
+    let spec = cfg.spec();
+    let frames = render_press(&sim, d, &plans[0], spec.crop, spec.input as usize)?;
     let mut x = Vec::new();
     for f in &frames {
         x.extend_from_slice(f);

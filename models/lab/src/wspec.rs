@@ -1,0 +1,440 @@
+//! The colour-whitened power spectrum (`wspec`): a fixed texture
+//! descriptor built around what a DIGIT's optics do, written once here as
+//! an f64 reference and as the geometry tables its ONNX graph uses
+//! ([`crate::graph`]), so the two cannot disagree.
+//!
+//! Three facts decide its design:
+//!
+//! * **Each LED colour sees a directional derivative of the contact.** A
+//!   channel of frame − reference is, to first order, the gel's slope along
+//!   that LED's direction. With three LEDs about 120° apart, a luma
+//!   (weighted sum of the channels) cancels most of that linear signal,
+//!   which is what the first descriptor (`fft-radial`, a luma spectrum)
+//!   kept. Here every channel's spectrum is used.
+//! * **Sensor units differ in their whole colour layout** (the two real
+//!   no-contact frames do), i.e. by a mixing of the channels that no fixed
+//!   weighting undoes. The descriptor whitens the colours of each frame by
+//!   their own covariance: the power at frequency `k` is
+//!   `P(k) = F(k)ᴴ Σ⁻¹ F(k)`, where `F(k)` holds the three channels' DFTs
+//!   and `Σ` is the 3x3 colour covariance of the windowed difference. `P`
+//!   is unchanged by any invertible linear mixing `A` of the channels
+//!   (`F → AF`, `Σ → AΣAᵀ`), so per-channel LED gains, a swapped or turned
+//!   LED ring and a unit's colour cast all drop out, and so does the
+//!   contact's overall strength.
+//! * **The fabric turns under the sensor.** The radial average of `P` is
+//!   invariant to rotation; what it loses is how the power is arranged in
+//!   angle (a plain weave's two orthogonal yarn systems, a twill's
+//!   diagonal, a knit's wales). The magnitudes of the angular Fourier
+//!   harmonics of `P` in each band keep that, and are invariant to
+//!   rotation as well (a turn shifts the angular profile, which changes
+//!   only the harmonics' phases).
+//!
+//! Input: the deployment contract's difference, frame − reference, at
+//! `n` x `n` (the graph takes the 240-px crop resized to 120, a 2x2 box
+//! average: the camera's blur and block compression leave little above
+//! half the sampling rate, and a larger window halves the spread of the
+//! spectrum of an irregular cloth). Output (`dim(n)` values):
+//!
+//! 1. `n/2 − 1` radial bins of `log(P + ε)`, their mean removed
+//!    (`floor(|k|)` = 1 .. n/2 − 1);
+//! 2. [`BANDS`] radial bands x harmonics 1..=[`HARMONICS`] of the angular
+//!    profile of `P` over [`SECTORS`] sectors of [0, π), each harmonic's
+//!    magnitude over the band's total.
+
+use std::f64::consts::PI;
+
+/// Radial bands of the angular harmonics.
+pub const BANDS: usize = 24;
+/// Sectors of the half circle [0, π) (the power spectrum of a real image is
+/// point-symmetric).
+pub const SECTORS: usize = 16;
+/// Angular harmonics kept per band (1..=HARMONICS; 0 is the band's total).
+pub const HARMONICS: usize = 4;
+/// Added to `P` before the log (`P` is scaled so its mean over the plane is
+/// 3: one per whitened channel).
+pub const LOG_EPS: f64 = 1e-4;
+/// Added to a band's total before dividing a harmonic by it.
+pub const HARM_EPS: f64 = 1e-6;
+/// Ridge on the colour covariance: this share of its mean variance, plus
+/// [`RIDGE_ABS`] (so a blank frame gives zeros, not NaN).
+pub const RIDGE_REL: f64 = 1e-3;
+pub const RIDGE_ABS: f64 = 1e-6;
+
+/// Length of the descriptor for an `n` x `n` input.
+pub fn dim(n: usize) -> usize {
+    radial_bins(n) + BANDS * HARMONICS
+}
+
+/// Radial bins for an `n` x `n` input.
+pub fn radial_bins(n: usize) -> usize {
+    n / 2 - 1
+}
+
+/// One cell of the half-plane spectrum the graph computes: rows (vertical
+/// frequency) `ky` = 0..=n/2, columns `kx` = 0..n; `cell = ky * n + kx`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cell {
+    pub cell: usize,
+    /// 1 on rows 0 and n/2 (their mirror is in the same row), else 2.
+    pub weight: f64,
+    /// Radial bin, if the cell is in one.
+    pub radial: Option<usize>,
+    /// (band, sector), if the cell is in a band.
+    pub angular: Option<(usize, usize)>,
+}
+
+/// The cells of the half plane with their bins (the one definition of the
+/// geometry, for the reference and the graph).
+pub fn cells(n: usize) -> Vec<Cell> {
+    assert!(
+        n.is_multiple_of(2) && n >= 16,
+        "wspec needs an even n >= 16"
+    );
+    let h = n / 2;
+    let top = h as f64; // radii in [1, n/2) are binned
+    let mut out = Vec::with_capacity((h + 1) * n);
+    for ky in 0..=h {
+        for kx in 0..n {
+            let fx = if kx <= h {
+                kx as f64
+            } else {
+                kx as f64 - n as f64
+            };
+            let fy = ky as f64;
+            let r = (fx * fx + fy * fy).sqrt();
+            let inside = (1.0..top).contains(&r);
+            let radial = inside.then(|| r.floor() as usize - 1);
+            let angular = inside.then(|| {
+                let band = (((r - 1.0) * BANDS as f64 / (top - 1.0)) as usize).min(BANDS - 1);
+                let theta = fy.atan2(fx).rem_euclid(PI);
+                let sector = ((theta / PI * SECTORS as f64) as usize) % SECTORS;
+                (band, sector)
+            });
+            out.push(Cell {
+                cell: ky * n + kx,
+                weight: if ky == 0 || ky == h { 1.0 } else { 2.0 },
+                radial,
+                angular,
+            });
+        }
+    }
+    out
+}
+
+/// Sum of cell weights per radial bin and per (band, sector).
+pub fn bin_weights(n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut radial = vec![0.0; radial_bins(n)];
+    let mut angular = vec![0.0; BANDS * SECTORS];
+    for c in cells(n) {
+        if let Some(r) = c.radial {
+            radial[r] += c.weight;
+        }
+        if let Some((b, s)) = c.angular {
+            angular[b * SECTORS + s] += c.weight;
+        }
+    }
+    (radial, angular)
+}
+
+/// The periodic Hann window of length `n`.
+fn hann(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| 0.5 - 0.5 * (2.0 * PI * i as f64 / n as f64).cos())
+        .collect()
+}
+
+/// The descriptor of `x`: planar `[3][n][n]` values of frame − reference
+/// (any consistent unit: the whitening removes scale), in f64.
+pub fn reference(x: &[f64], n: usize) -> Vec<f32> {
+    assert_eq!(x.len(), 3 * n * n, "input size");
+    let plane = n * n;
+    let win = hann(n);
+    // Per channel: mean removed, windowed.
+    let mut w = vec![0f64; 3 * plane];
+    for c in 0..3 {
+        let ch = &x[c * plane..(c + 1) * plane];
+        let m = ch.iter().sum::<f64>() / plane as f64;
+        for i in 0..plane {
+            w[c * plane + i] = (ch[i] - m) * win[i / n] * win[i % n];
+        }
+    }
+    // Colour covariance of the windowed difference, with the ridge.
+    let mut cov = [[0f64; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            cov[i][j] = (0..plane)
+                .map(|p| w[i * plane + p] * w[j * plane + p])
+                .sum::<f64>()
+                / plane as f64;
+        }
+    }
+    let ridge = RIDGE_REL * (cov[0][0] + cov[1][1] + cov[2][2]) / 3.0 + RIDGE_ABS;
+    for (i, row) in cov.iter_mut().enumerate() {
+        row[i] += ridge;
+    }
+    let inv = inverse3(&cov);
+    // Half-plane DFT of each channel (direct, any even n).
+    let h = n / 2 + 1;
+    let tw: Vec<(f64, f64)> = (0..n)
+        .map(|k| {
+            let a = -2.0 * PI * k as f64 / n as f64;
+            (a.cos(), a.sin())
+        })
+        .collect();
+    let mut re = vec![0f64; 3 * h * n];
+    let mut im = vec![0f64; 3 * h * n];
+    for c in 0..3 {
+        // Along rows (kx), then along columns for ky = 0..=n/2.
+        let (mut rr, mut ri) = (vec![0f64; plane], vec![0f64; plane]);
+        for y in 0..n {
+            for kx in 0..n {
+                let (mut sr, mut si) = (0.0, 0.0);
+                for xx in 0..n {
+                    let (tc, ts) = tw[(kx * xx) % n];
+                    let v = w[c * plane + y * n + xx];
+                    sr += v * tc;
+                    si += v * ts;
+                }
+                rr[y * n + kx] = sr;
+                ri[y * n + kx] = si;
+            }
+        }
+        for ky in 0..h {
+            for kx in 0..n {
+                let (mut sr, mut si) = (0.0, 0.0);
+                for y in 0..n {
+                    let (tc, ts) = tw[(ky * y) % n];
+                    let (a, b) = (rr[y * n + kx], ri[y * n + kx]);
+                    sr += a * tc - b * ts;
+                    si += a * ts + b * tc;
+                }
+                re[c * h * n + ky * n + kx] = sr;
+                im[c * h * n + ky * n + kx] = si;
+            }
+        }
+    }
+    // P(k) = F(k)^H inv F(k), scaled by 1/n^2.
+    let scale = 1.0 / plane as f64;
+    let p: Vec<f64> = (0..h * n)
+        .map(|k| {
+            let mut s = 0.0;
+            for i in 0..3 {
+                for j in 0..3 {
+                    s += inv[i][j]
+                        * (re[i * h * n + k] * re[j * h * n + k]
+                            + im[i * h * n + k] * im[j * h * n + k]);
+                }
+            }
+            s * scale
+        })
+        .collect();
+    bin(&p, n)
+}
+
+/// Radial log bins and angular harmonics of a half-plane power `p`
+/// (`(n/2 + 1) * n` values).
+pub fn bin(p: &[f64], n: usize) -> Vec<f32> {
+    let (rw, aw) = bin_weights(n);
+    let mut radial = vec![0f64; rw.len()];
+    let mut ang = vec![0f64; aw.len()];
+    for c in cells(n) {
+        if let Some(r) = c.radial {
+            radial[r] += c.weight * p[c.cell];
+        }
+        if let Some((b, s)) = c.angular {
+            ang[b * SECTORS + s] += c.weight * p[c.cell];
+        }
+    }
+    let logs: Vec<f64> = radial
+        .iter()
+        .zip(&rw)
+        .map(|(s, w)| (s / w + LOG_EPS).ln())
+        .collect();
+    let mean = logs.iter().sum::<f64>() / logs.len() as f64;
+    let mut out: Vec<f32> = logs.iter().map(|v| (v - mean) as f32).collect();
+    for b in 0..BANDS {
+        let a: Vec<f64> = (0..SECTORS)
+            .map(|s| {
+                let w = aw[b * SECTORS + s];
+                if w > 0.0 {
+                    ang[b * SECTORS + s] / w
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let total: f64 = a.iter().sum();
+        for m in 1..=HARMONICS {
+            let (mut hr, mut hi) = (0.0, 0.0);
+            for (s, v) in a.iter().enumerate() {
+                let t = -2.0 * PI * (m * s) as f64 / SECTORS as f64;
+                hr += v * t.cos();
+                hi += v * t.sin();
+            }
+            out.push(((hr * hr + hi * hi).sqrt() / (total + HARM_EPS)) as f32);
+        }
+    }
+    out
+}
+
+/// Inverse of a symmetric positive definite 3x3 matrix (adjugate / det).
+pub fn inverse3(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let (a, b, c) = (m[0][0], m[0][1], m[0][2]);
+    let (d, e, f) = (m[1][1], m[1][2], m[2][2]);
+    let adj = [
+        [d * f - e * e, c * e - b * f, b * e - c * d],
+        [c * e - b * f, a * f - c * c, b * c - a * e],
+        [b * e - c * d, b * c - a * e, a * d - b * b],
+    ];
+    let det = a * adj[0][0] + b * adj[0][1] + c * adj[0][2];
+    let mut out = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i][j] = adj[i][j] / det;
+        }
+    }
+    out
+}
+
+/// The descriptor of an RGB u8 image (HWC, `side` x `side`, minus `bg` if
+/// given), as the graph sees it: the centre `2n` square averaged over 2x2
+/// blocks to `n` x `n` when the image is that large, else the centre `n`
+/// square. For the lab's Rust-side callers and tests.
+pub fn of_image(img: &[u8], side: usize, bg: Option<&[u8]>, n: usize) -> Vec<f32> {
+    assert_eq!(img.len(), side * side * 3, "image size");
+    let k = if side >= 2 * n { 2 } else { 1 };
+    assert!(side >= k * n, "image smaller than the descriptor's window");
+    let o = (side - k * n) / 2;
+    let mut x = vec![0f64; 3 * n * n];
+    for y in 0..n {
+        for xx in 0..n {
+            for c in 0..3 {
+                let mut s = 0.0;
+                for dy in 0..k {
+                    for dx in 0..k {
+                        let i = ((o + y * k + dy) * side + o + xx * k + dx) * 3 + c;
+                        let v = img[i] as f64 - bg.map_or(0.0, |b| b[i] as f64);
+                        s += v;
+                    }
+                }
+                x[c * n * n + y * n + xx] = s / (k * k) as f64;
+            }
+        }
+    }
+    reference(&x, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A synthetic contact: a height field of two yarn systems at `angle`,
+    /// seen by three LEDs as directional derivatives with per-LED gains.
+    fn contact(n: usize, angle: f64, period: f64, gains: [f64; 3], mix: f64) -> Vec<f64> {
+        let dirs = [0.0f64, 2.0 * PI / 3.0, 4.0 * PI / 3.0];
+        let mut x = vec![0f64; 3 * n * n];
+        let (s, c) = angle.sin_cos();
+        for y in 0..n {
+            for xx in 0..n {
+                let (u, v) = (
+                    xx as f64 * c + y as f64 * s,
+                    -(xx as f64) * s + y as f64 * c,
+                );
+                let k = 2.0 * PI / period;
+                // gradient of sin(k u) + 0.6 sin(k v / 1.7) in frame axes
+                let gu = k * (k * u).cos();
+                let gv = 0.6 * k / 1.7 * (k * v / 1.7).cos();
+                let (gx, gy) = (gu * c - gv * s, gu * s + gv * c);
+                let raw: Vec<f64> = dirs.iter().map(|d| gx * d.cos() + gy * d.sin()).collect();
+                for ch in 0..3 {
+                    // a colour cast mixes the channels
+                    let m = raw[ch] + mix * raw[(ch + 1) % 3];
+                    x[ch * n * n + y * n + xx] = gains[ch] * m;
+                }
+            }
+        }
+        x
+    }
+
+    fn cos(a: &[f32], b: &[f32]) -> f32 {
+        let d: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+        let na: f32 = a.iter().map(|x| x * x).sum::<f32>().sqrt();
+        let nb: f32 = b.iter().map(|x| x * x).sum::<f32>().sqrt();
+        d / (na * nb)
+    }
+
+    #[test]
+    fn geometry_bins_every_radius_once_and_weights_the_mirror() {
+        let n = 32;
+        let cs = cells(n);
+        assert_eq!(cs.len(), (n / 2 + 1) * n);
+        let (rw, aw) = bin_weights(n);
+        assert_eq!(rw.len(), n / 2 - 1);
+        assert!(rw.iter().all(|&w| w > 0.0));
+        // Over the full plane, radius in [1, n/2): the half plane with its
+        // weights counts every cell once.
+        let full = (0..n * n)
+            .filter(|i| {
+                let w = |k: usize| {
+                    if k <= n / 2 {
+                        k as f64
+                    } else {
+                        k as f64 - n as f64
+                    }
+                };
+                let (fy, fx) = (w(i / n), w(i % n));
+                let r = (fx * fx + fy * fy).sqrt();
+                (1.0..(n / 2) as f64).contains(&r)
+            })
+            .count() as f64;
+        // Rows ky = n/2 alias with -n/2: count them as the full plane does.
+        assert!((rw.iter().sum::<f64>() - full).abs() <= n as f64, "{full}");
+        assert!((aw.iter().sum::<f64>() - rw.iter().sum::<f64>()).abs() < 1e-9);
+        assert_eq!(dim(120), 59 + BANDS * HARMONICS);
+    }
+
+    #[test]
+    fn invariant_to_mixing_the_colours_and_to_scale() {
+        let n = 32;
+        let a = reference(&contact(n, 0.3, 5.0, [1.0, 1.0, 1.0], 0.0), n);
+        let b = reference(&contact(n, 0.3, 5.0, [0.4, 2.5, 1.3], 0.35), n);
+        let d = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
+        assert!(d < 1e-3, "colour mixing changed the descriptor by {d}");
+        // The luma of the same contact is nearly blind: three LEDs at 120°
+        // cancel in the sum.
+        let x = contact(n, 0.3, 5.0, [1.0, 1.0, 1.0], 0.0);
+        let plane = n * n;
+        let luma: f64 = (0..plane)
+            .map(|i| (x[i] + x[plane + i] + x[2 * plane + i]).powi(2))
+            .sum();
+        let chan: f64 = x.iter().map(|v| v * v).sum();
+        assert!(luma < 1e-6 * chan, "luma {luma} vs channels {chan}");
+    }
+
+    #[test]
+    fn a_quarter_turn_leaves_it_and_other_periods_differ() {
+        let n = 48;
+        let a = reference(&contact(n, 0.2, 6.0, [1.0, 0.8, 1.2], 0.1), n);
+        let turned = reference(&contact(n, 0.2 + PI / 2.0, 6.0, [1.0, 0.8, 1.2], 0.1), n);
+        let other = reference(&contact(n, 0.2, 11.0, [1.0, 0.8, 1.2], 0.1), n);
+        assert!(cos(&a, &turned) > 0.99, "turned: {}", cos(&a, &turned));
+        assert!(
+            cos(&a, &other) < cos(&a, &turned) - 0.05,
+            "other period {} vs turned {}",
+            cos(&a, &other),
+            cos(&a, &turned)
+        );
+    }
+
+    #[test]
+    fn a_blank_frame_gives_zeros() {
+        let n = 16;
+        let f = reference(&vec![0.0; 3 * n * n], n);
+        assert_eq!(f.len(), dim(n));
+        assert!(f.iter().all(|v| *v == 0.0), "{f:?}");
+    }
+}
