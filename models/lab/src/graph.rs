@@ -517,6 +517,71 @@ impl MlpHead {
     }
 }
 
+/// The trained head of a model written by [`descriptor_with_head`], read
+/// back from its initialisers, with its `telextiles.train_data_hash`
+/// (`None`: the model has no head). Rebuilding the model from the spec,
+/// this head and this hash gives the same bytes for a model this builder
+/// wrote, which is how the shipped model's provenance is checked.
+pub fn read_head(model: &[u8]) -> Result<Option<(MlpHead, String)>> {
+    let m = ModelProto::parse_from_bytes(model).context("not an ONNX model")?;
+    let g = m.graph.as_ref().context("the model has no graph")?;
+    let find = |prefix: &str| -> Option<(Vec<f32>, Vec<i64>)> {
+        let t = g.initializer.iter().find(|t| {
+            t.name
+                .strip_prefix(prefix)
+                .is_some_and(|rest| rest.chars().all(|c| c.is_ascii_digit()))
+        })?;
+        let v = t
+            .raw_data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        Some((v, t.dims.clone()))
+    };
+    let Some((scale, _)) = find("head_scale_") else {
+        return Ok(None);
+    };
+    let (w1, d1) = find("head_w1_").context("head_scale without head_w1")?;
+    let (b1, _) = find("head_b1_").context("head_scale without head_b1")?;
+    let second = find("head_w2_");
+    let (w2, b2, hidden, out) = match second {
+        Some((w2, d2)) => {
+            let (b2, _) = find("head_b2_").context("head_w2 without head_b2")?;
+            (
+                w2,
+                b2,
+                *d1.get(1).context("head_w1 is not 2-d")? as usize,
+                *d2.get(1).context("head_w2 is not 2-d")? as usize,
+            )
+        }
+        None => (
+            Vec::new(),
+            Vec::new(),
+            0,
+            *d1.get(1).context("head_w1 is not 2-d")? as usize,
+        ),
+    };
+    let hash = m
+        .metadata_props
+        .iter()
+        .find(|p| p.key == "telextiles.train_data_hash")
+        .map(|p| p.value.clone())
+        .unwrap_or_default();
+    Ok(Some((
+        MlpHead {
+            input: scale.len(),
+            scale,
+            w1,
+            b1,
+            w2,
+            b2,
+            hidden,
+            out,
+        },
+        hash,
+    )))
+}
+
 /// The `fft` descriptor followed by a trained head, as one ONNX model with
 /// the encoder contract (the head's training-data hash in the metadata).
 pub fn descriptor_with_head(
@@ -974,6 +1039,57 @@ mod tests {
             ..spec
         };
         assert!(descriptor_model(&raw).is_err());
+    }
+
+    #[test]
+    fn a_head_reads_back_and_rebuilds_the_same_bytes() {
+        for (kind, crop, input, hidden) in [
+            (BaselineKind::WSpec, 64, 32, 0),
+            (BaselineKind::Fft, 32, 32, 4),
+        ] {
+            let spec = DescriptorSpec {
+                kind,
+                crop,
+                input,
+                subtract: true,
+                min_bin: 1,
+            };
+            let (i, o) = (spec.dim(), 3);
+            let first = if hidden == 0 { o } else { hidden };
+            let v = |n: usize, k: usize| -> Vec<f32> {
+                (0..n).map(|j| ((j * 7 + k) % 11) as f32 / 11.0).collect()
+            };
+            let head = MlpHead {
+                scale: v(i, 1),
+                w1: v(i * first, 2),
+                b1: v(first, 3),
+                w2: if hidden == 0 {
+                    Vec::new()
+                } else {
+                    v(hidden * o, 4)
+                },
+                b2: if hidden == 0 { Vec::new() } else { v(o, 5) },
+                input: i,
+                hidden,
+                out: o,
+            };
+            let bytes = descriptor_with_head(&spec, &head, "abc123").unwrap();
+            let (back, hash) = read_head(&bytes).unwrap().expect("a head");
+            assert_eq!(back, head);
+            assert_eq!(hash, "abc123");
+            assert_eq!(descriptor_with_head(&spec, &back, &hash).unwrap(), bytes);
+        }
+        // A descriptor without a head has none.
+        let plain = descriptor_model(&DescriptorSpec {
+            kind: BaselineKind::Fft,
+            crop: 32,
+            input: 32,
+            subtract: true,
+            min_bin: 1,
+        })
+        .unwrap();
+        assert!(read_head(&plain).unwrap().is_none());
+        assert!(read_head(b"not onnx").is_err());
     }
 
     #[test]

@@ -150,3 +150,38 @@ fn augmented_spectra_do_not_depend_on_the_thread_count() {
     assert!(!a.rows.is_empty());
     assert_eq!((a.rows, a.class, a.press), (b.rows, b.class, b.press));
 }
+
+/// The shipped recipe: a linear head on the whitened spectrum. It trains,
+/// the daemon's encoder runs the export as trained (unit vectors of the
+/// head's size), and the same command gives the same bytes (the shipped
+/// model is reproducible from its card's command).
+#[test]
+fn a_linear_head_on_the_whitened_spectrum_trains_reproducibly() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = SpectralConfig::new();
+    cfg.front = spectral::Front::WSpec;
+    cfg.data.max_textiles = Some(4);
+    cfg.data.presses_per_textile = 3;
+    cfg.data.frames_per_press = 2;
+    cfg.augs_per_frame = 1;
+    cfg.hidden = 0;
+    cfg.out = 8;
+    cfg.steps = 20;
+    cfg.classes_per_batch = 4;
+    cfg.views_per_class = 2;
+    let run = |name: &str| {
+        // Fresh caches: both runs render.
+        let cache = dir.path().join(format!("cache-{name}"));
+        spectral::train(&cfg, &dir.path().join(name), &cache, 2).unwrap()
+    };
+    let (a, _, _) = run("a");
+    let (b, _, _) = run("b");
+    assert!(a == b, "two runs of the same command differ");
+    let (head, _) = telextiles_lab::graph::read_head(&a).unwrap().unwrap();
+    assert_eq!((head.hidden, head.out), (0, 8));
+    assert_eq!(head.input, telextiles_lab::wspec::dim(120));
+    let (frame, reference) = press_frame();
+    let got = daemon_embedding(&a, &frame, &reference);
+    assert_eq!(got.len(), 8);
+    assert!((got.iter().map(|v| v * v).sum::<f32>() - 1.0).abs() < 1e-4);
+}
