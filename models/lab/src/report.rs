@@ -83,6 +83,16 @@ pub fn descriptor_methods() -> Result<Vec<Method>> {
         };
         v.push(Method::onnx(spec.arch(), descriptor_model(&spec)?)?);
     }
+    // The colour-whitened spectrum: the whole 240-px width at 120 px (the
+    // front end of the shipped model, here without its trained head).
+    let wspec = DescriptorSpec {
+        kind: BaselineKind::WSpec,
+        crop: 240,
+        input: 120,
+        subtract: true,
+        min_bin: 1,
+    };
+    v.push(Method::onnx(wspec.arch(), descriptor_model(&wspec)?)?);
     for bgsub in [false, true] {
         v.push(Method::Rust {
             base: Baseline {
