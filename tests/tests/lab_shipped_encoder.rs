@@ -1,11 +1,11 @@
-//! The shipped encoder `models/encoder.onnx` (the knee of the
-//! speed-vs-accuracy frontier, docs/benchmarks.md: the radially averaged log
-//! power spectrum of the 192x192 centre crop minus the no-contact reference,
-//! written by `telextiles-lab export-descriptor`) against the daemon's own
-//! encoder loader and preprocessing (real ONNX Runtime): it passes the
-//! contract checks, gives unit-norm 95-d embeddings, and frames of one press
-//! of a simulated textile are closer to each other than to frames of other
-//! textiles, across people and sensor units.
+//! The shipped encoder `models/encoder.onnx` (the shipped-default rule's
+//! pick, docs/benchmarks.md: the colour-whitened spectrum of the 240-px
+//! crop at 120 px minus the no-contact reference, with a trained linear
+//! head; models/MODEL_CARD.md) against the daemon's own encoder loader and
+//! preprocessing (real ONNX Runtime): it passes the contract checks, gives
+//! unit-norm 128-d embeddings, and frames of one press of a simulated
+//! textile are closer to each other than to frames of other textiles,
+//! across people and sensor units.
 
 use std::path::PathBuf;
 
@@ -23,11 +23,11 @@ fn cos(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 fn shipped_encoder_loads_in_the_daemon_and_separates_presses() {
     let mut enc = Encoder::open(&shipped_model(), &EncoderOptions::default()).unwrap();
-    assert_eq!(enc.dim(), 95);
-    assert_eq!(enc.info().arch, "fft-radial-c192-bg");
+    assert_eq!(enc.dim(), 128);
+    assert_eq!(enc.info().arch, "wspec-c240-s120-bg+lin128");
     assert_eq!(enc.info().background, "subtract");
-    assert_eq!(enc.info().preprocess.crop, 192);
-    assert_eq!(enc.info().preprocess.size, 192);
+    assert_eq!(enc.info().preprocess.crop, 240);
+    assert_eq!(enc.info().preprocess.size, 120);
     let sim = Simulator::new().unwrap();
     let mut per_textile = Vec::new();
     for id in ["T005", "T047", "T090"] {

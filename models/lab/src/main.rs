@@ -129,7 +129,11 @@ struct RuleArgs {
     /// The bench's bench.json.
     #[arg(long)]
     bench: PathBuf,
-    /// The method shipped now.
+    /// The method shipped when the study ran, by the name the bench gave
+    /// it (the default: the descriptor shipped until 2026-11-26, the
+    /// incumbent of every committed study; a study of the model shipped
+    /// since names it, e.g. `--model wspec+lin128-p48=models/encoder.onnx`
+    /// and `--incumbent wspec+lin128-p48`).
     #[arg(long, default_value = "fft-radial-c192-bg")]
     incumbent: String,
 }

@@ -420,6 +420,16 @@ fn embed_rows(head: &Head, scale: &[f32], rows: &[f32], dim: usize) -> Result<(V
     Ok((v, out_dim))
 }
 
+/// The hash of a run's settings that its model records as
+/// `telextiles.train_data_hash` (the first 16 hex digits of the SHA-256 of
+/// the configuration as JSON): the same command gives the same hash.
+pub fn run_hash(cfg: &SpectralConfig) -> Result<String> {
+    use sha2::Digest;
+    let mut h = sha2::Sha256::new();
+    h.update(serde_json::to_vec(cfg)?);
+    Ok(crate::data::hex(&h.finalize())[..16].to_string())
+}
+
 /// Trains the head; returns the ONNX model (descriptor graph + head) and
 /// the validation top-1 per press of the descriptor alone and with the
 /// head. Writes `config.json` and `metrics.jsonl` into `run`.
@@ -614,12 +624,7 @@ pub fn train(
     bar.finish();
     let head = best.1.context("no validation ran")?;
     let mlp = head.to_mlp(scale.clone())?;
-    let hash = {
-        use sha2::Digest;
-        let mut h = sha2::Sha256::new();
-        h.update(serde_json::to_vec(cfg)?);
-        crate::data::hex(&h.finalize())[..16].to_string()
-    };
+    let hash = run_hash(cfg)?;
     let bytes = descriptor_with_head(&cfg.spec(), &mlp, &hash)?;
     // The exported graph must give what the head gives in burn.
     let mut enc = OrtEncoder::from_bytes(&bytes, 1)?;
