@@ -152,6 +152,7 @@ fn main() {
     let start = Instant::now();
     let cpu1 = cpu_seconds();
     let mut late = 0;
+    let mut sustain_encoded = 0;
     for i in 0..n_sustain {
         let due = start + Duration::from_micros(i as u64 * 16_667);
         let now = Instant::now();
@@ -169,13 +170,23 @@ fn main() {
             &mut frame.image,
         )
         .unwrap();
-        frame.timestamp_us = (100_000 + i) as u64 * 16_667;
-        pipeline
+        // Frame time goes on from the loop above: a jump would be a gap in
+        // the stream, which ends the press, and the hold frames would then
+        // be taken for the new no-contact reference (nothing encoded).
+        frame.timestamp_us = (60 + frames_n + i) as u64 * 16_667;
+        let out = pipeline
             .process(&frame, &mut StageTimes::default())
             .unwrap();
+        if out.step.is_some() {
+            sustain_encoded += 1;
+        }
     }
     let sustain_wall = start.elapsed().as_secs_f64();
     let sustain_cpu = cpu_seconds() - cpu1;
+    assert_eq!(
+        sustain_encoded, n_sustain,
+        "every frame of the sustained run is in contact and encoded"
+    );
 
     println!(
         "model: {} ({}, input {}x{}, crop {}, dim {}), 1 intra-op thread",
