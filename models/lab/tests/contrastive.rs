@@ -96,21 +96,29 @@ fn the_cnn_recipe_trains_and_the_daemon_runs_it_as_trained() {
     assert!(max_diff(&got, &want) < 1e-4, "{got:?} vs {want:?}");
 }
 
-#[test]
-fn the_spectral_head_trains_with_and_without_attributes() {
-    let dir = tempfile::tempdir().unwrap();
-    let cache = dir.path().join("cache");
+/// A head small enough to train in a test: 4 textiles, 3 presses each, 2
+/// frames a press, one augmented view, 20 steps, 8 outputs (`hidden` 0: a
+/// linear head).
+fn tiny_head(hidden: usize) -> SpectralConfig {
     let mut cfg = SpectralConfig::new();
-    cfg.data.crop = 64;
     cfg.data.max_textiles = Some(4);
     cfg.data.presses_per_textile = 3;
     cfg.data.frames_per_press = 2;
     cfg.augs_per_frame = 1;
-    cfg.hidden = 16;
+    cfg.hidden = hidden;
     cfg.out = 8;
     cfg.steps = 20;
     cfg.classes_per_batch = 4;
     cfg.views_per_class = 2;
+    cfg
+}
+
+#[test]
+fn the_spectral_head_trains_with_and_without_attributes() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let mut cfg = tiny_head(16);
+    cfg.data.crop = 64;
     let (bytes, base, val) = spectral::train(&cfg, &dir.path().join("plain"), &cache, 2).unwrap();
     assert!((0.0..=1.0).contains(&base) && (0.0..=1.0).contains(&val));
     let (frame, reference) = press_frame();
@@ -158,17 +166,8 @@ fn augmented_spectra_do_not_depend_on_the_thread_count() {
 #[test]
 fn a_linear_head_on_the_whitened_spectrum_trains_reproducibly() {
     let dir = tempfile::tempdir().unwrap();
-    let mut cfg = SpectralConfig::new();
+    let mut cfg = tiny_head(0);
     cfg.front = spectral::Front::WSpec;
-    cfg.data.max_textiles = Some(4);
-    cfg.data.presses_per_textile = 3;
-    cfg.data.frames_per_press = 2;
-    cfg.augs_per_frame = 1;
-    cfg.hidden = 0;
-    cfg.out = 8;
-    cfg.steps = 20;
-    cfg.classes_per_batch = 4;
-    cfg.views_per_class = 2;
     let run = |name: &str| {
         // Fresh caches: both runs render.
         let cache = dir.path().join(format!("cache-{name}"));
