@@ -69,19 +69,16 @@ impl Baseline {
     /// `bg` is the no-contact reference of the same size (used when `bgsub`).
     pub fn features(&self, img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> Vec<f32> {
         let bg = if self.bgsub { bg } else { None };
-        if self.kind == BaselineKind::WSpec {
-            assert_eq!(w, h, "wspec takes a square image");
-            let mut f = crate::wspec::of_image(img, w, bg, (w / 2).min(120) & !1);
-            l2(&mut f);
-            return f;
-        }
         let n = crop_side(w, h);
-        let rgb = centre_crop_f32(img, w, h, n, bg);
+        let rgb = || centre_crop_f32(img, w, h, n, bg);
         let mut f = match self.kind {
-            BaselineKind::Pixels => pixels(&rgb, n),
-            BaselineKind::Lbp => lbp(&grey(&rgb), n),
-            BaselineKind::Fft => fft_radial(&grey(&rgb), n),
-            BaselineKind::WSpec => unreachable!("handled above"),
+            BaselineKind::Pixels => pixels(&rgb(), n),
+            BaselineKind::Lbp => lbp(&grey(&rgb()), n),
+            BaselineKind::Fft => fft_radial(&grey(&rgb()), n),
+            BaselineKind::WSpec => {
+                assert_eq!(w, h, "wspec takes a square image");
+                crate::wspec::of_image(img, w, bg, (w / 2).min(120) & !1)
+            }
         };
         l2(&mut f);
         f
@@ -379,5 +376,50 @@ mod tests {
             .iter()
             .all(|&v| v == 0.0));
         assert_eq!(b.features(&img, 240, 240, None).len(), 768);
+    }
+
+    /// The Rust-side `wspec` (the 240-px image averaged to 120 px): blind to
+    /// per-channel gains of the contact up to the u8 rounding, and a turned
+    /// contact stays nearer than another period.
+    #[test]
+    fn wspec_ignores_channel_gains_and_a_turned_contact_stays_nearer_than_another_period() {
+        let bg = vec![100u8; 240 * 240 * 3];
+        // A coloured contact on a flat reference: channel c sees the
+        // stripes' profile times gains[c], with a phase per channel.
+        let contact = |period: f32, angle: f32, gains: [f32; 3]| -> Vec<u8> {
+            let (s, c) = angle.to_radians().sin_cos();
+            let mut v = Vec::with_capacity(240 * 240 * 3);
+            for y in 0..240 {
+                for x in 0..240 {
+                    let t = (x as f32 * c + y as f32 * s) * 2.0 * PI / period;
+                    for (ch, g) in gains.iter().enumerate() {
+                        let d = 40.0 * (t + ch as f32 * 2.1).sin();
+                        v.push((100.0 + g * d).round() as u8);
+                    }
+                }
+            }
+            v
+        };
+        let b = Baseline {
+            kind: BaselineKind::WSpec,
+            bgsub: true,
+        };
+        let f = |img: &[u8]| b.features(img, 240, 240, Some(&bg));
+        let cos = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
+        let a = f(&contact(7.0, 0.0, [1.0, 1.0, 1.0]));
+        assert_eq!(a.len(), crate::wspec::dim(120));
+        assert!((a.iter().map(|v| v * v).sum::<f32>() - 1.0).abs() < 1e-4);
+        let gains = f(&contact(7.0, 0.0, [0.5, 1.4, 0.8]));
+        let turned = f(&contact(7.0, 60.0, [1.0, 1.0, 1.0]));
+        let other = f(&contact(13.0, 0.0, [1.0, 1.0, 1.0]));
+        // Gains change only the u8 rounding noise relative to the contact
+        // (a weak channel's noise is whitened up): 0.985 here.
+        assert!(cos(&a, &gains) > 0.97, "gains: {}", cos(&a, &gains));
+        assert!(
+            cos(&a, &turned) > cos(&a, &other),
+            "turned {} vs other period {}",
+            cos(&a, &turned),
+            cos(&a, &other)
+        );
     }
 }
