@@ -204,6 +204,18 @@ fn half_plane_dft(b: &mut Builder, x: &str, n: usize) -> (String, String) {
     (re, im)
 }
 
+/// `x` (`[N, C, n, n]`) minus each image's mean per channel, times the 2D
+/// Hann window.
+fn centred_windowed(b: &mut Builder, x: &str, n: usize) -> String {
+    let hw = b.i64s("axes_hw", vec![2, 3]);
+    let mean = b.op("ReduceMean", &[x, &hw], vec![attr_int("keepdims", 1)]);
+    let centred = b.op("Sub", &[x, &mean], vec![]);
+    let h = hann(n);
+    let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
+    let win = b.f32s("hann2d", &[n as i64, n as i64], win);
+    b.op("Mul", &[&centred, &win], vec![])
+}
+
 /// `[N, bins]`: for each row of `flat` (`[N, cells]`), the sum of
 /// `weight[i] * flat[cells[i]]` per bin `bin[i]` (a gather and a
 /// scatter-add, so no dense cells x bins matrix is stored).
@@ -239,7 +251,7 @@ fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
     let (i, hd, o) = (h.input as i64, h.hidden as i64, h.out as i64);
     let scale = b.f32s("head_scale", &[i], h.scale.clone());
     let x = b.op("Mul", &[x, &scale], vec![]);
-    let first = if h.hidden == 0 { o } else { hd };
+    let first = h.first_width() as i64;
     let w1 = b.f32s("head_w1", &[i, first], h.w1.clone());
     let b1 = b.f32s("head_b1", &[first], h.b1.clone());
     let x = b.op("MatMul", &[&x, &w1], vec![]);
@@ -260,19 +272,12 @@ fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
 /// computes them.
 fn wspec_graph(b: &mut Builder, n: usize) -> String {
     use crate::wspec::{self, BANDS, HARMONICS, SECTORS};
-    let ni = n as i64;
     let plane = (n * n) as i64;
     // Back to grey levels (the reference's offset is already gone).
     let w: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_STD[c]).collect();
     let w = b.f32s("dn_scale", &[1, 3, 1, 1], w);
     let x = b.op("Mul", &[INPUT_NAME, &w], vec![]);
-    let hw = b.i64s("axes_hw", vec![2, 3]);
-    let mean = b.op("ReduceMean", &[&x, &hw], vec![attr_int("keepdims", 1)]);
-    let centred = b.op("Sub", &[&x, &mean], vec![]);
-    let h = hann(n);
-    let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
-    let win = b.f32s("hann2d", &[ni, ni], win);
-    let xw = b.op("Mul", &[&centred, &win], vec![]);
+    let xw = centred_windowed(b, &x, n);
     // Colour covariance [N, 3, 3] of the windowed difference, with the ridge.
     let shape = b.i64s("chan_flat", vec![0, 3, plane]);
     let flat = b.op("Reshape", &[&xw, &shape], vec![]);
@@ -496,13 +501,19 @@ impl MlpHead {
         }
     }
 
-    /// Whether the shapes fit an `input`-long descriptor.
-    fn fits(&self, input: usize) -> bool {
-        let first = if self.hidden == 0 {
+    /// Width of the first layer: the hidden layer's, or the output's for a
+    /// linear head.
+    fn first_width(&self) -> usize {
+        if self.hidden == 0 {
             self.out
         } else {
             self.hidden
-        };
+        }
+    }
+
+    /// Whether the shapes fit an `input`-long descriptor.
+    fn fits(&self, input: usize) -> bool {
+        let first = self.first_width();
         let (w2, b2) = if self.hidden == 0 {
             (0, 0)
         } else {
@@ -624,7 +635,6 @@ fn build_descriptor(
     );
     let mut b = Builder::default();
     let dim = spec.dim();
-    let ni = n as i64;
     match spec.kind {
         BaselineKind::Fft => {
             // grey = sum_c g_c * 255 * (x_c * std_c + mean_c): a 1x1 convolution.
@@ -633,14 +643,7 @@ fn build_descriptor(
             let w = b.f32s("grey_w", &[1, 3, 1, 1], w);
             let bias = b.f32s("grey_b", &[1], vec![bias]);
             let grey = b.op("Conv", &[INPUT_NAME, &w, &bias], vec![]);
-            // Remove the mean, apply the 2D Hann window.
-            let hw = b.i64s("axes_hw", vec![2, 3]);
-            let mean = b.op("ReduceMean", &[&grey, &hw], vec![attr_int("keepdims", 1)]);
-            let centred = b.op("Sub", &[&grey, &mean], vec![]);
-            let h = hann(n);
-            let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
-            let win = b.f32s("hann2d", &[ni, ni], win);
-            let x = b.op("Mul", &[&centred, &win], vec![]);
+            let x = centred_windowed(&mut b, &grey, n);
             let (re, im) = half_plane_dft(&mut b, &x, n);
             let re2 = b.op("Mul", &[&re, &re], vec![]);
             let im2 = b.op("Mul", &[&im, &im], vec![]);
