@@ -1,7 +1,10 @@
 //! Decisions: which textile is being touched, and which roller slot shows it.
 //!
 //! Within a press the decider keeps the running mean of the L2-normalised
-//! embeddings (re-normalised) and looks it up in the index. The first
+//! embeddings (re-normalised) and looks it up in the index. Each frame
+//! counts by its contact depth relative to the press's deepest frame so far
+//! (`depth_power`, [`PressMean`]): during the ramp the newest, deepest
+//! frame leads, in the hold every frame counts about the same. The first
 //! decision is made once embeddings have come in for `min_ms` and the same
 //! textile has been nearest for `confirm_ms` (and at least two frames) in a
 //! row. After that the decision switches only when another textile is nearer
@@ -209,9 +212,10 @@ pub const WEIGHT_DEPTH_DN: f32 = 4.0;
 /// (the contact detector's score, mean |frame - reference| in DN):
 /// `1 - exp(-score / WEIGHT_DEPTH_DN)`, in [0.001, 1]. Frames of the ramp,
 /// where the fabric has barely touched the gel (a DN or two), count less
-/// than frames in full contact; it saturates, so a frame far from the
-/// reference (a dropped-out or overexposed frame) counts no more than one
-/// in full contact. Measured in `docs/benchmarks.md` ("Simulator v2",
+/// than frames in full contact (the decider raises it to its `depth_power`
+/// relative to the press's largest weight so far); it saturates, so a frame
+/// far from the reference (a dropped-out or overexposed frame) counts no
+/// more than one in full contact. Measured in `docs/benchmarks.md` ("Simulator v2",
 /// time to decision). The same function weights frames locally
 /// ([`crate::pipeline::Pipeline`]), in the lab's decision curve and, as the
 /// length of each streamed latent, on the receiving daemon.
@@ -220,6 +224,82 @@ pub fn contact_weight(score: f32) -> f32 {
         (1.0 - (-score.max(0.0) / WEIGHT_DEPTH_DN).exp()).clamp(1e-3, 1.0)
     } else {
         1e-3
+    }
+}
+
+/// Whether `emb` (dimension `dim`) with contact weight `weight` can join a
+/// press's mean: finite and of non-zero length, the weight finite and
+/// positive.
+fn acceptable(emb: &[f32], dim: usize, weight: f32) -> bool {
+    if emb.len() != dim
+        || emb.iter().any(|v| !v.is_finite())
+        || !(weight.is_finite() && weight > 0.0)
+    {
+        return false;
+    }
+    let n = norm(emb);
+    n > 0.0 && n.is_finite()
+}
+
+/// A press's running sum of embeddings, each counted by its contact weight
+/// relative to the deepest frame so far: a frame of weight `w`
+/// ([`contact_weight`]) counts `(w / w_max)^power`. Its direction is that
+/// of `Σ w_i^power · e_i / |e_i|`; when a frame is the deepest yet the sum so
+/// far is scaled down by `(w_max / w)^power` and the frame counts 1, so the
+/// sum neither over- nor underflows whatever the weights' scale. The
+/// decider's running mean, the sender's final latent and the lab's decision
+/// curve are all this one type.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PressMean {
+    sum: Vec<f32>,
+    max_weight: f32,
+    power: i32,
+}
+
+impl PressMean {
+    /// An empty mean of dimension `dim` with depth power `power` (see
+    /// [`DecideConfig::depth_power`]; above 64 it is 64, where every frame
+    /// but the deepest already counts nothing in f32).
+    pub fn new(dim: usize, power: u32) -> PressMean {
+        PressMean {
+            sum: vec![0.0; dim],
+            max_weight: 0.0,
+            power: power.min(64) as i32,
+        }
+    }
+
+    /// Forget every frame (a new press).
+    pub fn clear(&mut self) {
+        self.sum.iter_mut().for_each(|x| *x = 0.0);
+        self.max_weight = 0.0;
+    }
+
+    /// Add `emb` (it counts by its direction) with contact weight `weight`.
+    /// False, and nothing changes, for a vector of another dimension, with
+    /// non-finite values or of zero length, or a weight that is not finite
+    /// and positive.
+    pub fn add(&mut self, emb: &[f32], weight: f32) -> bool {
+        if !acceptable(emb, self.sum.len(), weight) {
+            return false;
+        }
+        let n = norm(emb);
+        let rel = if weight > self.max_weight {
+            let k = (self.max_weight / weight).powi(self.power);
+            self.sum.iter_mut().for_each(|s| *s *= k);
+            self.max_weight = weight;
+            1.0
+        } else {
+            (weight / self.max_weight).powi(self.power)
+        };
+        for (s, v) in self.sum.iter_mut().zip(emb) {
+            *s += rel * v / n;
+        }
+        true
+    }
+
+    /// The sum (not normalised; all zeros before the first frame).
+    pub fn sum(&self) -> &[f32] {
+        &self.sum
     }
 }
 
@@ -238,6 +318,14 @@ pub struct DecideConfig {
     pub switch_ms: f32,
     /// Beyond this distance the nearest known textile is flagged unknown.
     pub unknown_distance: f32,
+    /// How steeply the running mean favours the press's deepest frames: a
+    /// frame of weight `w` ([`contact_weight`]) counts `(w / w_max)^depth_power`,
+    /// `w_max` the largest weight in the press so far. During the ramp the
+    /// newest frame is the deepest and the shallow ones before it fade out;
+    /// in the hold the weights saturate and every frame counts about the
+    /// same; the release's shallow frames count little. 1: the weight as it
+    /// is; 0: every frame the same.
+    pub depth_power: u32,
 }
 
 impl Default for DecideConfig {
@@ -249,6 +337,9 @@ impl Default for DecideConfig {
             switch_margin: 0.02,
             switch_ms: 117.0,
             unknown_distance: 0.5,
+            // Chosen on catalogue 1's held-out people, checked on
+            // catalogue 2 (docs/benchmarks.md, "Deciding from the ramp").
+            depth_power: 8,
         }
     }
 }
@@ -307,7 +398,7 @@ pub struct PressOutcome {
 #[derive(Clone, Debug)]
 pub struct Decider {
     cfg: DecideConfig,
-    sum: Vec<f32>,
+    sum: PressMean,
     mean: Vec<f32>,
     frames: u32,
     start_us: u64,
@@ -325,8 +416,8 @@ impl Decider {
     /// A decider for embeddings of dimension `dim`.
     pub fn new(cfg: DecideConfig, dim: usize) -> Decider {
         Decider {
+            sum: PressMean::new(dim, cfg.depth_power),
             cfg,
-            sum: vec![0.0; dim],
             mean: vec![0.0; dim],
             frames: 0,
             start_us: 0,
@@ -346,7 +437,7 @@ impl Decider {
 
     /// Start a new press (forgets the previous one).
     pub fn press_start(&mut self, t_us: u64) {
-        self.sum.iter_mut().for_each(|x| *x = 0.0);
+        self.sum.clear();
         self.frames = 0;
         self.start_us = t_us;
         self.first_us = None;
@@ -425,22 +516,13 @@ impl Decider {
     /// [`contact_weight`]); None (and nothing changes) also for a weight
     /// that is not finite and positive.
     pub fn accumulate_weighted(&mut self, emb: &[f32], weight: f32) -> Option<&[f32]> {
-        if emb.len() != self.sum.len()
-            || emb.iter().any(|v| !v.is_finite())
-            || !(weight.is_finite() && weight > 0.0)
-        {
-            return None;
-        }
-        let n = norm(emb);
-        if !(n > 0.0 && n.is_finite()) {
+        if !acceptable(emb, self.mean.len(), weight) {
             return None;
         }
         if self.in_press {
-            for (s, v) in self.sum.iter_mut().zip(emb) {
-                *s += weight * v / n;
-            }
+            self.sum.add(emb, weight);
             self.frames += 1;
-            self.mean.copy_from_slice(&self.sum);
+            self.mean.copy_from_slice(self.sum.sum());
             normalise(&mut self.mean);
         }
         Some(&self.mean)
@@ -454,7 +536,7 @@ impl Decider {
         t_us: u64,
         nearest: Nearest2,
     ) -> DecideStep {
-        assert_eq!(index.dim(), self.sum.len(), "index dimension");
+        assert_eq!(index.dim(), self.mean.len(), "index dimension");
         let mut changed = false;
         let first = *self.first_us.get_or_insert(t_us);
         let ms = |a: u64, b: u64| a.saturating_sub(b) as f32 / 1000.0;

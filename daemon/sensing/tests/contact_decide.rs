@@ -433,3 +433,140 @@ fn deep_frames_outweigh_shallow_ones_in_the_mean() {
         assert_eq!(d.mean(), &mean[..]);
     }
 }
+
+/// Within the ramp the newest frame is the deepest and the best view of the
+/// fabric: with the default `depth_power` two frames of A near the end of a
+/// ramp outweigh four shallower frames of B before them, which they do not
+/// when frames count by their weight alone (`depth_power` 1). In the hold,
+/// where the weights saturate, frames count about the same, and the
+/// release's shallow frames hardly move the mean.
+#[test]
+fn the_ramps_newest_frames_lead_the_mean() {
+    use telextiles_sensing::decide::contact_weight;
+    let idx = toy_index();
+    let a = unit(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let b = unit(&[0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let run = |power: u32, frames: &[(&Vec<f32>, f32)]| {
+        let cfg = DecideConfig {
+            depth_power: power,
+            ..DecideConfig::default()
+        };
+        let mut d = Decider::new(cfg, 8);
+        d.press_start(0);
+        for (e, score) in frames {
+            d.accumulate_weighted(e, contact_weight(*score)).unwrap();
+        }
+        d.mean().to_vec()
+    };
+    let ramp = [
+        (&b, 0.8),
+        (&b, 1.0),
+        (&b, 1.3),
+        (&b, 1.8),
+        (&a, 2.3),
+        (&a, 3.0),
+    ];
+    assert_eq!(idx.id(idx.nearest2(&run(1, &ramp)).unwrap().best), "B");
+    let power = DecideConfig::default().depth_power;
+    assert!(power > 1);
+    assert_eq!(idx.id(idx.nearest2(&run(power, &ramp)).unwrap().best), "A");
+    // Hold: six frames at 9-11 DN, three of each: the mean stays between
+    // them (each side's share within 0.35..0.65).
+    let hold = [
+        (&a, 10.0),
+        (&b, 11.0),
+        (&a, 9.0),
+        (&b, 10.0),
+        (&a, 11.0),
+        (&b, 9.0),
+    ];
+    let m = run(power, &hold);
+    let share = m[0] / (m[0] + m[1]);
+    assert!((0.35..0.65).contains(&share), "{share}");
+    // Release: four frames of A in full contact, then six shallow frames of
+    // B as the fabric lifts off: the mean stays on A.
+    let release = [
+        (&a, 10.0),
+        (&a, 10.0),
+        (&a, 10.0),
+        (&a, 10.0),
+        (&b, 2.0),
+        (&b, 1.5),
+        (&b, 1.0),
+        (&b, 0.8),
+        (&b, 0.6),
+        (&b, 0.5),
+    ];
+    let m = run(power, &release);
+    assert!(m[0] > 0.99, "{m:?}");
+    // Counted the same (power 0), the release's six frames win.
+    assert_eq!(idx.id(idx.nearest2(&run(0, &release)).unwrap().best), "B");
+    // ... and A's share is larger the steeper the power.
+    assert!(run(1, &release)[0] < m[0]);
+}
+
+/// `PressMean` keeps a running sum whose direction is that of
+/// `Σ w_i^p e_i / |e_i|`, in any order of the weights, and stays finite and
+/// non-zero for weights as small as a latent carries; it refuses what the
+/// decider refuses.
+#[test]
+fn the_press_mean_is_the_powered_mean() {
+    use telextiles_sensing::decide::PressMean;
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for power in [0u32, 1, 4, 8, 12] {
+        let mut m = PressMean::new(4, power);
+        let mut want = vec![0f64; 4];
+        for _ in 0..40 {
+            let w: f32 = if rng.gen_bool(0.2) {
+                1e-3
+            } else {
+                rng.gen_range(0.05..1.0)
+            };
+            let e: Vec<f32> = (0..4).map(|_| rng.gen_range(-1.0..1.0)).collect();
+            assert!(m.add(&e, w));
+            let n = e.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt();
+            for k in 0..4 {
+                want[k] += (w as f64).powi(power as i32) * e[k] as f64 / n;
+            }
+        }
+        let unit = |v: Vec<f64>| {
+            let l = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            v.into_iter().map(|x| x / l).collect::<Vec<_>>()
+        };
+        let got = unit(m.sum().iter().map(|&x| x as f64).collect());
+        let want = unit(want);
+        for k in 0..4 {
+            assert!(
+                (got[k] - want[k]).abs() < 1e-4,
+                "power {power}: {got:?} vs {want:?}"
+            );
+        }
+    }
+    // Only the smallest weight, at a high power: still a direction.
+    let mut m = PressMean::new(2, 12);
+    for _ in 0..10 {
+        assert!(m.add(&[3.0, 0.0], 1e-3));
+    }
+    assert_eq!(m.sum(), [10.0, 0.0]);
+    // Refused, and nothing changes.
+    for (e, w) in [
+        (&[1.0, 0.0][..], 0.0),
+        (&[1.0, 0.0][..], f32::NAN),
+        (&[1.0, 0.0][..], -1.0),
+        (&[0.0, 0.0][..], 1.0),
+        (&[f32::INFINITY, 0.0][..], 1.0),
+        (&[1.0][..], 1.0),
+    ] {
+        assert!(!m.add(e, w));
+        assert_eq!(m.sum(), [10.0, 0.0]);
+    }
+    m.clear();
+    assert_eq!(m.sum(), [0.0, 0.0]);
+    // Any power is safe: the deepest frame leads, the sum stays finite.
+    let mut m = PressMean::new(2, u32::MAX);
+    assert!(m.add(&[1.0, 0.0], 0.5));
+    assert!(m.add(&[0.0, 1.0], 0.9));
+    assert!(m.add(&[1.0, 0.0], 0.4));
+    let s = m.sum();
+    assert!(s[0].is_finite() && s[0] < 1e-15 && s[1] == 1.0, "{s:?}");
+}

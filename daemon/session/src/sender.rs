@@ -1,6 +1,7 @@
 //! [`SenderCore`]: what this side's presses send to its peers.
 
 use telextiles_sensing::contact::ContactEvent;
+use telextiles_sensing::decide::{DecideConfig, PressMean};
 
 use crate::latent::Latent;
 
@@ -24,8 +25,9 @@ pub enum TxAction {
         /// The frame's latent.
         latent: Latent,
     },
-    /// The press ended; `final_latent` is the mean of all its latents (so a
-    /// receiver that lost datagrams still decides on the whole press).
+    /// The press ended; `final_latent` is the mean of all its latents,
+    /// weighted as the decider weights them (so a receiver that lost
+    /// datagrams still decides on the whole press).
     PressStop {
         /// Its press.
         press_id: u32,
@@ -43,7 +45,9 @@ pub struct SenderCore {
     dim: usize,
     press_id: u32,
     in_press: bool,
-    sum: Vec<f64>,
+    /// The press's mean latent, weighted as the decider weights it (the
+    /// default `depth_power`, which the receiver's decider uses too).
+    sum: PressMean,
     frames: u32,
 }
 
@@ -54,7 +58,7 @@ impl SenderCore {
             dim,
             press_id: 0,
             in_press: false,
-            sum: vec![0.0; dim],
+            sum: PressMean::new(dim, DecideConfig::default().depth_power),
             frames: 0,
         }
     }
@@ -102,7 +106,7 @@ impl SenderCore {
                 }
                 self.press_id = self.press_id.wrapping_add(1);
                 self.in_press = true;
-                self.sum.iter_mut().for_each(|s| *s = 0.0);
+                self.sum.clear();
                 self.frames = 0;
                 out.push(TxAction::PressStart {
                     press_id: self.press_id,
@@ -119,10 +123,8 @@ impl SenderCore {
             return;
         };
         let latent = latent.with_weight(weight);
-        let w = latent.weight() as f64;
-        for (s, &v) in self.sum.iter_mut().zip(latent.as_slice()) {
-            *s += w * v as f64;
-        }
+        // Valid by construction: finite, unit length, weight in (0, 1].
+        self.sum.add(latent.as_slice(), latent.weight());
         self.frames += 1;
         out.push(TxAction::Latent {
             press_id: self.press_id,
@@ -139,10 +141,7 @@ impl SenderCore {
         }
         self.in_press = false;
         let final_latent = (self.frames > 0)
-            .then(|| {
-                let v: Vec<f32> = self.sum.iter().map(|&x| x as f32).collect();
-                Latent::new(&v, self.dim).ok()
-            })
+            .then(|| Latent::new(self.sum.sum(), self.dim).ok())
             .flatten();
         out.push(TxAction::PressStop {
             press_id: self.press_id,
@@ -186,9 +185,23 @@ mod tests {
                 final_latent: Some(m),
                 ..
             } => {
-                // 0.9 (1, 0) + 0.1 (0, 1), normalised: mostly the deep frame.
-                let n = (0.81f32 + 0.01).sqrt();
-                assert!((m.as_slice()[0] - 0.9 / n).abs() < 1e-6, "{m:?}");
+                // (1, 0) + (0.1 / 0.9)^p (0, 1), normalised: mostly the
+                // deep frame, and the very mean a receiver's decider keeps
+                // of these two latents.
+                let p = DecideConfig::default().depth_power;
+                assert!(p >= 1);
+                let r = (0.1f32 / 0.9).powi(p as i32);
+                let n = (1.0 + r * r).sqrt();
+                assert!((m.as_slice()[0] - 1.0 / n).abs() < 1e-6, "{m:?}");
+                let mut d = telextiles_sensing::decide::Decider::new(DecideConfig::default(), 2);
+                d.press_start(20);
+                for l in [&out[1], &out[2]] {
+                    let TxAction::Latent { latent, .. } = l else {
+                        panic!("{l:?}")
+                    };
+                    d.accumulate_weighted(latent.as_slice(), latent.weight());
+                }
+                assert_eq!(d.mean(), m.as_slice());
             }
             other => panic!("{other:?}"),
         }
