@@ -47,7 +47,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use telextiles_sensing::contact::{ContactConfig, ContactEvent};
-use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, TextileIndex};
+use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, PressMean, TextileIndex};
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{self, FrontEnd};
@@ -715,6 +715,23 @@ fn unit_mean<'a>(rows: impl Iterator<Item = &'a [f32]>, dim: usize) -> Option<Ve
     Some(m)
 }
 
+/// The press's running mean up to `t_ms` as the daemon's decider keeps it
+/// (each frame by its contact weight, [`telextiles_sensing::decide::PressMean`]),
+/// normalised; None before the first frame.
+fn weighted_mean_until(e: &PressEmbedding, dim: usize, t_ms: f64) -> Option<Vec<f32>> {
+    let mut m = PressMean::new(dim, DecideConfig::default().depth_power);
+    let mut any = false;
+    for k in (0..e.len()).filter(|&k| e.t_ms[k] <= t_ms) {
+        any |= m.add(e.row(k), e.weights.get(k).copied().unwrap_or(1.0));
+    }
+    if !any {
+        return None;
+    }
+    let mut v = m.sum().to_vec();
+    crate::knn::normalize_rows(&mut v, dim.max(1));
+    Some(v)
+}
+
 fn dot(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -902,8 +919,7 @@ fn score(
         });
         // Against time.
         for (t, correct) in sc.by_time.iter_mut() {
-            let upto: Vec<usize> = (0..e.len()).filter(|&k| e.t_ms[k] <= *t).collect();
-            if let Some(mt) = unit_mean(upto.iter().map(|&k| e.row(k)), dim) {
+            if let Some(mt) = weighted_mean_until(e, dim, *t) {
                 if bank.nearest(&mt, &allowed) == Some(truth) {
                     *correct += 1;
                 }
@@ -1419,7 +1435,7 @@ pub fn markdown(r: &StudyReport) -> String {
                 .is_some_and(|m| m.by_time.iter().any(|x| x.0 == *t))
         })
         .collect();
-    s.push_str("\n## Accuracy against time since first contact\n\nRunning mean of the frames in contact up to T ms after the press started (the recording's own timestamps), nearest index frame; a press without a frame in contact by T counts as wrong. \"first frame\": median time of the first frame in contact (the contact detector needs a few frames over threshold).\n\n| method | first frame |");
+    s.push_str("\n## Accuracy against time since first contact\n\nRunning mean of the frames in contact up to T ms after the press started (the recording's own timestamps), each frame weighted by its contact depth as the daemon's decider weights it, nearest index frame; a press without a frame in contact by T counts as wrong. \"first frame\": median time of the first frame in contact (the contact detector needs a few frames over threshold).\n\n| method | first frame |");
     for t in &cols {
         s.push_str(&format!(" {t:.0} ms |"));
     }

@@ -527,6 +527,29 @@ pub fn markdown(r: &BenchReport) -> String {
             ));
         }
         s.push('\n');
+        if r.decision.iter().any(|d| !d.by_power.is_empty()) {
+            s.push_str(&format!(
+                "### The decider's depth power\n\nThe weighted mean above with each frame counted `(w / w_max)^p` (w: its contact weight, w_max: the press's largest so far; the decider's `depth_power`, default {}; 0: every frame the same, 1: by the weight as it is).\n\n| method | p |",
+                telextiles_sensing::decide::DecideConfig::default().depth_power
+            ));
+            for n in stability::POWER_SCAN_FRAMES {
+                s.push_str(&format!(" {:.0} ms ({n}) |", n as f64 * 1000.0 / 60.0));
+            }
+            s.push_str("\n|---|---:|");
+            s.push_str(&"---:|".repeat(stability::POWER_SCAN_FRAMES.len()));
+            s.push('\n');
+            for d in &r.decision {
+                for (p, scores) in &d.by_power {
+                    s.push_str(&format!("| {} | {p} |", d.name));
+                    for n in stability::POWER_SCAN_FRAMES {
+                        let v = scores.iter().find(|x| x.0 == n);
+                        s.push_str(&format!(" {} |", v.map_or("-".into(), |x| pct(x.1))));
+                    }
+                    s.push('\n');
+                }
+            }
+            s.push('\n');
+        }
     }
     if let Some(st) = &r.stability {
         s.push_str(&format!(

@@ -827,13 +827,28 @@ pub struct DecisionCurve {
     pub name: String,
     /// (frames since first contact, top-1 of the running mean).
     pub top1: Vec<(usize, f64)>,
-    /// The same with every frame weighted by its contact depth (the
-    /// daemon's `contact_weight` of the mean absolute difference from the
-    /// reference in the method's view, what its contact detector scores):
-    /// the ramp's shallow frames count less.
+    /// The same with every frame weighted by its contact depth as the
+    /// daemon's decider weights it (the `contact_weight` of the mean
+    /// absolute difference from the reference in the method's view, what
+    /// its contact detector scores, raised to the decider's default
+    /// `depth_power` relative to the press's deepest frame so far): the
+    /// ramp's shallow frames count less.
     #[serde(default)]
     pub weighted: Vec<(usize, f64)>,
+    /// The weighted mean's top-1 for other values of the decider's
+    /// `depth_power` ([`DEPTH_POWERS`]), at [`POWER_SCAN_FRAMES`]:
+    /// (power, [(frames, top-1)]).
+    #[serde(default)]
+    pub by_power: Vec<(u32, Vec<(usize, f64)>)>,
 }
+
+/// The `depth_power` values the decision curve compares (1: each frame
+/// by its contact weight as it is, as before `depth_power`).
+pub const DEPTH_POWERS: [u32; 7] = [0, 1, 2, 4, 8, 12, 16];
+
+/// Frames since first contact at which [`DecisionCurve::by_power`] is
+/// measured (50, 100, 167, 250 and 500 ms at 60 fps).
+pub const POWER_SCAN_FRAMES: [usize; 5] = [3, 6, 10, 15, 30];
 
 /// Renders the held-out presses from first contact on (`frames` consecutive
 /// frames).
@@ -904,8 +919,30 @@ pub fn decision_curve(
             }
         })
         .collect();
+    let power = telextiles_sensing::decide::DecideConfig::default().depth_power;
     let mut top1 = Vec::new();
     let mut weighted = Vec::new();
+    let by_power = DEPTH_POWERS
+        .iter()
+        .map(|&p| {
+            let scores = POWER_SCAN_FRAMES
+                .iter()
+                .filter(|&&n| n <= longest)
+                .map(|&n| {
+                    let mut q = Vec::new();
+                    let mut ql = Vec::new();
+                    for rows in presses.values() {
+                        let rows = &rows[..n.min(rows.len())];
+                        q.extend(depth_weighted_mean(&qe, dim, rows, &depth, p));
+                        ql.push(qv.items[rows[0]].class);
+                    }
+                    normalize_rows(&mut q, dim);
+                    (n, crate::methods::top1(&ie, &labels, &q, &ql, dim))
+                })
+                .collect();
+            (p, scores)
+        })
+        .collect();
     for n in 1..=longest {
         let mut q = Vec::new();
         let mut qw = Vec::new();
@@ -913,9 +950,7 @@ pub fn decision_curve(
         for rows in presses.values() {
             let rows = &rows[..n.min(rows.len())];
             q.extend(mean_rows(&qe, dim, rows));
-            qw.extend(crate::methods::weighted_sum_rows(&qe, dim, rows, |i| {
-                depth[i]
-            }));
+            qw.extend(depth_weighted_mean(&qe, dim, rows, &depth, power));
             ql.push(qv.items[rows[0]].class);
         }
         normalize_rows(&mut q, dim);
@@ -927,7 +962,25 @@ pub fn decision_curve(
         name: m.name(),
         top1,
         weighted,
+        by_power,
     })
+}
+
+/// The decider's running mean of `rows` of `e` (dimension `dim`), each row
+/// with contact weight `weight[row]` and depth power `power`
+/// ([`telextiles_sensing::decide::PressMean`]), not normalised.
+pub fn depth_weighted_mean(
+    e: &[f32],
+    dim: usize,
+    rows: &[usize],
+    weight: &[f32],
+    power: u32,
+) -> Vec<f32> {
+    let mut m = telextiles_sensing::decide::PressMean::new(dim, power);
+    for &i in rows {
+        m.add(&e[i * dim..(i + 1) * dim], weight[i]);
+    }
+    m.sum().to_vec()
 }
 
 /// Charts: accuracy per factor (one panel each) and flip rate per factor,
