@@ -227,18 +227,18 @@ pub fn contact_weight(score: f32) -> f32 {
     }
 }
 
-/// Whether `emb` (dimension `dim`) with contact weight `weight` can join a
-/// press's mean: finite and of non-zero length, the weight finite and
-/// positive.
-fn acceptable(emb: &[f32], dim: usize, weight: f32) -> bool {
+/// The length of `emb` (dimension `dim`) if it can join a press's mean
+/// with contact weight `weight`: finite and of non-zero length, the weight
+/// finite and positive.
+fn acceptable_norm(emb: &[f32], dim: usize, weight: f32) -> Option<f32> {
     if emb.len() != dim
         || emb.iter().any(|v| !v.is_finite())
         || !(weight.is_finite() && weight > 0.0)
     {
-        return false;
+        return None;
     }
     let n = norm(emb);
-    n > 0.0 && n.is_finite()
+    (n > 0.0 && n.is_finite()).then_some(n)
 }
 
 /// A press's running sum of embeddings, each counted by its contact weight
@@ -279,10 +279,9 @@ impl PressMean {
     /// non-finite values or of zero length, or a weight that is not finite
     /// and positive.
     pub fn add(&mut self, emb: &[f32], weight: f32) -> bool {
-        if !acceptable(emb, self.sum.len(), weight) {
+        let Some(n) = acceptable_norm(emb, self.sum.len(), weight) else {
             return false;
-        }
-        let n = norm(emb);
+        };
         let rel = if weight > self.max_weight {
             let k = (self.max_weight / weight).powi(self.power);
             self.sum.iter_mut().for_each(|s| *s *= k);
@@ -516,14 +515,16 @@ impl Decider {
     /// [`contact_weight`]); None (and nothing changes) also for a weight
     /// that is not finite and positive.
     pub fn accumulate_weighted(&mut self, emb: &[f32], weight: f32) -> Option<&[f32]> {
-        if !acceptable(emb, self.mean.len(), weight) {
-            return None;
-        }
         if self.in_press {
-            self.sum.add(emb, weight);
+            // `add` checks the embedding and the weight, once.
+            if !self.sum.add(emb, weight) {
+                return None;
+            }
             self.frames += 1;
             self.mean.copy_from_slice(self.sum.sum());
             normalise(&mut self.mean);
+        } else if acceptable_norm(emb, self.mean.len(), weight).is_none() {
+            return None;
         }
         Some(&self.mean)
     }
