@@ -919,45 +919,37 @@ pub fn decision_curve(
             }
         })
         .collect();
+    // Top-1 of every press's mean over its first `n` frames (`mean`: a
+    // press's rows to their unnormalised mean).
+    let score = |n: usize, mean: &dyn Fn(&[usize]) -> Vec<f32>| {
+        let mut q = Vec::new();
+        let mut ql = Vec::new();
+        for rows in presses.values() {
+            let rows = &rows[..n.min(rows.len())];
+            q.extend(mean(rows));
+            ql.push(qv.items[rows[0]].class);
+        }
+        normalize_rows(&mut q, dim);
+        crate::methods::top1(&ie, &labels, &q, &ql, dim)
+    };
+    let weighted_at =
+        |n: usize, p: u32| score(n, &|rows| depth_weighted_mean(&qe, dim, rows, &depth, p));
     let power = telextiles_sensing::decide::DecideConfig::default().depth_power;
-    let mut top1 = Vec::new();
-    let mut weighted = Vec::new();
+    let top1 = (1..=longest)
+        .map(|n| (n, score(n, &|rows| mean_rows(&qe, dim, rows))))
+        .collect();
+    let weighted = (1..=longest).map(|n| (n, weighted_at(n, power))).collect();
     let by_power = DEPTH_POWERS
         .iter()
         .map(|&p| {
             let scores = POWER_SCAN_FRAMES
                 .iter()
                 .filter(|&&n| n <= longest)
-                .map(|&n| {
-                    let mut q = Vec::new();
-                    let mut ql = Vec::new();
-                    for rows in presses.values() {
-                        let rows = &rows[..n.min(rows.len())];
-                        q.extend(depth_weighted_mean(&qe, dim, rows, &depth, p));
-                        ql.push(qv.items[rows[0]].class);
-                    }
-                    normalize_rows(&mut q, dim);
-                    (n, crate::methods::top1(&ie, &labels, &q, &ql, dim))
-                })
+                .map(|&n| (n, weighted_at(n, p)))
                 .collect();
             (p, scores)
         })
         .collect();
-    for n in 1..=longest {
-        let mut q = Vec::new();
-        let mut qw = Vec::new();
-        let mut ql = Vec::new();
-        for rows in presses.values() {
-            let rows = &rows[..n.min(rows.len())];
-            q.extend(mean_rows(&qe, dim, rows));
-            qw.extend(depth_weighted_mean(&qe, dim, rows, &depth, power));
-            ql.push(qv.items[rows[0]].class);
-        }
-        normalize_rows(&mut q, dim);
-        normalize_rows(&mut qw, dim);
-        top1.push((n, crate::methods::top1(&ie, &labels, &q, &ql, dim)));
-        weighted.push((n, crate::methods::top1(&ie, &labels, &qw, &ql, dim)));
-    }
     Ok(DecisionCurve {
         name: m.name(),
         top1,
