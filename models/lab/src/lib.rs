@@ -8,6 +8,7 @@ pub mod augment;
 pub mod baselines;
 pub mod bench;
 pub mod data;
+pub mod decider_timing;
 pub mod graph;
 pub mod knn;
 pub mod methods;

@@ -66,6 +66,27 @@ enum Cmd {
     /// `telextilesd record` lays out recordings (`<out>/<textile>/<press>/`):
     /// a stand-in for your own recordings to try `--source presses:<dir>`.
     SimPresses(SimPressesArgs),
+    /// When the decider commits: the daemon's front end and decider on whole
+    /// simulated presses (jig and hand-held, held-out people), for candidate
+    /// timing rules (min_ms, confirm_ms); committed decisions right against
+    /// time after first contact, switches, and the written rule's pick.
+    DeciderTiming(DeciderTimingArgs),
+}
+
+#[derive(Args)]
+struct DeciderTimingArgs {
+    #[command(flatten)]
+    data: DataArgs,
+    /// The ONNX encoder.
+    #[arg(long, default_value = "models/encoder.onnx")]
+    model: PathBuf,
+    /// Held-out people (and their units) that press the queries, from the
+    /// protocol's list (--heldout-people sets the list and the index).
+    #[arg(long, default_value_t = 3)]
+    people: usize,
+    /// Where timing.json, report.md and the charts go.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -586,6 +607,7 @@ fn main() -> Result<()> {
         Cmd::ExportDescriptor(a) => export_descriptor(a),
         Cmd::Quantize(a) => quantize_cmd(a),
         Cmd::SimPresses(a) => sim_presses(a),
+        Cmd::DeciderTiming(a) => decider_timing(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
         Cmd::BenchLatency(a) => {
@@ -1056,6 +1078,31 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     eprintln!(
         "wrote bench.json, report.md and the charts in {}",
         out.display()
+    );
+    Ok(())
+}
+
+fn decider_timing(a: DeciderTimingArgs) -> Result<()> {
+    use telextiles_lab::decider_timing as dt;
+    ensure!(
+        a.data.kind()? == SourceKind::Sim,
+        "decider-timing renders whole presses: it needs --source sim"
+    );
+    let bytes =
+        std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
+    let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes)?;
+    let cfg = dt::StudyConfig {
+        protocol: a.data.protocol(),
+        cache_dir: a.data.cache_dir.clone(),
+        people: a.people,
+        threads: a.data.threads,
+    };
+    let r = dt::run(&cfg, &m)?;
+    dt::write(&r, &a.out)?;
+    println!("{}", dt::markdown(&r));
+    eprintln!(
+        "wrote timing.json, report.md and the charts in {}",
+        a.out.display()
     );
     Ok(())
 }

@@ -265,7 +265,8 @@ impl PressEmbedding {
         self.frames.is_empty()
     }
 
-    fn row(&self, i: usize) -> &[f32] {
+    /// Row `i`.
+    pub fn row(&self, i: usize) -> &[f32] {
         &self.rows[i * self.dim..(i + 1) * self.dim]
     }
 }
