@@ -7,7 +7,7 @@ use image::{Rgb, RgbImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use telextiles_sensing::contact::{ContactConfig, ContactDetector, ContactEvent, EndReason};
-use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, TextileIndex};
+use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, PressOutcome, TextileIndex};
 use telextiles_sim::PressSpec;
 
 fn events(det: &mut ContactDetector, frames: &[RgbImage], t0: u64) -> Vec<(usize, ContactEvent)> {
@@ -245,16 +245,19 @@ fn no_decision_outside_a_press() {
             assert_eq!((idx.id(dec.entry), dec.slot, dec.unknown), ("A", 3, false));
         }
     }
-    // Counting starts min_ms after the first embedding (frame 103 at 60
-    // fps), and the textile must stay nearest for confirm_ms (to 106).
-    assert_eq!(first, Some(106));
+    // Counting starts min_ms after the first embedding (at once with the
+    // default 0), and the textile must stay nearest for confirm_ms (50 ms:
+    // from frame 100 to 103 at 60 fps).
+    let cfg = DecideConfig::default();
+    assert_eq!(cfg.min_ms, 0.0);
+    assert_eq!(first, Some(103));
     let out = d.press_end(130 * P).unwrap();
     assert_eq!(
         (out.first_decision_us, out.switches),
         (first.map(|k| k * P), 0)
     );
-    // At 25 fps the same durations take fewer frames: decided at frame 4
-    // (160 ms), not after a fixed 8 frames (320 ms).
+    // At 25 fps the same duration takes fewer frames: decided at frame 2
+    // (80 ms), not after a fixed 3 frames (120 ms).
     const P25: u64 = 40_000;
     d.press_start(0);
     let mut first = None;
@@ -267,28 +270,60 @@ fn no_decision_outside_a_press() {
             first.get_or_insert(k);
         }
     }
-    assert_eq!(first, Some(4));
+    assert_eq!(first, Some(2));
+    // With a minimum the counting starts later: min_ms 50 and confirm_ms
+    // 50 decide at frame 106 at 60 fps.
+    let mut d = Decider::new(
+        DecideConfig {
+            min_ms: 50.0,
+            ..cfg
+        },
+        8,
+    );
+    d.press_start(100 * P);
+    let first =
+        (100..130u64).find(|&k| d.on_embedding(&idx, k * P, &a).unwrap().decision.is_some());
+    assert_eq!(first, Some(106));
 }
 
-#[test]
-fn no_flip_flop_between_close_textiles_under_noise() {
+/// Ten seconds of frames halfway between A and B (A very slightly nearer)
+/// with heavy noise: the frames whose decision changed, and the outcome.
+fn noisy_press(cfg: DecideConfig) -> (Vec<u64>, PressOutcome) {
     let idx = toy_index();
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let mut d = Decider::new(DecideConfig::default(), 8);
+    let mut d = Decider::new(cfg, 8);
     d.press_start(0);
-    let mut changes = 0;
-    // Frames halfway between A and B (A very slightly nearer) with heavy noise.
+    let mut changes = Vec::new();
     for t in 1..600u64 {
         let mut v: Vec<f32> = (0..8).map(|_| rng.gen_range(-0.6f32..0.6)).collect();
         v[0] += 1.0;
         v[1] += 0.97;
         if d.on_embedding(&idx, t * 16_667, &unit(&v)).unwrap().changed {
-            changes += 1;
+            changes.push(t);
         }
     }
-    let o = d.press_end(600).unwrap();
-    assert_eq!(changes, 1, "decided once, never switched");
-    assert_eq!(o.switches, 0);
+    (changes, d.press_end(600).unwrap())
+}
+
+#[test]
+fn no_flip_flop_between_close_textiles_under_noise() {
+    // The decider commits 50 ms after the first frame, on a mean of four
+    // noisy frames, which may lean to B: then one correction, early, and
+    // never again in ten seconds.
+    let (changes, o) = noisy_press(DecideConfig::default());
+    assert!(o.switches <= 1, "changes at frames {changes:?}");
+    assert!(
+        changes.iter().all(|&t| t < 60),
+        "changes at frames {changes:?}"
+    );
+    assert_eq!(toy_index().id(o.decision.unwrap().entry), "A");
+    // With a minimum of 50 ms before the first decision the mean has
+    // settled: decided once, never switched.
+    let (changes, o) = noisy_press(DecideConfig {
+        min_ms: 50.0,
+        ..DecideConfig::default()
+    });
+    assert_eq!((changes.len(), o.switches), (1, 0));
 }
 
 #[test]
