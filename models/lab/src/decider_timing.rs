@@ -603,54 +603,33 @@ pub fn markdown(r: &TimingReport) -> String {
     s
 }
 
-/// Committed-right against time, one line per candidate, one chart per
-/// group.
+/// Committed-right against time, one line per candidate (the chosen one
+/// thicker), one chart per group.
 pub fn chart(r: &TimingReport, group: &str, svg: &std::path::Path) -> Result<()> {
-    use plotters::prelude::*;
-    let e = |x: Box<dyn std::error::Error + '_>| anyhow::anyhow!("chart: {x}");
-    let root = SVGBackend::new(svg, (1000, 560)).into_drawing_area();
-    root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
-    let mut c = ChartBuilder::on(&root)
-        .caption(
-            format!("Committed decisions right against time after first contact ({group})"),
-            ("sans-serif", 18),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0.0..WINDOW_MS, 0.0..100.0)
-        .map_err(|x| e(Box::new(x)))?;
-    c.configure_mesh()
-        .x_desc("ms after first contact")
-        .y_desc("presses whose committed decision is right, %")
-        .draw()
-        .map_err(|x| e(Box::new(x)))?;
-    for (i, x) in r.scores.iter().filter(|x| x.group == group).enumerate() {
-        let color = Palette99::pick(i).to_rgba();
-        let w = if (x.min_ms, x.confirm_ms) == r.chosen {
-            4
-        } else {
-            2
-        };
-        c.draw_series(LineSeries::new(
-            x.curve.iter().map(|&(t, a)| (t, 100.0 * a)),
-            color.stroke_width(w),
-        ))
-        .map_err(|x| e(Box::new(x)))?
-        .label(format!(
-            "min {:.0} / confirm {:.0} ms",
-            x.min_ms, x.confirm_ms
-        ))
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(w)));
-    }
-    c.configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::LowerRight)
-        .draw()
-        .map_err(|x| e(Box::new(x)))?;
-    root.present().map_err(|x| e(Box::new(x)))?;
-    Ok(())
+    let series: Vec<crate::stability::Line> = r
+        .scores
+        .iter()
+        .filter(|x| x.group == group)
+        .map(|x| crate::stability::Line {
+            label: format!("min {:.0} / confirm {:.0} ms", x.min_ms, x.confirm_ms),
+            points: x.curve.iter().map(|&(t, a)| (t, 100.0 * a)).collect(),
+            width: if (x.min_ms, x.confirm_ms) == r.chosen {
+                4
+            } else {
+                2
+            },
+        })
+        .collect();
+    crate::stability::line_chart(
+        svg,
+        &format!("Committed decisions right against time after first contact ({group})"),
+        (
+            "ms after first contact",
+            "presses whose committed decision is right, %",
+        ),
+        0.0..WINDOW_MS,
+        &series,
+    )
 }
 
 /// Writes `timing.json`, `report.md` and the charts into `out`.
@@ -753,6 +732,47 @@ mod tests {
             final_right: fin,
             switches_per_100: 0.0,
         }
+    }
+
+    #[test]
+    fn the_report_marks_the_chosen_pair_and_draws_both_groups() {
+        let p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
+        let mut scores = score(&index(), &[&p], "jig", &CANDIDATES);
+        scores.extend(score(&index(), &[&p], "hand-held", &CANDIDATES));
+        let chosen = CANDIDATES[choose(&scores, &CANDIDATES).unwrap()];
+        // One steady press: every pair is right from its first decision, so
+        // the earliest (0 / 16) has the best mean.
+        assert_eq!(chosen, (0.0, 16.0));
+        let r = TimingReport {
+            machine: "test".into(),
+            date: "today".into(),
+            command: "decider-timing".into(),
+            source: "sim".into(),
+            model: "m".into(),
+            candidates: CANDIDATES.to_vec(),
+            scores,
+            chosen,
+            detect_ms_p50: vec![("jig".into(), 33.3)],
+            undetected: vec![("jig".into(), 0), ("hand-held".into(), 0)],
+            seconds: 0.0,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        write(&r, dir.path()).unwrap();
+        let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+        assert!(md.contains("| **0 / 16** |"), "{md}");
+        assert!(md.contains("## hand-held (1 presses)"), "{md}");
+        for g in ["jig", "hand-held"] {
+            let svg =
+                std::fs::read_to_string(dir.path().join(format!("committed-{g}.svg"))).unwrap();
+            assert!(
+                svg.contains("min 0 / confirm 16 ms") && svg.contains(g),
+                "{g}"
+            );
+        }
+        let back: TimingReport =
+            serde_json::from_slice(&std::fs::read(dir.path().join("timing.json")).unwrap())
+                .unwrap();
+        assert_eq!(back.chosen, chosen);
     }
 
     #[test]

@@ -1089,10 +1089,6 @@ pub fn charts(
 
 /// Accuracy against ms since first contact, one line per method.
 pub fn decision_chart(curves: &[DecisionCurve], svg: &std::path::Path) -> Result<()> {
-    use plotters::prelude::*;
-    let e = |x: Box<dyn std::error::Error + '_>| anyhow!("chart: {x}");
-    let root = SVGBackend::new(svg, (1000, 560)).into_drawing_area();
-    root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
     let n = curves
         .iter()
         .map(|c| c.top1.len())
@@ -1100,30 +1096,69 @@ pub fn decision_chart(curves: &[DecisionCurve], svg: &std::path::Path) -> Result
         .unwrap_or(1)
         .max(2);
     let ms = |k: usize| k as f64 * 1000.0 / 60.0;
+    let series: Vec<Line> = curves
+        .iter()
+        .map(|cv| Line {
+            label: cv.name.clone(),
+            points: cv.top1.iter().map(|&(k, a)| (ms(k), 100.0 * a)).collect(),
+            width: 2,
+        })
+        .collect();
+    line_chart(
+        svg,
+        "Accuracy against time since first contact (held-out people, running mean)",
+        (
+            "ms since the first contact frame (frames aggregated x 16.7 ms)",
+            "top-1 per press, %",
+        ),
+        ms(1)..ms(n),
+        &series,
+    )
+}
+
+/// One line of [`line_chart`].
+pub struct Line {
+    pub label: String,
+    /// (x, y in %).
+    pub points: Vec<(f64, f64)>,
+    pub width: u32,
+}
+
+/// A percentage (0..100) against `x`, one line per series, legend at the
+/// lower right: the time charts of the study and of `decider-timing`.
+pub fn line_chart(
+    svg: &std::path::Path,
+    caption: &str,
+    (x_desc, y_desc): (&str, &str),
+    x: std::ops::Range<f64>,
+    series: &[Line],
+) -> Result<()> {
+    use plotters::prelude::*;
+    let e = |x: Box<dyn std::error::Error + '_>| anyhow!("chart: {x}");
+    let root = SVGBackend::new(svg, (1000, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
     let mut c = ChartBuilder::on(&root)
-        .caption(
-            "Accuracy against time since first contact (held-out people, running mean)",
-            ("sans-serif", 18),
-        )
+        .caption(caption, ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(55)
-        .build_cartesian_2d(ms(1)..ms(n), 0.0..100.0)
+        .build_cartesian_2d(x, 0.0..100.0)
         .map_err(|x| e(Box::new(x)))?;
     c.configure_mesh()
-        .x_desc("ms since the first contact frame (frames aggregated x 16.7 ms)")
-        .y_desc("top-1 per press, %")
+        .x_desc(x_desc)
+        .y_desc(y_desc)
         .draw()
         .map_err(|x| e(Box::new(x)))?;
-    for (i, cv) in curves.iter().enumerate() {
+    for (i, l) in series.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
+        let w = l.width;
         c.draw_series(LineSeries::new(
-            cv.top1.iter().map(|&(k, a)| (ms(k), 100.0 * a)),
-            color.stroke_width(2),
+            l.points.iter().copied(),
+            color.stroke_width(w),
         ))
         .map_err(|x| e(Box::new(x)))?
-        .label(cv.name.clone())
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+        .label(l.label.clone())
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(w)));
     }
     c.configure_series_labels()
         .background_style(WHITE.mix(0.8))
