@@ -47,9 +47,10 @@ pub const MEAN_OVER_MS: f64 = 500.0;
 pub const WINDOW_MS: f64 = 750.0;
 
 /// Candidate `(min_ms, confirm_ms)` pairs; the first (50 / 50) is the
-/// pair shipped before this study, the baseline of [`choose`]. At 60 fps the rules act in whole frames: the
-/// confirmation needs a run of at least two frames, so `confirm_ms` 16
-/// commits on the second frame of a run, 33 on the third.
+/// pair shipped before this study, the baseline of [`choose`]. At 60 fps
+/// the rules act in whole frames: the confirmation needs a run of at least
+/// two frames, so `confirm_ms` 16 commits on the second frame of a run, 33
+/// on the third.
 pub const CANDIDATES: [(f32, f32); 8] = [
     (50.0, 50.0),
     (33.0, 50.0),
@@ -69,9 +70,11 @@ pub struct PressTrace {
     /// Jig or hand-held.
     pub jig: bool,
     /// Milliseconds from the press's true first contact to the contact
-    /// detector's press start (the time origin of `emb.t_ms`).
+    /// detector's press start (the time origin of `emb.t_ms`); NaN when the
+    /// detector never started the press.
     pub detect_ms: f64,
-    /// The embedded frames in contact, from the daemon's front end.
+    /// The embedded frames in contact, from the daemon's front end (none:
+    /// never started, so never decided and never right).
     pub emb: PressEmbedding,
 }
 
@@ -207,31 +210,29 @@ pub fn score(
                 fin += (r.last == Some(p.class)) as usize;
                 sw += r.switches as u64;
             }
+            // (time, share of the presses) for counts at `times`.
+            let shares = |times: &[f64], counts: &[usize]| -> Vec<(f64, f64)> {
+                times
+                    .iter()
+                    .zip(counts)
+                    .map(|(&t, &c)| (t, c as f64 / n))
+                    .collect()
+            };
+            let curve = shares(&grid, &right[TIMES_MS.len()..]);
+            let early: Vec<f64> = curve
+                .iter()
+                .filter(|x| x.0 <= MEAN_OVER_MS)
+                .map(|x| x.1)
+                .collect();
             TimingScore {
                 min_ms,
                 confirm_ms,
                 group: group.to_string(),
                 presses: presses.len(),
-                right_at: TIMES_MS
-                    .iter()
-                    .zip(&right)
-                    .map(|(&t, &r)| (t, r as f64 / n))
-                    .collect(),
-                decided_at: TIMES_MS
-                    .iter()
-                    .zip(&decided)
-                    .map(|(&t, &r)| (t, r as f64 / n))
-                    .collect(),
-                curve: grid
-                    .iter()
-                    .zip(&right[TIMES_MS.len()..])
-                    .map(|(&t, &r)| (t, r as f64 / n))
-                    .collect(),
-                mean_right: {
-                    let w = &right[TIMES_MS.len()..];
-                    let k = grid.iter().filter(|&&t| t <= MEAN_OVER_MS).count();
-                    w[..k].iter().sum::<usize>() as f64 / (n * k.max(1) as f64)
-                },
+                right_at: shares(&TIMES_MS, &right),
+                decided_at: shares(&TIMES_MS, &decided),
+                mean_right: early.iter().sum::<f64>() / early.len().max(1) as f64,
+                curve,
                 first_ms_p50: crate::bench::median(&first_t),
                 first_right: if first_t.is_empty() {
                     f64::NAN
@@ -254,13 +255,9 @@ pub fn score(
 /// one first). Returns the index into `pairs`.
 pub fn choose(scores: &[TimingScore], pairs: &[(f32, f32)]) -> Result<usize> {
     ensure!(!pairs.is_empty(), "no candidates");
-    let groups: Vec<&str> = {
-        let mut g: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
-        g.dedup();
-        g.sort();
-        g.dedup();
-        g
-    };
+    let mut groups: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
+    groups.sort();
+    groups.dedup();
     let get = |pair: (f32, f32), g: &str| -> Result<&TimingScore> {
         scores
             .iter()
@@ -406,22 +403,18 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
     // in the jig and by hand.
     // (The index holds the protocol's training textiles, `--textiles` of
     // them when given.)
-    let textiles: Vec<String> = sim
+    let textiles: Vec<(usize, String)> = sim
         .catalogue()
         .training()
-        .map(|t| t.id.clone())
-        .filter(|t| index.entry_by_id(t).is_some())
+        .filter_map(|t| Some((index.entry_by_id(&t.id)?, t.id.clone())))
         .collect();
     ensure!(!textiles.is_empty(), "no training textile in the index");
     let mut plans = Vec::new();
-    for t in &textiles {
-        let class = index
-            .entry_by_id(t)
-            .with_context(|| format!("{t} is not in the index"))?;
+    for (class, t) in &textiles {
         for &(person, sensor) in p.heldout.iter().take(cfg.people.max(1)) {
             for jig in [true, false] {
                 plans.push((
-                    class,
+                    *class,
                     telextiles_sim::PressSpec {
                         person,
                         sensor,
@@ -454,12 +447,11 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
                         let ts = press.meta.timestamps_us.clone();
                         let done = proc.process(&spec.textile, press)?;
                         bar.inc(1);
-                        let Some(emb) = done.methods.into_iter().next().filter(|e| !e.is_empty())
-                        else {
-                            continue;
+                        let emb = done.methods.into_iter().next().unwrap_or_default();
+                        let detect_ms = match emb.frames.first() {
+                            Some(&f) => (ts[f] as f64 - contact_us as f64) / 1e3 - emb.t_ms[0],
+                            None => f64::NAN,
                         };
-                        let first = ts[emb.frames[0]];
-                        let detect_ms = (first as f64 - contact_us as f64) / 1e3 - emb.t_ms[0];
                         out.push((
                             i,
                             PressTrace {
@@ -489,28 +481,16 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
     let mut detect = Vec::new();
     let mut undetected = Vec::new();
     for (group, jig) in [("jig", true), ("hand-held", false)] {
+        // A press the detector never started has no frames: it counts
+        // against every candidate, as never right.
         let g: Vec<&PressTrace> = traces.iter().filter(|t| t.jig == jig).collect();
-        // A press the detector never saw counts against every candidate.
-        let missing = plans.iter().filter(|x| x.1.jig == jig).count() - g.len();
-        undetected.push((group.to_string(), missing));
-        let mut sc = score(&index, &g, group, &CANDIDATES);
-        for s in &mut sc {
-            let k = g.len() as f64 / (g.len() + missing).max(1) as f64;
-            for v in s
-                .right_at
-                .iter_mut()
-                .chain(s.decided_at.iter_mut())
-                .chain(s.curve.iter_mut())
-            {
-                v.1 *= k;
-            }
-            s.mean_right *= k;
-            s.final_right *= k;
-            s.switches_per_100 *= k;
-            s.presses = g.len() + missing;
-        }
-        scores.extend(sc);
-        let d: Vec<f64> = g.iter().map(|t| t.detect_ms).collect();
+        scores.extend(score(&index, &g, group, &CANDIDATES));
+        let d: Vec<f64> = g
+            .iter()
+            .map(|t| t.detect_ms)
+            .filter(|t| t.is_finite())
+            .collect();
+        undetected.push((group.to_string(), g.len() - d.len()));
         detect.push((group.to_string(), crate::bench::median(&d)));
     }
     let chosen = CANDIDATES[choose(&scores, &CANDIDATES)?];
@@ -715,6 +695,19 @@ mod tests {
         assert_eq!(late[0].switches_per_100, 0.0);
         assert_eq!(early[0].final_right, 1.0);
         assert_eq!(late[0].final_right, 1.0);
+    }
+
+    #[test]
+    fn a_press_never_started_counts_as_never_right() {
+        let seen = trace(0, 33.3, &[[1.0, 0.1]; 40]);
+        let never = PressTrace {
+            detect_ms: f64::NAN,
+            ..trace(1, 0.0, &[])
+        };
+        let s = &score(&index(), &[&seen, &never], "jig", &[(0.0, 50.0)])[0];
+        assert_eq!((s.presses, s.final_right, s.first_right), (2, 0.5, 1.0));
+        assert_eq!(s.right(500.0), 0.5);
+        assert_eq!(s.switches_per_100, 0.0);
     }
 
     fn s(pair: (f32, f32), group: &str, mean: f64, first: f64, fin: f64) -> TimingScore {
