@@ -27,6 +27,9 @@ pub enum BaselineKind {
     /// invariant angular harmonics ([`crate::wspec`]); on the image
     /// averaged over 2x2 blocks when it is large enough.
     WSpec,
+    /// The same under a window centred on the contact
+    /// ([`crate::wspec::Window::Contact`]).
+    WSpecCw,
 }
 
 /// A descriptor and whether it sees background-subtracted frames.
@@ -57,6 +60,7 @@ impl Baseline {
             BaselineKind::Lbp => "lbp-riu2",
             BaselineKind::Fft => "fft-radial",
             BaselineKind::WSpec => "wspec",
+            BaselineKind::WSpecCw => "wspec-cw",
         };
         if self.bgsub {
             format!("{k} -bg")
@@ -75,9 +79,14 @@ impl Baseline {
             BaselineKind::Pixels => pixels(&rgb(), n),
             BaselineKind::Lbp => lbp(&grey(&rgb()), n),
             BaselineKind::Fft => fft_radial(&grey(&rgb()), n),
-            BaselineKind::WSpec => {
+            BaselineKind::WSpec | BaselineKind::WSpecCw => {
                 assert_eq!(w, h, "wspec takes a square image");
-                crate::wspec::of_image(img, w, bg, (w / 2).min(120) & !1)
+                let window = if self.kind == BaselineKind::WSpec {
+                    crate::wspec::Window::Centre
+                } else {
+                    crate::wspec::Window::Contact
+                };
+                crate::wspec::of_image_with(img, w, bg, (w / 2).min(120) & !1, window)
             }
         };
         l2(&mut f);

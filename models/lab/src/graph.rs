@@ -216,6 +216,63 @@ fn centred_windowed(b: &mut Builder, x: &str, n: usize) -> String {
     b.op("Mul", &[&centred, &win], vec![])
 }
 
+/// `x` (`[N, 3, n, n]`) minus each image's mean per channel, times a 2D
+/// Hann window centred on the energy centroid of that difference
+/// ([`crate::wspec::Window::Contact`]; [`crate::wspec::contact_centroid`]
+/// and [`crate::wspec::hann_at`] are its reference).
+fn contact_windowed(b: &mut Builder, x: &str, n: usize) -> String {
+    let hw = b.i64s("axes_hw", vec![2, 3]);
+    let mean = b.op("ReduceMean", &[x, &hw], vec![attr_int("keepdims", 1)]);
+    let centred = b.op("Sub", &[x, &mean], vec![]);
+    // Energy per pixel, summed over the channels: [N, 1, n, n].
+    let sq = b.op("Mul", &[&centred, &centred], vec![]);
+    let ax1 = b.i64s("axes_c", vec![1]);
+    let energy = b.op("ReduceSum", &[&sq, &ax1], vec![attr_int("keepdims", 1)]);
+    // Row and column profiles: [N, 1, n, 1] and [N, 1, 1, n].
+    let ax3 = b.i64s("axes_w", vec![3]);
+    let ax2 = b.i64s("axes_h", vec![2]);
+    let rows = b.op("ReduceSum", &[&energy, &ax3], vec![attr_int("keepdims", 1)]);
+    let cols = b.op("ReduceSum", &[&energy, &ax2], vec![attr_int("keepdims", 1)]);
+    let total = b.op("ReduceSum", &[&rows, &ax2], vec![attr_int("keepdims", 1)]);
+    let eps = crate::wspec::CENTROID_EPS;
+    let eps_t = b.f32s("centroid_eps", &[1], vec![eps as f32]);
+    let eps_c = b.f32s(
+        "centroid_eps_centre",
+        &[1],
+        vec![(eps * n as f64 / 2.0) as f32],
+    );
+    let denom = b.op("Add", &[&total, &eps_t], vec![]);
+    let half = b.f32s("half_n", &[1], vec![n as f32 / 2.0]);
+    let k = b.f32s(
+        "two_pi_over_n",
+        &[1],
+        vec![(2.0 * std::f64::consts::PI / n as f64) as f32],
+    );
+    let point_five = b.f32s("point_five", &[1], vec![0.5]);
+    let idx: Vec<f32> = (0..n).map(|i| i as f32).collect();
+    // One axis's window from its energy profile (`axis`: 2 rows, 3 columns).
+    let window = |b: &mut Builder, profile: &str, dims: &[i64], axis: i64, hint: &str| {
+        let grid = b.f32s(hint, dims, idx.clone());
+        let moment = b.op("Mul", &[profile, &grid], vec![]);
+        let ax = b.i64s("axes_moment", vec![axis]);
+        let moment = b.op("ReduceSum", &[&moment, &ax], vec![attr_int("keepdims", 1)]);
+        let moment = b.op("Add", &[&moment, &eps_c], vec![]);
+        let centroid = b.op("Div", &[&moment, &denom], vec![]);
+        // 0.5 + 0.5 cos(2π min(|i − c|, n/2) / n)
+        let d = b.op("Sub", &[&grid, &centroid], vec![]);
+        let d = b.op("Abs", &[&d], vec![]);
+        let d = b.op("Min", &[&d, &half], vec![]);
+        let a = b.op("Mul", &[&d, &k], vec![]);
+        let c = b.op("Cos", &[&a], vec![]);
+        let c = b.op("Mul", &[&c, &point_five], vec![]);
+        b.op("Add", &[&c, &point_five], vec![])
+    };
+    let wy = window(b, &rows, &[n as i64, 1], 2, "grid_rows");
+    let wx = window(b, &cols, &[1, n as i64], 3, "grid_cols");
+    let win = b.op("Mul", &[&wy, &wx], vec![]);
+    b.op("Mul", &[&centred, &win], vec![])
+}
+
 /// `[N, bins]`: for each row of `flat` (`[N, cells]`), the sum of
 /// `weight[i] * flat[cells[i]]` per bin `bin[i]` (a gather and a
 /// scatter-add, so no dense cells x bins matrix is stored).
@@ -270,14 +327,17 @@ fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
 /// normalised frame minus the normalised reference): radial log bins and
 /// angular harmonics, `[N, wspec::dim(n)]`, as [`crate::wspec::reference`]
 /// computes them.
-fn wspec_graph(b: &mut Builder, n: usize) -> String {
+fn wspec_graph(b: &mut Builder, n: usize, window: crate::wspec::Window) -> String {
     use crate::wspec::{self, BANDS, HARMONICS, SECTORS};
     let plane = (n * n) as i64;
     // Back to grey levels (the reference's offset is already gone).
     let w: Vec<f32> = (0..3).map(|c| 255.0 * DIGIT_STD[c]).collect();
     let w = b.f32s("dn_scale", &[1, 3, 1, 1], w);
     let x = b.op("Mul", &[INPUT_NAME, &w], vec![]);
-    let xw = centred_windowed(b, &x, n);
+    let xw = match window {
+        crate::wspec::Window::Centre => centred_windowed(b, &x, n),
+        crate::wspec::Window::Contact => contact_windowed(b, &x, n),
+    };
     // Colour covariance [N, 3, 3] of the windowed difference, with the ridge.
     let shape = b.i64s("chan_flat", vec![0, 3, plane]);
     let flat = b.op("Reshape", &[&xw, &shape], vec![]);
@@ -438,6 +498,7 @@ impl DescriptorSpec {
             BaselineKind::Pixels => "pixels16",
             BaselineKind::Lbp => "lbp-riu2",
             BaselineKind::WSpec => "wspec",
+            BaselineKind::WSpecCw => "wspec-cw",
         };
         let bg = if self.subtract { "-bg" } else { "" };
         let r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
@@ -458,7 +519,7 @@ impl DescriptorSpec {
             BaselineKind::Fft => self.input as usize / 2 - self.min_bin.max(1) as usize,
             BaselineKind::Pixels => 16 * 16 * 3,
             BaselineKind::Lbp => 30,
-            BaselineKind::WSpec => crate::wspec::dim(self.input as usize),
+            BaselineKind::WSpec | BaselineKind::WSpecCw => crate::wspec::dim(self.input as usize),
         }
     }
 }
@@ -601,7 +662,10 @@ pub fn descriptor_with_head(
     train_hash: &str,
 ) -> Result<Vec<u8>> {
     ensure!(
-        matches!(spec.kind, BaselineKind::Fft | BaselineKind::WSpec),
+        matches!(
+            spec.kind,
+            BaselineKind::Fft | BaselineKind::WSpec | BaselineKind::WSpecCw
+        ),
         "a head goes on the fft or wspec descriptor"
     );
     ensure!(
@@ -682,12 +746,17 @@ fn build_descriptor(
             }
             b.rename_last_output(OUTPUT_NAME);
         }
-        BaselineKind::WSpec => {
+        BaselineKind::WSpec | BaselineKind::WSpecCw => {
             ensure!(
                 spec.subtract,
                 "wspec is defined on frame minus reference: export it with the reference subtracted"
             );
-            let spectrum = wspec_graph(&mut b, n);
+            let window = if spec.kind == BaselineKind::WSpec {
+                crate::wspec::Window::Centre
+            } else {
+                crate::wspec::Window::Contact
+            };
+            let spectrum = wspec_graph(&mut b, n, window);
             if let Some(h) = head {
                 append_head(&mut b, &spectrum, h);
             }
@@ -978,34 +1047,13 @@ mod tests {
             min_bin: 1,
         };
         assert_eq!(spec.arch(), "wspec-c64-s32-bg");
+        let imgs = images(n, 3);
+        let x = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
         let bytes = descriptor_model(&spec).unwrap();
         let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
-        assert_eq!(enc.dim, crate::wspec::dim(n));
         assert_eq!(enc.meta["telextiles.background"], "subtract");
-        let imgs = images(n, 3);
-        let mut x = Vec::new();
-        for pair in [(0, 1), (2, 0)] {
-            crate::methods::input_into(&imgs[pair.0], Some(&imgs[pair.1]), n, &mut x);
-        }
         let got = enc.embed(&x).unwrap();
         let d = spec.dim();
-        for (k, pair) in [(0, 1), (2, 0)].into_iter().enumerate() {
-            let plane = n * n;
-            let mut diff = vec![0f64; 3 * plane];
-            for i in 0..plane {
-                for c in 0..3 {
-                    diff[c * plane + i] =
-                        imgs[pair.0][i * 3 + c] as f64 - imgs[pair.1][i * 3 + c] as f64;
-                }
-            }
-            let want = crate::wspec::reference(&diff, n);
-            let err = got[k * d..(k + 1) * d]
-                .iter()
-                .zip(&want)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0f32, f32::max);
-            assert!(err < 2e-3, "frame {k}: max diff {err}");
-        }
         // A frame equal to its reference: zeros, not NaN.
         let mut blank = Vec::new();
         crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
@@ -1042,6 +1090,91 @@ mod tests {
             ..spec
         };
         assert!(descriptor_model(&raw).is_err());
+    }
+
+    /// Runs `spec`'s graph on frame 0 − frame 1 and frame 2 − frame 0 of
+    /// `imgs` and checks it against the f64 reference with `window`;
+    /// returns the two inputs.
+    fn wspec_matches_reference(
+        spec: &DescriptorSpec,
+        imgs: &[Vec<u8>],
+        window: crate::wspec::Window,
+    ) -> Vec<f32> {
+        let n = spec.input as usize;
+        let bytes = descriptor_model(spec).unwrap();
+        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert_eq!(enc.dim, crate::wspec::dim(n));
+        let pairs = [(0, 1), (2, 0)];
+        let mut x = Vec::new();
+        for pair in pairs {
+            crate::methods::input_into(&imgs[pair.0], Some(&imgs[pair.1]), n, &mut x);
+        }
+        let got = enc.embed(&x).unwrap();
+        let d = spec.dim();
+        for (k, pair) in pairs.into_iter().enumerate() {
+            let plane = n * n;
+            let mut diff = vec![0f64; 3 * plane];
+            for i in 0..plane {
+                for c in 0..3 {
+                    diff[c * plane + i] =
+                        imgs[pair.0][i * 3 + c] as f64 - imgs[pair.1][i * 3 + c] as f64;
+                }
+            }
+            let want = crate::wspec::reference_with(&diff, n, window);
+            let err = got[k * d..(k + 1) * d]
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
+            assert!(err < 2e-3, "{}, frame {k}: max diff {err}", spec.arch());
+        }
+        x
+    }
+
+    #[test]
+    fn the_contact_window_graph_computes_its_reference() {
+        let n = 32;
+        let spec = DescriptorSpec {
+            kind: BaselineKind::WSpecCw,
+            crop: 64,
+            input: n as u32,
+            subtract: true,
+            min_bin: 1,
+        };
+        assert_eq!(spec.arch(), "wspec-cw-c64-s32-bg");
+        // Whole-frame differences, and a contact in one corner (frame 0
+        // differs from frame 1 only there), so the window moves far.
+        let mut imgs = images(n, 3);
+        wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Contact);
+        let plane = n * n;
+        for i in 0..plane {
+            let (y, x) = (i / n, i % n);
+            if y >= 10 || x >= 12 {
+                for c in 0..3 {
+                    imgs[1][i * 3 + c] = imgs[0][i * 3 + c];
+                }
+            }
+        }
+        let x = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Contact);
+        let mut centred = vec![0f64; 3 * plane];
+        for c in 0..3 {
+            let ch: Vec<f64> = (0..plane)
+                .map(|i| imgs[0][i * 3 + c] as f64 - imgs[1][i * 3 + c] as f64)
+                .collect();
+            let m = ch.iter().sum::<f64>() / plane as f64;
+            for i in 0..plane {
+                centred[c * plane + i] = ch[i] - m;
+            }
+        }
+        let (cy, cx) = crate::wspec::contact_centroid(&centred, n);
+        assert!(cy < 9.0 && cx < 10.0, "centroid ({cy}, {cx})");
+        // A blank difference: zeros, as with the centred window.
+        let bytes = descriptor_model(&spec).unwrap();
+        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        assert!(enc.embed(&x).unwrap().iter().all(|v| v.is_finite()));
+        let mut blank = Vec::new();
+        crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
+        assert!(enc.embed(&blank).unwrap().iter().all(|v| *v == 0.0));
     }
 
     #[test]

@@ -180,8 +180,9 @@ struct SpectralArgs {
     #[arg(long, default_value_t = 4000)]
     steps: usize,
     /// The fixed descriptor under the head: `fft` (the luma spectrum of the
-    /// 192-px crop) or `wspec` (the colour-whitened spectrum with angular
-    /// harmonics of the 240-px crop at 120 px).
+    /// 192-px crop), `wspec` (the colour-whitened spectrum with angular
+    /// harmonics of the 240-px crop at 120 px) or `wspec-cw` (the same under
+    /// a window centred on the contact).
     #[arg(long, default_value = "fft")]
     front: telextiles_lab::spectral::Front,
     /// Hidden units of the head (0: a linear head).
@@ -328,7 +329,8 @@ struct BenchArgs {
 struct ExportDescriptorArgs {
     /// `fft` (radially averaged log power spectrum of the grey crop),
     /// `wspec` (colour-whitened spectrum with angular harmonics; needs
-    /// --subtract) or `pixels`.
+    /// --subtract), `wspec-cw` (the same, its window centred on the
+    /// contact) or `pixels`.
     #[arg(long, default_value = "fft")]
     kind: String,
     /// Centre crop of the frame in px (even, up to 240).
@@ -1212,7 +1214,8 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
         "fft" => BaselineKind::Fft,
         "pixels" => BaselineKind::Pixels,
         "wspec" => BaselineKind::WSpec,
-        k => bail!("--kind {k:?}: expected fft, wspec or pixels"),
+        "wspec-cw" => BaselineKind::WSpecCw,
+        k => bail!("--kind {k:?}: expected fft, wspec, wspec-cw or pixels"),
     };
     let spec = DescriptorSpec {
         kind,

@@ -43,6 +43,10 @@ pub enum Front {
     /// `wspec-c240-s120-bg`: the colour-whitened spectrum with angular
     /// harmonics of the 240-px crop at 120 px ([`crate::wspec`]).
     WSpec,
+    /// `wspec-cw-c240-s120-bg`: the same under a window centred on the
+    /// contact ([`crate::wspec::Window::Contact`]).
+    #[serde(rename = "wspec-cw")]
+    WSpecCw,
 }
 
 impl std::str::FromStr for Front {
@@ -51,7 +55,10 @@ impl std::str::FromStr for Front {
         match s {
             "fft" => Ok(Front::Fft),
             "wspec" => Ok(Front::WSpec),
-            o => Err(format!("unknown front end {o:?}: expected fft or wspec")),
+            "wspec-cw" => Ok(Front::WSpecCw),
+            o => Err(format!(
+                "unknown front end {o:?}: expected fft, wspec or wspec-cw"
+            )),
         }
     }
 }
@@ -186,8 +193,12 @@ impl SpectralConfig {
                 subtract: true,
                 min_bin: 1,
             },
-            Front::WSpec => DescriptorSpec {
-                kind: crate::baselines::BaselineKind::WSpec,
+            Front::WSpec | Front::WSpecCw => DescriptorSpec {
+                kind: if self.front == Front::WSpec {
+                    crate::baselines::BaselineKind::WSpec
+                } else {
+                    crate::baselines::BaselineKind::WSpecCw
+                },
                 crop: 240,
                 input: 120,
                 subtract: true,

@@ -29,6 +29,20 @@
 //!   rotation as well (a turn shifts the angular profile, which changes
 //!   only the harmonics' phases).
 //!
+//! **Where the window sits.** A jig press touches the whole gel; a hand-held
+//! press is often tilted, so the fabric touches one side or one corner and
+//! the rest of the crop shows only camera noise. A window fixed at the
+//! crop's centre then weighs the noise most and the fabric least. The
+//! [`Window::Contact`] variant (`wspec-cw`) centres the same Hann window on
+//! the contact instead: on the energy centroid of the difference (its
+//! squared values summed over the channels, each channel's mean removed).
+//! A press that touches the whole crop puts the centroid near the centre
+//! and changes little; a tilted one moves the window onto the fabric. The
+//! window keeps the crop's width, so its far side falls off the crop: a
+//! shifted window is cut there, where the signal is weakest. Moving the
+//! window moves only the phase of what it frames, and the descriptor keeps
+//! magnitudes.
+//!
 //! Input: the deployment contract's difference, frame − reference, at
 //! `n` x `n` (the graph takes the 240-px crop resized to 120, a 2x2 box
 //! average: the camera's blur and block compression leave little above
@@ -136,26 +150,79 @@ pub fn bin_weights(n: usize) -> (Vec<f64>, Vec<f64>) {
     (radial, angular)
 }
 
-/// The periodic Hann window of length `n`.
-fn hann(n: usize) -> Vec<f64> {
+/// Where the 2D Hann window is centred.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Window {
+    /// At the crop's centre (`wspec`).
+    Centre,
+    /// On the contact: the energy centroid of the difference (`wspec-cw`).
+    Contact,
+}
+
+/// Added to the total energy (in the unit of the input, squared, summed
+/// over the pixels) when the contact centroid is taken, with the crop's
+/// centre as its position: a blank difference gets the centred window.
+pub const CENTROID_EPS: f64 = 1e-6;
+
+/// One axis of the Hann window of length `n` centred at `c`:
+/// `0.5 + 0.5 cos(2π min(|i − c|, n/2) / n)`. At `c = n/2` this is the
+/// periodic Hann window `0.5 − 0.5 cos(2π i / n)`.
+pub fn hann_at(n: usize, c: f64) -> Vec<f64> {
+    let half = n as f64 / 2.0;
     (0..n)
-        .map(|i| 0.5 - 0.5 * (2.0 * PI * i as f64 / n as f64).cos())
+        .map(|i| 0.5 + 0.5 * (2.0 * PI * (i as f64 - c).abs().min(half) / n as f64).cos())
         .collect()
 }
 
+/// The energy centroid `(row, column)` of `centred` (planar `[3][n][n]`,
+/// each channel's mean removed): `Σ e·i / Σ e` with `e` the squared values
+/// summed over the channels, pulled to the centre `n/2` by
+/// [`CENTROID_EPS`].
+pub fn contact_centroid(centred: &[f64], n: usize) -> (f64, f64) {
+    let plane = n * n;
+    let (mut ey, mut ex) = (vec![0f64; n], vec![0f64; n]);
+    for c in 0..3 {
+        for (i, v) in centred[c * plane..(c + 1) * plane].iter().enumerate() {
+            ey[i / n] += v * v;
+            ex[i % n] += v * v;
+        }
+    }
+    let tot: f64 = ey.iter().sum();
+    let at = |e: &[f64]| {
+        let s: f64 = e.iter().enumerate().map(|(i, v)| i as f64 * v).sum();
+        (s + CENTROID_EPS * n as f64 / 2.0) / (tot + CENTROID_EPS)
+    };
+    (at(&ey), at(&ex))
+}
+
 /// The descriptor of `x`: planar `[3][n][n]` values of frame − reference
-/// (any consistent unit: the whitening removes scale), in f64.
+/// (any consistent unit: the whitening removes scale), in f64, with the
+/// window at the crop's centre (`wspec`).
 pub fn reference(x: &[f64], n: usize) -> Vec<f32> {
+    reference_with(x, n, Window::Centre)
+}
+
+/// [`reference`] with the window where `window` says.
+pub fn reference_with(x: &[f64], n: usize, window: Window) -> Vec<f32> {
     assert_eq!(x.len(), 3 * n * n, "input size");
     let plane = n * n;
-    let win = hann(n);
-    // Per channel: mean removed, windowed.
+    // Per channel: mean removed, then windowed.
     let mut w = vec![0f64; 3 * plane];
     for c in 0..3 {
         let ch = &x[c * plane..(c + 1) * plane];
         let m = ch.iter().sum::<f64>() / plane as f64;
         for i in 0..plane {
-            w[c * plane + i] = (ch[i] - m) * win[i / n] * win[i % n];
+            w[c * plane + i] = ch[i] - m;
+        }
+    }
+    let (cy, cx) = match window {
+        Window::Centre => (n as f64 / 2.0, n as f64 / 2.0),
+        Window::Contact => contact_centroid(&w, n),
+    };
+    let (wy, wx) = (hann_at(n, cy), hann_at(n, cx));
+    for c in 0..3 {
+        for i in 0..plane {
+            w[c * plane + i] *= wy[i / n] * wx[i % n];
         }
     }
     // Colour covariance of the windowed difference, with the ridge.
@@ -301,6 +368,17 @@ pub fn inverse3(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 /// blocks to `n` x `n` when the image is that large, else the centre `n`
 /// square. For the lab's Rust-side callers and tests.
 pub fn of_image(img: &[u8], side: usize, bg: Option<&[u8]>, n: usize) -> Vec<f32> {
+    of_image_with(img, side, bg, n, Window::Centre)
+}
+
+/// [`of_image`] with the window where `window` says.
+pub fn of_image_with(
+    img: &[u8],
+    side: usize,
+    bg: Option<&[u8]>,
+    n: usize,
+    window: Window,
+) -> Vec<f32> {
     assert_eq!(img.len(), side * side * 3, "image size");
     let k = if side >= 2 * n { 2 } else { 1 };
     assert!(side >= k * n, "image smaller than the descriptor's window");
@@ -321,7 +399,7 @@ pub fn of_image(img: &[u8], side: usize, bg: Option<&[u8]>, n: usize) -> Vec<f32
             }
         }
     }
-    reference(&x, n)
+    reference_with(&x, n, window)
 }
 
 #[cfg(test)]
@@ -433,8 +511,84 @@ mod tests {
     #[test]
     fn a_blank_frame_gives_zeros() {
         let n = 16;
-        let f = reference(&vec![0.0; 3 * n * n], n);
-        assert_eq!(f.len(), dim(n));
-        assert!(f.iter().all(|v| *v == 0.0), "{f:?}");
+        for window in [Window::Centre, Window::Contact] {
+            let f = reference_with(&vec![0.0; 3 * n * n], n, window);
+            assert_eq!(f.len(), dim(n));
+            assert!(f.iter().all(|v| *v == 0.0), "{window:?}: {f:?}");
+        }
+    }
+
+    #[test]
+    fn the_window_at_the_centre_is_the_periodic_hann_window() {
+        let n = 32;
+        let w = hann_at(n, n as f64 / 2.0);
+        for (i, v) in w.iter().enumerate() {
+            let hann = 0.5 - 0.5 * (2.0 * PI * i as f64 / n as f64).cos();
+            assert!((v - hann).abs() < 1e-12, "{i}: {v} vs {hann}");
+        }
+        // Moved, it keeps its shape and is zero beyond half its length.
+        let m = hann_at(n, 6.0);
+        assert_eq!(m[6], 1.0);
+        assert!((m[6 + 5] - m[6 - 5]).abs() < 1e-12);
+        assert!(m[6 + 16..].iter().all(|&v| v < 1e-12), "{m:?}");
+    }
+
+    /// Deterministic noise in [-a, a].
+    fn noise(len: usize, a: f64, seed: u64) -> Vec<f64> {
+        let mut s = seed;
+        (0..len)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * a
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_contact_window_follows_a_corner_contact_and_leaves_a_whole_one() {
+        let n = 64;
+        let plane = n * n;
+        let full = contact(n, 0.4, 5.0, [1.0, 0.8, 1.2], 0.1);
+        let bg = noise(3 * plane, 0.15, 7);
+        let whole: Vec<f64> = full.iter().zip(&bg).map(|(a, b)| a + b).collect();
+        // A tilted press: the fabric touches the top-left corner only.
+        let corner: Vec<f64> = (0..3 * plane)
+            .map(|i| {
+                let (y, x) = ((i % plane) / n, i % n);
+                let touch = if y < 24 && x < 28 { 1.0 } else { 0.0 };
+                full[i] * touch + bg[i]
+            })
+            .collect();
+        let centred = |x: &[f64]| {
+            let mut w = x.to_vec();
+            for c in 0..3 {
+                let m = w[c * plane..(c + 1) * plane].iter().sum::<f64>() / plane as f64;
+                w[c * plane..(c + 1) * plane]
+                    .iter_mut()
+                    .for_each(|v| *v -= m);
+            }
+            w
+        };
+        let (cy, cx) = contact_centroid(&centred(&corner), n);
+        assert!(cy < 16.0 && cx < 18.0, "corner centroid ({cy}, {cx})");
+        let (wy, wx) = contact_centroid(&centred(&whole), n);
+        assert!(
+            (wy - 31.5).abs() < 3.0 && (wx - 31.5).abs() < 3.0,
+            "whole-contact centroid ({wy}, {wx})"
+        );
+        // A whole contact: both windows describe it alike.
+        let a = reference_with(&whole, n, Window::Centre);
+        let b = reference_with(&whole, n, Window::Contact);
+        assert!(cos(&a, &b) > 0.99, "whole contact: {}", cos(&a, &b));
+        // A corner contact: the contact window's descriptor is nearer the
+        // whole contact's than the centred window's.
+        let fixed = cos(&reference_with(&corner, n, Window::Centre), &a);
+        let moved = cos(&reference_with(&corner, n, Window::Contact), &a);
+        assert!(
+            moved > fixed + 0.02,
+            "contact window {moved} vs centred {fixed}"
+        );
     }
 }
