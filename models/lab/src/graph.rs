@@ -325,8 +325,8 @@ fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
 
 /// The colour-whitened spectrum of the input (`[N, 3, n, n]`, the
 /// normalised frame minus the normalised reference): radial log bins and
-/// angular harmonics, `[N, wspec::dim(n)]`, as [`crate::wspec::reference`]
-/// computes them.
+/// angular harmonics, `[N, wspec::dim(n)]`, as
+/// [`crate::wspec::reference_with`] computes them with the same `window`.
 fn wspec_graph(b: &mut Builder, n: usize, window: crate::wspec::Window) -> String {
     use crate::wspec::{self, BANDS, HARMONICS, SECTORS};
     let plane = (n * n) as i64;
