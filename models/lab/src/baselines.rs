@@ -32,6 +32,17 @@ pub enum BaselineKind {
     WSpecCw,
 }
 
+impl BaselineKind {
+    /// Where a `wspec` kind's window sits (`None`: not a `wspec` kind).
+    pub fn wspec_window(self) -> Option<crate::wspec::Window> {
+        match self {
+            BaselineKind::WSpec => Some(crate::wspec::Window::Centre),
+            BaselineKind::WSpecCw => Some(crate::wspec::Window::Contact),
+            _ => None,
+        }
+    }
+}
+
 /// A descriptor and whether it sees background-subtracted frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Baseline {
@@ -81,11 +92,7 @@ impl Baseline {
             BaselineKind::Fft => fft_radial(&grey(&rgb()), n),
             BaselineKind::WSpec | BaselineKind::WSpecCw => {
                 assert_eq!(w, h, "wspec takes a square image");
-                let window = if self.kind == BaselineKind::WSpec {
-                    crate::wspec::Window::Centre
-                } else {
-                    crate::wspec::Window::Contact
-                };
+                let window = self.kind.wspec_window().expect("a wspec kind");
                 crate::wspec::of_image_with(img, w, bg, (w / 2).min(120) & !1, window)
             }
         };

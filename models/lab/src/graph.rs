@@ -751,11 +751,7 @@ fn build_descriptor(
                 spec.subtract,
                 "wspec is defined on frame minus reference: export it with the reference subtracted"
             );
-            let window = if spec.kind == BaselineKind::WSpec {
-                crate::wspec::Window::Centre
-            } else {
-                crate::wspec::Window::Contact
-            };
+            let window = spec.kind.wspec_window().expect("a wspec kind");
             let spectrum = wspec_graph(&mut b, n, window);
             if let Some(h) = head {
                 append_head(&mut b, &spectrum, h);
@@ -1048,9 +1044,7 @@ mod tests {
         };
         assert_eq!(spec.arch(), "wspec-c64-s32-bg");
         let imgs = images(n, 3);
-        let x = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
-        let bytes = descriptor_model(&spec).unwrap();
-        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
+        let (x, mut enc) = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
         assert_eq!(enc.meta["telextiles.background"], "subtract");
         let got = enc.embed(&x).unwrap();
         let d = spec.dim();
@@ -1092,14 +1086,26 @@ mod tests {
         assert!(descriptor_model(&raw).is_err());
     }
 
+    /// `a − b` (HWC u8 images of side `n`) as planar `[3][n][n]` f64.
+    fn planar_diff(a: &[u8], b: &[u8], n: usize) -> Vec<f64> {
+        let plane = n * n;
+        let mut diff = vec![0f64; 3 * plane];
+        for i in 0..plane {
+            for c in 0..3 {
+                diff[c * plane + i] = a[i * 3 + c] as f64 - b[i * 3 + c] as f64;
+            }
+        }
+        diff
+    }
+
     /// Runs `spec`'s graph on frame 0 − frame 1 and frame 2 − frame 0 of
     /// `imgs` and checks it against the f64 reference with `window`;
-    /// returns the two inputs.
+    /// returns the two inputs and the loaded graph.
     fn wspec_matches_reference(
         spec: &DescriptorSpec,
         imgs: &[Vec<u8>],
         window: crate::wspec::Window,
-    ) -> Vec<f32> {
+    ) -> (Vec<f32>, OrtEncoder) {
         let n = spec.input as usize;
         let bytes = descriptor_model(spec).unwrap();
         let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
@@ -1112,14 +1118,7 @@ mod tests {
         let got = enc.embed(&x).unwrap();
         let d = spec.dim();
         for (k, pair) in pairs.into_iter().enumerate() {
-            let plane = n * n;
-            let mut diff = vec![0f64; 3 * plane];
-            for i in 0..plane {
-                for c in 0..3 {
-                    diff[c * plane + i] =
-                        imgs[pair.0][i * 3 + c] as f64 - imgs[pair.1][i * 3 + c] as f64;
-                }
-            }
+            let diff = planar_diff(&imgs[pair.0], &imgs[pair.1], n);
             let want = crate::wspec::reference_with(&diff, n, window);
             let err = got[k * d..(k + 1) * d]
                 .iter()
@@ -1128,7 +1127,7 @@ mod tests {
                 .fold(0f32, f32::max);
             assert!(err < 2e-3, "{}, frame {k}: max diff {err}", spec.arch());
         }
-        x
+        (x, enc)
     }
 
     #[test]
@@ -1155,22 +1154,11 @@ mod tests {
                 }
             }
         }
-        let x = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Contact);
-        let mut centred = vec![0f64; 3 * plane];
-        for c in 0..3 {
-            let ch: Vec<f64> = (0..plane)
-                .map(|i| imgs[0][i * 3 + c] as f64 - imgs[1][i * 3 + c] as f64)
-                .collect();
-            let m = ch.iter().sum::<f64>() / plane as f64;
-            for i in 0..plane {
-                centred[c * plane + i] = ch[i] - m;
-            }
-        }
+        let (x, mut enc) = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Contact);
+        let centred = crate::wspec::centred(&planar_diff(&imgs[0], &imgs[1], n), n);
         let (cy, cx) = crate::wspec::contact_centroid(&centred, n);
         assert!(cy < 9.0 && cx < 10.0, "centroid ({cy}, {cx})");
         // A blank difference: zeros, as with the centred window.
-        let bytes = descriptor_model(&spec).unwrap();
-        let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
         assert!(enc.embed(&x).unwrap().iter().all(|v| v.is_finite()));
         let mut blank = Vec::new();
         crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);

@@ -195,6 +195,18 @@ pub fn contact_centroid(centred: &[f64], n: usize) -> (f64, f64) {
     (at(&ey), at(&ex))
 }
 
+/// `x` (planar `[3][n][n]`) with each channel's mean removed: what the
+/// window and [`contact_centroid`] see.
+pub fn centred(x: &[f64], n: usize) -> Vec<f64> {
+    let plane = n * n;
+    let mut w = x.to_vec();
+    for ch in w.chunks_mut(plane) {
+        let m = ch.iter().sum::<f64>() / plane as f64;
+        ch.iter_mut().for_each(|v| *v -= m);
+    }
+    w
+}
+
 /// The descriptor of `x`: planar `[3][n][n]` values of frame − reference
 /// (any consistent unit: the whitening removes scale), in f64, with the
 /// window at the crop's centre (`wspec`).
@@ -207,14 +219,7 @@ pub fn reference_with(x: &[f64], n: usize, window: Window) -> Vec<f32> {
     assert_eq!(x.len(), 3 * n * n, "input size");
     let plane = n * n;
     // Per channel: mean removed, then windowed.
-    let mut w = vec![0f64; 3 * plane];
-    for c in 0..3 {
-        let ch = &x[c * plane..(c + 1) * plane];
-        let m = ch.iter().sum::<f64>() / plane as f64;
-        for i in 0..plane {
-            w[c * plane + i] = ch[i] - m;
-        }
-    }
+    let mut w = centred(x, n);
     let (cy, cx) = match window {
         Window::Centre => (n as f64 / 2.0, n as f64 / 2.0),
         Window::Contact => contact_centroid(&w, n),
@@ -561,19 +566,9 @@ mod tests {
                 full[i] * touch + bg[i]
             })
             .collect();
-        let centred = |x: &[f64]| {
-            let mut w = x.to_vec();
-            for c in 0..3 {
-                let m = w[c * plane..(c + 1) * plane].iter().sum::<f64>() / plane as f64;
-                w[c * plane..(c + 1) * plane]
-                    .iter_mut()
-                    .for_each(|v| *v -= m);
-            }
-            w
-        };
-        let (cy, cx) = contact_centroid(&centred(&corner), n);
+        let (cy, cx) = contact_centroid(&centred(&corner, n), n);
         assert!(cy < 16.0 && cx < 18.0, "corner centroid ({cy}, {cx})");
-        let (wy, wx) = contact_centroid(&centred(&whole), n);
+        let (wy, wx) = contact_centroid(&centred(&whole, n), n);
         assert!(
             (wy - 31.5).abs() < 3.0 && (wx - 31.5).abs() < 3.0,
             "whole-contact centroid ({wy}, {wx})"
