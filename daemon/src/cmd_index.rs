@@ -127,7 +127,9 @@ pub fn press_embeddings(
             timestamp_us: t,
             seq: i as u64,
         };
-        if let Some(e) = front.process(&frame)?.embedding {
+        let o = front.process(&frame)?;
+        let earlier = o.earlier.iter().map(|e| e.embedding.as_slice());
+        for e in earlier.chain(o.embedding) {
             if k.is_multiple_of(stride.max(1)) {
                 out.push(e.to_vec());
             }

@@ -301,6 +301,18 @@ impl ContactDetector {
         matches!(self.state, State::Contact { .. })
     }
 
+    /// Frames in the run that may start a press: consecutive frames at or
+    /// above the entry threshold while idle, this one included (0 in a
+    /// press, while capturing, or when the last frame was below it). The
+    /// press starts on the frame that brings it to `min_enter_frames`, and
+    /// its start is the run's first frame.
+    pub fn pending_run(&self) -> u32 {
+        match self.state {
+            State::Idle { run, .. } => run,
+            _ => 0,
+        }
+    }
+
     /// The score below which a frame counts towards release (noise floor +
     /// `exit`): frames of a press below it are already lifted.
     pub fn release_threshold(&self) -> f32 {

@@ -239,20 +239,35 @@ impl<I: TextileIndex> Pipeline<I> {
             }
             _ => {}
         }
-        let mut step = None;
-        if let Some(emb) = out.embedding.filter(|_| self.decider.in_press()) {
+        let mut step: Option<DecideStep> = None;
+        // The run's earlier frames (on the frame that starts a press), then
+        // this one, each at its own time.
+        let frames = out
+            .earlier
+            .iter()
+            .map(|e| (e.t_us, e.embedding.as_slice(), e.score))
+            .chain(out.embedding.map(|e| (t, e, c.score)));
+        for (t, emb, score) in frames {
+            if !self.decider.in_press() {
+                break;
+            }
             let t3 = Instant::now();
             // The encoder's embeddings are finite and of its dimension (it
             // checks), which the index shares (checked in `new`).
             let nearest = self
                 .decider
-                .accumulate_weighted(emb, crate::decide::contact_weight(c.score))
+                .accumulate_weighted(emb, crate::decide::contact_weight(score))
                 .and_then(|mean| self.index.nearest2(mean));
             let t4 = Instant::now();
-            step = nearest.map(|n| self.decider.decide(&self.index, t, n));
+            if let Some(n) = nearest {
+                let mut s = self.decider.decide(&self.index, t, n);
+                // A decision made on an earlier frame is still news.
+                s.changed |= step.is_some_and(|p| p.changed);
+                step = Some(s);
+            }
             let t5 = Instant::now();
-            times.search_ns = (t4 - t3).as_nanos() as u64;
-            times.decide_ns = (t5 - t4).as_nanos() as u64;
+            times.search_ns += (t4 - t3).as_nanos() as u64;
+            times.decide_ns += (t5 - t4).as_nanos() as u64;
         }
         Ok(FrameOutput {
             score: c.score,

@@ -211,9 +211,23 @@ pub(crate) fn sensing_thread(
                 score: Some(up.score),
             });
         }
+        // On the frame that starts a press, the run's earlier frames go
+        // first, the press starting with the first of them, each at its
+        // own capture time (this frame's, less the camera's interval).
+        let mut event = up.event;
+        for e in out.earlier {
+            let back = frame.timestamp_us.saturating_sub(e.t_us);
+            sender.on_frame_weighted(
+                capture_us.saturating_sub(back),
+                event.take(),
+                Some(&e.embedding),
+                telextiles_sensing::decide::contact_weight(e.score),
+                &mut actions,
+            );
+        }
         sender.on_frame_weighted(
             capture_us,
-            up.event,
+            event,
             out.embedding,
             telextiles_sensing::decide::contact_weight(up.score),
             &mut actions,

@@ -11,7 +11,9 @@
 //! detector, the recording's reference, preprocessing, the ONNX encoder),
 //! then the daemon's [`Decider`] against the textiles' centroids, once per
 //! candidate pair of timing rules (`min_ms`, `confirm_ms`; the other rules
-//! and the depth power as shipped). Time is counted from the press's true
+//! and the depth power as shipped), each with and without the run of
+//! frames that starts a press encoded (`FrontEnd::set_encode_run`; one
+//! pass with it, the candidates without it skip the run's rows). Time is counted from the press's true
 //! first contact (the simulator's `contact_frame`), so the contact
 //! detector's own delay is in every figure.
 //!
@@ -50,10 +52,14 @@ pub const WINDOW_MS: f64 = 750.0;
 /// pair shipped before this study, the baseline of [`choose`]. At 60 fps
 /// the rules act in whole frames: the confirmation needs a run of at least
 /// two frames, so `confirm_ms` 16 commits on the second frame of a run, 33
-/// on the third.
-pub const CANDIDATES: [(f32, f32); 8] = [
+/// on the third. The two longer confirmations (66 and 83 ms: five and six
+/// frames) were added with the run encoding: with the run, they commit
+/// 17 ms and 0 ms earlier than 0 / 50 without it, on more frames.
+pub const PAIRS: [(f32, f32); 10] = [
     (50.0, 50.0),
     (33.0, 50.0),
+    (0.0, 83.0),
+    (0.0, 66.0),
     (0.0, 50.0),
     (33.0, 33.0),
     (17.0, 33.0),
@@ -61,6 +67,46 @@ pub const CANDIDATES: [(f32, f32); 8] = [
     (17.0, 16.0),
     (0.0, 16.0),
 ];
+
+/// One candidate: the decider's timing rules, and whether the front end
+/// encodes the run of frames that starts a press (`FrontEnd::set_encode_run`;
+/// without it a press's embeddings begin on the frame the detector starts
+/// it on, `min_enter_frames - 1` frames after the run's first).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Timing {
+    pub min_ms: f32,
+    pub confirm_ms: f32,
+    /// The run that starts a press is encoded.
+    pub run: bool,
+}
+
+impl Timing {
+    /// `min_ms / confirm_ms`, and "+ run" when the run is encoded.
+    pub fn label(&self) -> String {
+        format!(
+            "{:.0} / {:.0}{}",
+            self.min_ms,
+            self.confirm_ms,
+            if self.run { " + run" } else { "" }
+        )
+    }
+}
+
+/// Every candidate: each of [`PAIRS`] without the run encoded (the front
+/// end as shipped), then each with it. The first, 50 / 50 without the run,
+/// is the baseline of [`choose`].
+pub fn candidates() -> Vec<Timing> {
+    [false, true]
+        .into_iter()
+        .flat_map(|run| {
+            PAIRS.iter().map(move |&(min_ms, confirm_ms)| Timing {
+                min_ms,
+                confirm_ms,
+                run,
+            })
+        })
+        .collect()
+}
 
 /// One press as the daemon saw it.
 #[derive(Clone, Debug)]
@@ -81,8 +127,7 @@ pub struct PressTrace {
 /// One candidate's figures on one group of presses.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct TimingScore {
-    pub min_ms: f32,
-    pub confirm_ms: f32,
+    pub timing: Timing,
     /// "jig" or "hand-held".
     pub group: String,
     pub presses: usize,
@@ -135,8 +180,17 @@ pub struct PressRun {
     pub switches: u32,
 }
 
-/// Runs the daemon's decider over a press's embeddings.
-pub fn run_press(index: &FlatIndex, cfg: &DecideConfig, p: &PressTrace, times: &[f64]) -> PressRun {
+/// Runs the daemon's decider over a press's embeddings: all of them when
+/// `run` (the front end encodes the run that starts a press),
+/// else from the frame the detector started the press on
+/// ([`PressEmbedding::early`] rows later).
+pub fn run_press(
+    index: &FlatIndex,
+    cfg: &DecideConfig,
+    p: &PressTrace,
+    run: bool,
+    times: &[f64],
+) -> PressRun {
     let mut d = Decider::new(cfg.clone(), index.dim());
     let us = |ms: f64| (ms * 1000.0).round().max(0.0) as u64;
     // Absolute time: contact at 0, the detector's start at `detect_ms`.
@@ -145,7 +199,8 @@ pub fn run_press(index: &FlatIndex, cfg: &DecideConfig, p: &PressTrace, times: &
     let mut first = None;
     let mut current = None;
     let e = &p.emb;
-    for k in 0..e.len() {
+    let from = if run { 0 } else { e.early.min(e.len()) };
+    for k in from..e.len() {
         let t = p.detect_ms + e.t_ms[k];
         if t > WINDOW_MS {
             break;
@@ -185,12 +240,12 @@ pub fn score(
     index: &FlatIndex,
     presses: &[&PressTrace],
     group: &str,
-    candidates: &[(f32, f32)],
+    candidates: &[Timing],
 ) -> Vec<TimingScore> {
     candidates
         .iter()
-        .map(|&(min_ms, confirm_ms)| {
-            let cfg = config(min_ms, confirm_ms);
+        .map(|&timing| {
+            let cfg = config(timing.min_ms, timing.confirm_ms);
             let n = presses.len().max(1) as f64;
             let grid = grid();
             let times: Vec<f64> = TIMES_MS.iter().chain(&grid).copied().collect();
@@ -198,7 +253,7 @@ pub fn score(
             let mut decided = vec![0usize; times.len()];
             let (mut first_t, mut first_ok, mut fin, mut sw) = (Vec::new(), 0usize, 0usize, 0u64);
             for p in presses {
-                let r = run_press(index, &cfg, p, &times);
+                let r = run_press(index, &cfg, p, timing.run, &times);
                 for (i, a) in r.at.iter().enumerate() {
                     decided[i] += a.is_some() as usize;
                     right[i] += (*a == Some(p.class)) as usize;
@@ -225,8 +280,7 @@ pub fn score(
                 .map(|x| x.1)
                 .collect();
             TimingScore {
-                min_ms,
-                confirm_ms,
+                timing,
                 group: group.to_string(),
                 presses: presses.len(),
                 right_at: shares(&TIMES_MS, &right),
@@ -248,21 +302,22 @@ pub fn score(
 
 /// The rule (docs/benchmarks.md): among the candidates whose first
 /// decisions, in every group, are right at most [`MAX_FIRST_LOSS`] less
-/// often than the shipped pair's and that lose at most [`MAX_FINAL_LOSS`]
-/// of the presses right at the end of the window, the one with the highest
-/// mean committed-right share over the first [`MEAN_OVER_MS`] in its worst
-/// group; ties go to the fewer switches, then the earlier pair (the shipped
-/// one first). Returns the index into `pairs`.
-pub fn choose(scores: &[TimingScore], pairs: &[(f32, f32)]) -> Result<usize> {
+/// often than the first candidate's (50 / 50 without the run) and that
+/// lose at most [`MAX_FINAL_LOSS`] of the presses right at the end of the
+/// window, the one with the highest mean committed-right share over the
+/// first [`MEAN_OVER_MS`] in its worst group; ties go to the fewer
+/// switches, then the earlier candidate (the first one first). Returns the
+/// index into `pairs`.
+pub fn choose(scores: &[TimingScore], pairs: &[Timing]) -> Result<usize> {
     ensure!(!pairs.is_empty(), "no candidates");
     let mut groups: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
     groups.sort();
     groups.dedup();
-    let get = |pair: (f32, f32), g: &str| -> Result<&TimingScore> {
+    let get = |pair: Timing, g: &str| -> Result<&TimingScore> {
         scores
             .iter()
-            .find(|s| (s.min_ms, s.confirm_ms) == pair && s.group == g)
-            .with_context(|| format!("no score for {pair:?} on {g}"))
+            .find(|s| s.timing == pair && s.group == g)
+            .with_context(|| format!("no score for {} on {g}", pair.label()))
     };
     let mut best: Option<(usize, f64, f64)> = None;
     for (i, &pair) in pairs.iter().enumerate() {
@@ -290,7 +345,7 @@ pub fn choose(scores: &[TimingScore], pairs: &[(f32, f32)]) -> Result<usize> {
 }
 
 /// How much less often the first decision may be right than with the
-/// shipped pair (a wrong first decision is a roller move to the wrong
+/// baseline, 50 / 50 (a wrong first decision is a roller move to the wrong
 /// fabric and back).
 pub const MAX_FIRST_LOSS: f64 = 0.02;
 /// Share of presses right at the end of the window the rule may lose.
@@ -318,11 +373,11 @@ pub struct TimingReport {
     pub command: String,
     pub source: String,
     pub model: String,
-    /// The pairs scored, the shipped one first.
-    pub candidates: Vec<(f32, f32)>,
+    /// The candidates scored, the baseline first.
+    pub candidates: Vec<Timing>,
     pub scores: Vec<TimingScore>,
-    /// The pair [`choose`] picks.
-    pub chosen: (f32, f32),
+    /// The candidate [`choose`] picks.
+    pub chosen: Timing,
     /// Median ms from first contact to the contact detector's press
     /// start, per group.
     pub detect_ms_p50: Vec<(String, f64)>,
@@ -441,6 +496,9 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
                         1,
                         telextiles_sensing::contact::ContactConfig::default(),
                     )?;
+                    // Every candidate from one pass: those without the run
+                    // skip its rows.
+                    proc.set_encode_run(true);
                     let mut out = Vec::new();
                     for (i, (class, spec)) in plans.iter().enumerate().skip(w).step_by(threads) {
                         let (press, contact_us) = press_window(sim, spec)?;
@@ -477,6 +535,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
     }
     traces.sort_by_key(|x| x.0);
     let traces: Vec<PressTrace> = traces.into_iter().map(|x| x.1).collect();
+    let cands = candidates();
     let mut scores = Vec::new();
     let mut detect = Vec::new();
     let mut undetected = Vec::new();
@@ -484,7 +543,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         // A press the detector never started has no frames: it counts
         // against every candidate, as never right.
         let g: Vec<&PressTrace> = traces.iter().filter(|t| t.jig == jig).collect();
-        scores.extend(score(&index, &g, group, &CANDIDATES));
+        scores.extend(score(&index, &g, group, &cands));
         let d: Vec<f64> = g
             .iter()
             .map(|t| t.detect_ms)
@@ -493,14 +552,14 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         undetected.push((group.to_string(), g.len() - d.len()));
         detect.push((group.to_string(), crate::bench::median(&d)));
     }
-    let chosen = CANDIDATES[choose(&scores, &CANDIDATES)?];
+    let chosen = cands[choose(&scores, &cands)?];
     Ok(TimingReport {
         machine: crate::report::machine(),
         date: crate::report::today(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
         source: format!("sim, catalogue {} (generator {})", p.catalogue, p.generator),
         model: model.name(),
-        candidates: CANDIDATES.to_vec(),
+        candidates: cands,
         scores,
         chosen,
         detect_ms_p50: detect,
@@ -536,7 +595,7 @@ pub fn markdown(r: &TimingReport) -> String {
         let g: Vec<&TimingScore> = r.scores.iter().filter(|x| x.group == group).collect();
         let Some(first) = g.first() else { continue };
         s.push_str(&format!(
-            "## {group} ({} presses)\n\n| min_ms / confirm_ms |",
+            "## {group} ({} presses)\n\n| min_ms / confirm_ms (+ run: the run that starts a press encoded) |",
             first.presses
         ));
         for (t, _) in &first.right_at {
@@ -548,15 +607,8 @@ pub fn markdown(r: &TimingReport) -> String {
         }
         s.push_str("---:|---:|---:|---:|---:|\n");
         for x in g {
-            let mark = if (x.min_ms, x.confirm_ms) == r.chosen {
-                "**"
-            } else {
-                ""
-            };
-            s.push_str(&format!(
-                "| {mark}{:.0} / {:.0}{mark} |",
-                x.min_ms, x.confirm_ms
-            ));
+            let mark = if x.timing == r.chosen { "**" } else { "" };
+            s.push_str(&format!("| {mark}{}{mark} |", x.timing.label()));
             for (_, v) in &x.right_at {
                 s.push_str(&format!(" {:.1} |", 100.0 * v));
             }
@@ -572,13 +624,11 @@ pub fn markdown(r: &TimingReport) -> String {
         s.push('\n');
     }
     s.push_str(&format!(
-        "The rule (first decisions right at most {:.1} points less often, and at most {:.1} points fewer presses right at 750 ms, than with the shipped {:.0} / {:.0} in every group; then the highest mean share right over the first {MEAN_OVER_MS:.0} ms in the worst group) picks **{:.0} / {:.0}**.\n",
+        "The rule (first decisions right at most {:.1} points less often, and at most {:.1} points fewer presses right at 750 ms, than with {} in every group; then the highest mean share right over the first {MEAN_OVER_MS:.0} ms in the worst group) picks **{}**.\n",
         100.0 * MAX_FIRST_LOSS,
         100.0 * MAX_FINAL_LOSS,
-        r.candidates[0].0,
-        r.candidates[0].1,
-        r.chosen.0,
-        r.chosen.1
+        r.candidates.first().map_or_else(String::new, Timing::label),
+        r.chosen.label()
     ));
     s
 }
@@ -591,13 +641,14 @@ pub fn chart(r: &TimingReport, group: &str, svg: &std::path::Path) -> Result<()>
         .iter()
         .filter(|x| x.group == group)
         .map(|x| crate::stability::Line {
-            label: format!("min {:.0} / confirm {:.0} ms", x.min_ms, x.confirm_ms),
+            label: format!(
+                "min {:.0} / confirm {:.0} ms{}",
+                x.timing.min_ms,
+                x.timing.confirm_ms,
+                if x.timing.run { ", run encoded" } else { "" }
+            ),
             points: x.curve.iter().map(|&(t, a)| (t, 100.0 * a)).collect(),
-            width: if (x.min_ms, x.confirm_ms) == r.chosen {
-                4
-            } else {
-                2
-            },
+            width: if x.timing == r.chosen { 4 } else { 2 },
         })
         .collect();
     crate::stability::line_chart(
@@ -659,8 +710,10 @@ mod tests {
     #[test]
     fn the_shipped_timing_rules_are_a_candidate_and_the_first_is_the_old_pair() {
         let d = DecideConfig::default();
-        assert!(CANDIDATES.contains(&(d.min_ms, d.confirm_ms)));
-        assert_eq!(CANDIDATES[0], (50.0, 50.0));
+        // The shipped front end does not encode the run (off by default).
+        assert!(candidates().contains(&t(d.min_ms, d.confirm_ms, false)));
+        assert_eq!(candidates()[0], t(50.0, 50.0, false));
+        assert_eq!(candidates().len(), 2 * PAIRS.len());
     }
 
     #[test]
@@ -668,13 +721,13 @@ mod tests {
         let p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
         // Shipped pair: the first frame at 33 ms, bumping starts at 83 ms
         // (min 50), commits at 133 ms (confirm 50).
-        let r = run_press(&index(), &config(50.0, 50.0), &p, &[100.0, 150.0]);
+        let r = run_press(&index(), &config(50.0, 50.0), &p, false, &[100.0, 150.0]);
         assert_eq!(r.at, vec![None, Some(0)]);
         let (t, c) = r.first.unwrap();
         assert_eq!(c, 0);
         assert!((t - 133.3).abs() < 0.1, "first decision at {t}");
         // No minimum and a short confirmation commit by 100 ms.
-        let r = run_press(&index(), &config(0.0, 17.0), &p, &[100.0]);
+        let r = run_press(&index(), &config(0.0, 17.0), &p, false, &[100.0]);
         assert_eq!(r.at, vec![Some(0)]);
         // bumping from the first frame (33 ms), confirmed 33 ms later.
         assert!((r.first.unwrap().0 - 66.7).abs() < 0.1);
@@ -687,8 +740,8 @@ mod tests {
         let mut rows = vec![[0.1, 1.0]; 2];
         rows.extend(vec![[1.0, 0.0]; 40]);
         let p = trace(0, 33.3, &rows);
-        let early = score(&index(), &[&p], "jig", &[(0.0, 17.0)]);
-        let late = score(&index(), &[&p], "jig", &[(50.0, 50.0)]);
+        let early = score(&index(), &[&p], "jig", &[t(0.0, 17.0, false)]);
+        let late = score(&index(), &[&p], "jig", &[t(50.0, 50.0, false)]);
         assert_eq!(early[0].first_right, 0.0);
         assert_eq!(early[0].switches_per_100, 100.0);
         assert_eq!(late[0].first_right, 1.0);
@@ -704,16 +757,53 @@ mod tests {
             detect_ms: f64::NAN,
             ..trace(1, 0.0, &[])
         };
-        let s = &score(&index(), &[&seen, &never], "jig", &[(0.0, 50.0)])[0];
+        let s = &score(&index(), &[&seen, &never], "jig", &[t(0.0, 50.0, true)])[0];
         assert_eq!((s.presses, s.final_right, s.first_right), (2, 0.5, 1.0));
         assert_eq!(s.right(500.0), 0.5);
         assert_eq!(s.switches_per_100, 0.0);
     }
 
-    fn s(pair: (f32, f32), group: &str, mean: f64, first: f64, fin: f64) -> TimingScore {
+    fn t(min_ms: f32, confirm_ms: f32, run: bool) -> Timing {
+        Timing {
+            min_ms,
+            confirm_ms,
+            run,
+        }
+    }
+
+    #[test]
+    fn the_encoded_run_starts_the_decision_two_frames_sooner() {
+        // Two run frames before the frame the detector started the press
+        // on; the press's start (the run's first frame) at 33 ms.
+        let mut p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
+        p.emb.early = 2;
+        let cfg = config(0.0, 50.0);
+        let with = run_press(&index(), &cfg, &p, true, &[100.0]);
+        let without = run_press(&index(), &cfg, &p, false, &[100.0]);
+        // With the run: bumping from 33 ms, committed 50 ms later. Without
+        // it: the first embedding at 67 ms, committed at 117 ms.
+        assert!(
+            (with.first.unwrap().0 - 83.3).abs() < 0.1,
+            "{:?}",
+            with.first
+        );
+        assert!((without.first.unwrap().0 - 116.7).abs() < 0.1);
+        assert_eq!((with.at[0], without.at[0]), (Some(0), None));
+        // The score and the report keep the two apart.
+        let sc = score(
+            &index(),
+            &[&p],
+            "jig",
+            &[t(0.0, 50.0, false), t(0.0, 50.0, true)],
+        );
+        assert_eq!((sc[0].right(100.0), sc[1].right(100.0)), (0.0, 1.0));
+        assert!(!sc[0].timing.run && sc[1].timing.run);
+        assert_eq!(sc[1].timing.label(), "0 / 50 + run");
+    }
+
+    fn s(pair: Timing, group: &str, mean: f64, first: f64, fin: f64) -> TimingScore {
         TimingScore {
-            min_ms: pair.0,
-            confirm_ms: pair.1,
+            timing: pair,
             group: group.into(),
             presses: 100,
             right_at: vec![(100.0, mean)],
@@ -730,19 +820,22 @@ mod tests {
     #[test]
     fn the_report_marks_the_chosen_pair_and_draws_both_groups() {
         let p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
-        let mut scores = score(&index(), &[&p], "jig", &CANDIDATES);
-        scores.extend(score(&index(), &[&p], "hand-held", &CANDIDATES));
-        let chosen = CANDIDATES[choose(&scores, &CANDIDATES).unwrap()];
+        let cands = candidates();
+        let mut scores = score(&index(), &[&p], "jig", &cands);
+        scores.extend(score(&index(), &[&p], "hand-held", &cands));
+        let chosen = cands[choose(&scores, &cands).unwrap()];
         // One steady press: every pair is right from its first decision, so
         // the earliest (0 / 16) has the best mean.
-        assert_eq!(chosen, (0.0, 16.0));
+        // (The press has no run rows, so with the run encoded nothing
+        // changes, and the tie goes to the earlier candidate.)
+        assert_eq!(chosen, t(0.0, 16.0, false));
         let r = TimingReport {
             machine: "test".into(),
             date: "today".into(),
             command: "decider-timing".into(),
             source: "sim".into(),
             model: "m".into(),
-            candidates: CANDIDATES.to_vec(),
+            candidates: cands,
             scores,
             chosen,
             detect_ms_p50: vec![("jig".into(), 33.3)],
@@ -770,7 +863,12 @@ mod tests {
 
     #[test]
     fn the_rule_takes_the_best_worst_group_within_the_first_and_final_bounds() {
-        let pairs = [(50.0, 50.0), (0.0, 50.0), (0.0, 16.0), (17.0, 16.0)];
+        let pairs = [
+            t(50.0, 50.0, false),
+            t(0.0, 50.0, false),
+            t(0.0, 16.0, false),
+            t(0.0, 50.0, true),
+        ];
         let scores = vec![
             s(pairs[0], "jig", 0.5, 0.98, 0.98),
             s(pairs[0], "hand-held", 0.4, 0.86, 0.80),

@@ -252,6 +252,11 @@ pub struct PressEmbedding {
     /// Each row's weight in the press's running mean (the daemon's
     /// `contact_weight` of the frame's contact score); empty: all 1.
     pub weights: Vec<f32>,
+    /// Leading rows that are frames of the run that started the press,
+    /// encoded when the detector started it (the front end's
+    /// `FrontOutput::earlier`); without that, a press's embeddings would
+    /// begin at row `early`.
+    pub early: usize,
 }
 
 impl PressEmbedding {
@@ -322,6 +327,9 @@ enum Runner {
 pub struct Processor {
     runners: Vec<Runner>,
     contact: ContactConfig,
+    /// The run that starts a press is encoded too (the front end's
+    /// `set_encode_run`; off by default, as in the daemon).
+    encode_run: bool,
     /// Model files for [`Encoder::open`].
     _dir: tempfile::TempDir,
 }
@@ -365,8 +373,21 @@ impl Processor {
         Ok(Processor {
             runners,
             contact,
+            encode_run: false,
             _dir: dir,
         })
+    }
+
+    /// Encode the run of frames that starts a press too, with every method
+    /// (`FrontEnd::set_encode_run`); its rows lead and are counted in
+    /// [`PressEmbedding::early`].
+    pub fn set_encode_run(&mut self, on: bool) {
+        self.encode_run = on;
+        for r in &mut self.runners {
+            if let Runner::Front(fe) = r {
+                fe.set_encode_run(on);
+            }
+        }
     }
 
     /// Process one loaded recording with every method.
@@ -392,7 +413,7 @@ impl Processor {
             skipped: None,
             methods: Vec::new(),
         };
-        let Some(seg) = front::segment(&press, &self.contact) else {
+        let Some(mut seg) = front::segment(&press, &self.contact) else {
             out.skipped = Some(if out.own_reference {
                 "no frame in contact".into()
             } else {
@@ -400,6 +421,9 @@ impl Processor {
             });
             return Ok(out);
         };
+        if !self.encode_run {
+            seg.contact.retain(|c| !c.early);
+        }
         if seg.contact.is_empty() {
             out.skipped = Some("no frame in contact".into());
             return Ok(out);
@@ -438,6 +462,8 @@ impl Processor {
                     let (rv, fv) = &views[crop];
                     let side = *crop as usize;
                     for (c, v) in seg.contact.iter().zip(fv) {
+                        // The first press's run, counted as the front end does.
+                        e.early += (c.early && e.early == e.frames.len()) as usize;
                         let f = base.features(v.as_raw(), side, side, Some(rv.as_raw()));
                         e.dim = f.len();
                         e.rows.extend(f);
@@ -457,14 +483,27 @@ impl Processor {
                         if let Some(ContactEvent::PressStart { t_us }) = o.contact.event {
                             press_start.get_or_insert(t_us);
                         }
-                        if let Some(emb) = o.embedding {
+                        // The run's earlier frames, then this one.
+                        let first = e.frames.is_empty();
+                        let n = o.earlier.len();
+                        let earlier =
+                            o.earlier.iter().enumerate().map(|(k, x)| {
+                                (i - (n - k), x.t_us, x.embedding.as_slice(), x.score)
+                            });
+                        let this = o
+                            .embedding
+                            .map(|emb| (i, f.timestamp_us, emb, o.contact.score));
+                        for (j, t, emb, score) in earlier.chain(this) {
                             e.dim = emb.len();
                             e.rows.extend_from_slice(emb);
-                            e.frames.push(i);
-                            let s = press_start.unwrap_or(f.timestamp_us);
-                            e.t_ms.push(f.timestamp_us.saturating_sub(s) as f64 / 1e3);
+                            e.frames.push(j);
+                            let s = press_start.unwrap_or(t);
+                            e.t_ms.push(t.saturating_sub(s) as f64 / 1e3);
                             e.weights
-                                .push(telextiles_sensing::decide::contact_weight(o.contact.score));
+                                .push(telextiles_sensing::decide::contact_weight(score));
+                        }
+                        if first {
+                            e.early = n;
                         }
                     }
                 }

@@ -3,7 +3,7 @@
 //! docs/benchmarks.md "When the decider commits"): whole presses rendered,
 //! through the daemon's front end and decider, for every candidate pair.
 
-use telextiles_lab::decider_timing::{self, StudyConfig, CANDIDATES};
+use telextiles_lab::decider_timing::{self, candidates, StudyConfig, Timing};
 use telextiles_lab::methods::Method;
 use telextiles_lab::protocol::Protocol;
 
@@ -21,21 +21,26 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
         threads: 2,
     };
     let r = decider_timing::run(&cfg, &m).unwrap();
-    assert_eq!(r.scores.len(), 2 * CANDIDATES.len());
-    assert!(CANDIDATES.contains(&r.chosen));
+    assert_eq!(r.scores.len(), 2 * candidates().len());
+    assert!(candidates().contains(&r.chosen));
     for (g, t) in &r.detect_ms_p50 {
         // The detector starts a press after its first contact, within the
         // ramp.
         assert!(*t > 0.0 && *t < 300.0, "{g}: {t}");
     }
-    let get = |pair: (f32, f32), g: &str| {
+    let get = |min_ms: f32, confirm_ms: f32, run: bool, g: &str| {
+        let t = Timing {
+            min_ms,
+            confirm_ms,
+            run,
+        };
         r.scores
             .iter()
-            .find(|s| (s.min_ms, s.confirm_ms) == pair && s.group == g)
+            .find(|s| s.timing == t && s.group == g)
             .unwrap()
     };
     for g in ["jig", "hand-held"] {
-        let (old, new) = (get((50.0, 50.0), g), get((0.0, 50.0), g));
+        let (old, new) = (get(50.0, 50.0, false, g), get(0.0, 50.0, false, g));
         assert_eq!((old.presses, new.presses), (3, 3));
         // Counting from the first frame never decides later: the run that
         // confirms after a 50 ms minimum confirms without it too.
@@ -48,9 +53,15 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
             "{g}: {old:?}"
         );
         assert_eq!(old.right(100.0), 0.0, "{g}: nothing commits within 100 ms");
+        // With the run that starts a press encoded, embeddings begin at the
+        // detector's start rather than two frames later: never a later
+        // first decision, and never one before the start + 50 ms.
+        let run = get(0.0, 50.0, true, g);
+        assert!(run.first_ms_p50 <= new.first_ms_p50, "{g}: {run:?} {new:?}");
+        assert!(run.first_ms_p50 >= detect + 50.0 - 1.0, "{g}: {run:?}");
     }
     // Three textiles in the jig: the shipped model tells them apart.
-    assert!(get((0.0, 50.0), "jig").final_right >= 2.0 / 3.0);
+    assert!(get(0.0, 50.0, true, "jig").final_right >= 2.0 / 3.0);
     let md = decider_timing::markdown(&r);
     assert!(
         md.contains("## jig (3 presses)") && md.contains("## hand-held (3 presses)"),

@@ -403,7 +403,14 @@ fn presses_front_end_embeddings_match_the_lab_embedder() {
     let reference = image::RgbImage::from_raw(240, 320, reference).unwrap();
     for (m, e) in methods.iter().zip(&got.methods) {
         let (crop, input) = m.view();
-        let frames: Vec<usize> = seg.contact.iter().map(|c| c.index).collect();
+        // The processor, like the daemon, does not encode the run that
+        // starts the press (segment flags it as early).
+        let frames: Vec<usize> = seg
+            .contact
+            .iter()
+            .filter(|c| !c.early)
+            .map(|c| c.index)
+            .collect();
         assert_eq!(e.frames, frames, "{}", m.name());
         let mut set = telextiles_lab::data::ImageSet {
             kind: telextiles_lab::data::ImageKind::Input,
@@ -435,5 +442,17 @@ fn presses_front_end_embeddings_match_the_lab_embedder() {
             let cos: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
             assert!(cos > 0.999, "{} frame {k}: cosine {cos}", m.name());
         }
+    }
+    // With the run that starts the press encoded, its frames lead, counted
+    // as early, and the rows after them are the same as without.
+    proc.set_encode_run(true);
+    let with_run = proc.process("press", press.clone()).unwrap();
+    let all: Vec<usize> = seg.contact.iter().map(|c| c.index).collect();
+    let early = seg.contact.iter().filter(|c| c.early).count();
+    assert_eq!(early, 2, "min_enter_frames - 1");
+    for (a, b) in with_run.methods.iter().zip(&got.methods) {
+        assert_eq!((a.frames.clone(), a.early), (all.clone(), early));
+        assert_eq!(a.rows[early * a.dim..], b.rows[..]);
+        assert_eq!(a.t_ms[0], 0.0, "the run's first frame is the press's start");
     }
 }
