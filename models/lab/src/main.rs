@@ -433,6 +433,12 @@ struct SplitArgs {
     /// decision always uses every frame in contact.
     #[arg(long, default_value_t = 30)]
     frames_per_press: usize,
+    /// Encode the run of frames that starts each press too (the front
+    /// end's `set_encode_run`, off in the daemon): embeddings and
+    /// decisions begin at the press's first frame over the contact
+    /// threshold, two frames sooner.
+    #[arg(long)]
+    encode_run: bool,
 }
 
 impl SplitArgs {
@@ -449,7 +455,7 @@ impl SplitArgs {
     }
 
     fn given(&self) -> bool {
-        self.split.is_some() || self.index_presses.is_some()
+        self.split.is_some() || self.index_presses.is_some() || self.encode_run
     }
 }
 
@@ -944,6 +950,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     if let Source::Presses(dir) = &a.data.source {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
+        cfg.encode_run = a.recorded.encode_run;
         cfg.threads = 1;
         cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
@@ -961,7 +968,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     }
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run are for --source presses:<dir>"
     );
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
@@ -1008,6 +1015,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     if let Source::Presses(dir) = &a.data.source {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
+        cfg.encode_run = a.recorded.encode_run;
         cfg.threads = 1;
         cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();
@@ -1027,7 +1035,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from("docs/bench"));
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run are for --source presses:<dir>"
     );
     let roller: Vec<String> = if a.roller.is_empty() {
         Vec::new()

@@ -163,6 +163,25 @@ fn presses_study_index_split_and_leave_one_out() {
     let r = recorded::run(&cfg, &methods, None).unwrap();
     check(&r, 12, 0.75);
     assert!(r.recordings.iter().all(|x| x.role == "both"));
+
+    // `--encode-run`: the run of frames that starts each press is encoded
+    // too, so every method's frames begin at the press's start, and no
+    // method's first decision comes later.
+    let on = StudyConfig {
+        encode_run: true,
+        ..cfg
+    };
+    let with_run = recorded::run(&on, &methods, None).unwrap();
+    assert!(with_run.encode_run && !r.encode_run);
+    for (a, b) in with_run.methods.iter().zip(&r.methods) {
+        let name = &a.summary.name;
+        assert_eq!(a.first_frame_ms, 0.0, "{name}");
+        assert!(b.first_frame_ms > 0.0, "{name}");
+        assert!(a.first_decision_ms <= b.first_decision_ms, "{name}");
+        assert_eq!(a.summary.presses, 12, "{name}");
+    }
+    assert!(recorded::markdown(&with_run).contains("`--encode-run`"));
+    assert!(!recorded::markdown(&r).contains("`--encode-run`"));
 }
 
 #[test]
