@@ -231,6 +231,11 @@ pub struct MethodResult {
     pub frame_top1: f64,
     /// kNN top-1 of the mean embedding of each press's frames.
     pub press_top1: f64,
+    /// The same presses decided as the daemon decides: the press's mean
+    /// against each textile's centroid ([`centroids`]; `index build`
+    /// keeps centroids, and the decider searches them).
+    #[serde(default)]
+    pub press_top1_centroid: f64,
     /// (frames aggregated, top-1): the mean of a press's first n cached
     /// frames in capture order (9 frames spread over the press; the
     /// time-to-decision curve from consecutive frames is
@@ -426,6 +431,19 @@ pub fn evaluate(
         by_frames.push((n, top1(&index, &labels, &q, &ql, dim)));
     }
     let press_top1 = by_frames.last().map_or(f64::NAN, |x| x.1);
+    // The daemon's index: one centroid per textile.
+    let (cindex, clabels) = centroids(&index, &labels, dim);
+    let press_top1_centroid = {
+        let mut q = Vec::new();
+        let mut ql = Vec::new();
+        for (&(_, _, class), frames) in &presses {
+            q.extend(mean_rows(&qe, dim, frames));
+            ql.push(class);
+        }
+        normalize_rows(&mut q, dim);
+        top1(&cindex, &clabels, &q, &ql, dim)
+    };
+    let centroid = (cindex.as_slice(), clabels.as_slice());
     // The same index against groups of queries: held-out people on a
     // sensor unit the training people used, on units nobody trained on,
     // and hand-held presses.
@@ -434,8 +452,8 @@ pub fn evaluate(
     let mut groups = vec![
         group_score(
             "held-out people, training units",
-            &index,
-            &labels,
+            (&index, &labels),
+            centroid,
             &qe,
             dim,
             heldout,
@@ -443,8 +461,8 @@ pub fn evaluate(
         ),
         group_score(
             "held-out people, held-out units",
-            &index,
-            &labels,
+            (&index, &labels),
+            centroid,
             &qe,
             dim,
             heldout,
@@ -455,8 +473,8 @@ pub fn evaluate(
         let (he, _) = emb.embed(&v.handheld, |s| background_of(bgs, s))?;
         groups.push(group_score(
             "hand-held queries, jig index",
-            &index,
-            &labels,
+            (&index, &labels),
+            centroid,
             &he,
             dim,
             &v.handheld,
@@ -488,6 +506,7 @@ pub fn evaluate(
         latency: time_method(m, heldout, bg0, threads, runs)?,
         frame_top1,
         press_top1,
+        press_top1_centroid,
         by_frames,
         queries: qlabels.len(),
         presses: presses.len(),
@@ -505,14 +524,19 @@ pub struct GroupScore {
     pub presses: usize,
     /// kNN top-1 of the mean embedding of each press's frames.
     pub press_top1: f64,
+    /// The same presses against each textile's centroid, as the daemon
+    /// decides ([`MethodResult::press_top1_centroid`]).
+    #[serde(default)]
+    pub press_top1_centroid: f64,
 }
 
 /// Top-1 per press of the presses of `set` whose frames pass `keep`
-/// (embeddings `qe`, rows in `set` order) against `index`.
+/// (embeddings `qe`, rows in `set` order) against the index frames
+/// `(rows, labels)` and against their textiles' `centroid`s.
 fn group_score(
     name: &str,
-    index: &[f32],
-    labels: &[u32],
+    (index, labels): (&[f32], &[u32]),
+    centroid: (&[f32], &[u32]),
     qe: &[f32],
     dim: usize,
     set: &ImageSet,
@@ -538,7 +562,30 @@ fn group_score(
         name: name.to_string(),
         presses: presses.len(),
         press_top1: top1(index, labels, &q, &ql, dim),
+        press_top1_centroid: top1(centroid.0, centroid.1, &q, &ql, dim),
     }
+}
+
+/// One centroid per label, as `telextiles-sensing`'s `FlatIndex` and
+/// `index build` make them: the normalised mean of the label's
+/// (normalised) rows. Returns the rows, in label order, and their labels.
+pub fn centroids(index: &[f32], labels: &[u32], dim: usize) -> (Vec<f32>, Vec<u32>) {
+    let mut by: std::collections::BTreeMap<u32, Vec<f32>> = Default::default();
+    for (row, &l) in index.chunks_exact(dim.max(1)).zip(labels) {
+        let n = row.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        let c = by.entry(l).or_insert_with(|| vec![0.0; dim]);
+        for (a, v) in c.iter_mut().zip(row) {
+            *a += v / n;
+        }
+    }
+    let mut rows = Vec::with_capacity(by.len() * dim);
+    let mut out = Vec::with_capacity(by.len());
+    for (l, c) in by {
+        rows.extend(c);
+        out.push(l);
+    }
+    normalize_rows(&mut rows, dim);
+    (rows, out)
 }
 
 /// Sum of the given rows (normalise afterwards for a mean direction).

@@ -1219,6 +1219,7 @@ pub fn score_all(
                 latency,
                 frame_top1: ratio(s.frames_correct, s.frames),
                 press_top1: ratio(s.knn_correct, s.presses),
+                press_top1_centroid: ratio(s.centroid_correct, s.presses),
                 by_frames: Vec::new(),
                 queries: s.frames,
                 presses: s.presses,

@@ -61,6 +61,14 @@ fn harness_scores_times_and_charts_every_method() {
     // the power spectrum sees that far above chance.
     let fft = results.iter().find(|r| r.name == "fft-radial-c64").unwrap();
     assert!(fft.press_top1 > 3.0 * chance, "{fft:?}");
+    // Decided as the daemon decides (textile centroids) too, every group.
+    assert!(fft.press_top1_centroid > 3.0 * chance, "{fft:?}");
+    for r in &results {
+        assert!((0.0..=1.0).contains(&r.press_top1_centroid), "{r:?}");
+        for g in &r.groups {
+            assert!((0.0..=1.0).contains(&g.press_top1_centroid), "{g:?}");
+        }
+    }
     let front = methods::pareto(&results);
     assert!(!front.is_empty());
     let knee = methods::knee(&results).unwrap();
@@ -68,6 +76,23 @@ fn harness_scores_times_and_charts_every_method() {
     let table = methods::markdown(&results);
     assert_eq!(table.lines().count(), 2 + results.len(), "{table}");
     assert_eq!(table.matches("**knee**").count(), 1, "{table}");
+    // Both decisions of every press are reported, each under its heading.
+    let groups = telextiles_lab::report::groups_markdown(&results, &[]);
+    let (knn, centroid) = groups
+        .split_once("nearest textile centroid")
+        .unwrap_or_else(|| panic!("{groups}"));
+    let pct = |x: f64| format!("{:.1}%", 100.0 * x);
+    assert!(
+        knn.contains(&format!("| fft-radial-c64 | {} |", pct(fft.press_top1))),
+        "{groups}"
+    );
+    assert!(
+        centroid.contains(&format!(
+            "| fft-radial-c64 | {} |",
+            pct(fft.press_top1_centroid)
+        )),
+        "{groups}"
+    );
     let svg_path = dir.path().join("a.svg");
     methods::chart(&results, &svg_path).unwrap();
     let svg = std::fs::read_to_string(&svg_path).unwrap();
@@ -115,6 +140,29 @@ fn views_cut_from_the_base_cache_equal_the_direct_crop() {
     assert!(view_set(&sets.heldout, 64, 32).is_err());
 }
 
+#[test]
+fn centroids_are_the_normalised_means_and_can_disagree_with_the_nearest_frame() {
+    let at = |deg: f32| [deg.to_radians().cos(), deg.to_radians().sin()];
+    // Textile 0: frames at ±20° (centroid at 0°); textile 1: frames at 50°
+    // and 170° (centroid at 110°).
+    let index: Vec<f32> = [20.0, -20.0, 50.0, 170.0]
+        .into_iter()
+        .flat_map(at)
+        .collect();
+    let labels = [0, 0, 1, 1];
+    let (c, l) = methods::centroids(&index, &labels, 2);
+    assert_eq!(l, vec![0, 1]);
+    let close =
+        |got: &[f32], want: [f32; 2]| got.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-5);
+    assert!(close(&c[..2], at(0.0)), "{c:?}");
+    assert!(close(&c[2..], at(110.0)), "{c:?}");
+    // A query at 40° is nearest textile 1's frame at 50°, and nearest
+    // textile 0's centroid.
+    let q = at(40.0);
+    assert_eq!(methods::top1(&index, &labels, &q, &[0], 2), 0.0);
+    assert_eq!(methods::top1(&c, &l, &q, &[0], 2), 1.0);
+}
+
 fn result(name: &str, ms: f64, acc: f64) -> MethodResult {
     MethodResult {
         name: name.into(),
@@ -126,6 +174,7 @@ fn result(name: &str, ms: f64, acc: f64) -> MethodResult {
         latency: vec![(1, ms, ms)],
         frame_top1: acc,
         press_top1: acc,
+        press_top1_centroid: acc,
         by_frames: vec![(1, acc)],
         queries: 1,
         presses: 1,
