@@ -35,8 +35,12 @@
 //! embeddings, mean direction), nearest index frame, as the simulator
 //! bench scores a press; also against the textiles' centroids (the
 //! normalised mean of the index frames of each textile), as `index build`
-//! and the daemon's decider do. Per-class accuracy and the confusion matrix
-//! are per press (kNN). Against time: the running mean of the frames whose
+//! and the daemon's decider do. The daemon's decider itself runs over each
+//! query's frames twice: against those centroids, and against the index
+//! `telextilesd index build --presses` makes by default (the same
+//! `IndexBuilder`: centroids and every index press's mean embedding), and
+//! the known presses it flags unknown are counted. Per-class accuracy and
+//! the confusion matrix are per press (kNN). Against time: the running mean of the frames whose
 //! timestamp is at most T after the press started (the contact detector's
 //! first frame over threshold), from each recording's own timestamps; a
 //! press with no frame in contact by T counts as wrong.
@@ -46,8 +50,9 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use telextiles_index::{Index, IndexBuilder, TextileRecord};
 use telextiles_sensing::contact::{ContactConfig, ContactEvent};
-use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, PressMean, TextileIndex};
+use telextiles_sensing::decide::{DecideConfig, Decider, PressMean, TextileIndex};
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{self, FrontEnd};
@@ -599,8 +604,12 @@ pub struct PressDecision {
     pub knn: String,
     /// Nearest textile centroid.
     pub centroid: String,
-    /// The daemon's decider at the end of the press ("-": undecided).
+    /// The daemon's decider at the end of the press ("-": undecided),
+    /// against textile centroids.
     pub decider: String,
+    /// The same against the index `index build --presses` makes by
+    /// default (centroids and per-press exemplars).
+    pub decider_exemplars: String,
     /// When its first decision came, ms since the press started.
     pub first_decision_ms: Option<f64>,
     /// Per-frame top-1 within this press.
@@ -619,6 +628,15 @@ pub struct RecordedMethod {
     /// centroids with its hysteresis, `telextiles_sensing::decide`) at the
     /// end of the press; an undecided press counts as wrong.
     pub press_top1_decider: f64,
+    /// The same decider against the index `telextilesd index build
+    /// --presses` makes by default: each textile's centroid and every
+    /// index press's mean embedding (a textile as near as its nearest).
+    pub press_top1_decider_exemplars: f64,
+    /// Query presses (all of known textiles) whose final decision the
+    /// decider flags unknown (`DecideConfig::unknown_distance`): against
+    /// centroids, and against centroids and exemplars.
+    pub unknown_flagged: usize,
+    pub unknown_flagged_exemplars: usize,
     /// Median time of the decider's first decision, ms since the press
     /// started (decided presses).
     pub first_decision_ms: f64,
@@ -802,34 +820,68 @@ impl Bank {
     }
 }
 
-/// The daemon's index of the given presses: one centroid per textile (the
-/// normalised mean of all their frames' embeddings, as `index build`
-/// makes it).
-fn flat_index(
+/// The index `telextilesd index build --presses` makes of these presses
+/// (`telextiles_index::IndexBuilder`, the same code): one centroid per
+/// textile, the normalised mean of its frames, and with `exemplars` each
+/// press's mean embedding beside it (the default with `--presses`; a
+/// textile is then as near as its nearest press). None when no textile
+/// has a frame.
+fn press_index(
     processed: &[Processed],
     m: usize,
     class_of: &[u32],
     textiles: &[String],
     presses: impl Iterator<Item = usize>,
-) -> Option<FlatIndex> {
-    let mut per: Vec<Vec<Vec<f32>>> = vec![Vec::new(); textiles.len()];
+    exemplars: bool,
+) -> Option<Index> {
+    // Per textile: its frames' embeddings, and its presses' means.
+    type Rows = Vec<Vec<f32>>;
+    let mut per: Vec<(Rows, Rows)> = vec![Default::default(); textiles.len()];
+    let mut dim = 0;
     for i in presses {
         let e = &processed[i].methods[m];
-        per[class_of[i] as usize].extend((0..e.len()).map(|k| e.row(k).to_vec()));
+        if e.is_empty() {
+            continue;
+        }
+        dim = e.dim;
+        let slot = &mut per[class_of[i] as usize];
+        if exemplars {
+            let mut mean = vec![0f32; e.dim];
+            for k in 0..e.len() {
+                for (a, v) in mean.iter_mut().zip(e.row(k)) {
+                    *a += v / e.len() as f32;
+                }
+            }
+            slot.1.push(mean);
+        }
+        slot.0.extend((0..e.len()).map(|k| e.row(k).to_vec()));
     }
-    let entries: Vec<(String, Vec<Vec<f32>>)> = textiles
-        .iter()
-        .cloned()
-        .zip(per)
-        .filter(|(_, v)| !v.is_empty())
-        .collect();
-    FlatIndex::from_embeddings(&entries).ok()
+    let mut builder = IndexBuilder::new("", "lab", dim, 0);
+    let mut n = 0;
+    for (id, (embeddings, exemplars)) in textiles.iter().zip(per) {
+        if embeddings.is_empty() {
+            continue;
+        }
+        builder
+            .add(TextileRecord {
+                id: id.clone(),
+                name: id.clone(),
+                seen: true,
+                structure: String::new(),
+                attributes: Vec::new(),
+                embeddings,
+                exemplars,
+            })
+            .ok()?;
+        n += 1;
+    }
+    builder.roller_n = n.min(16);
+    builder.build().ok()
 }
 
 /// The daemon's decider over one press's frames (running mean against
-/// the centroids, with its hysteresis): the final decision and when the
-/// first one came (ms since the press started).
-fn decide_press(index: &FlatIndex, e: &PressEmbedding) -> (Option<String>, Option<f64>, u32) {
+/// the index, with its hysteresis).
+fn decide_press(index: &impl TextileIndex, e: &PressEmbedding) -> Decided {
     let mut d = Decider::new(DecideConfig::default(), index.dim());
     d.press_start(0);
     for k in 0..e.len() {
@@ -839,13 +891,25 @@ fn decide_press(index: &FlatIndex, e: &PressEmbedding) -> (Option<String>, Optio
     }
     let end = e.t_ms.last().map_or(0, |t| (t * 1000.0).round() as u64);
     match d.press_end(end) {
-        Some(o) => (
-            o.decision.map(|x| index.id(x.entry).to_string()),
-            o.first_decision_us.map(|t| t as f64 / 1e3),
-            o.switches,
-        ),
-        None => (None, None, 0),
+        Some(o) => Decided {
+            textile: o.decision.map(|x| index.id(x.entry).to_string()),
+            unknown: o.decision.is_some_and(|x| x.unknown),
+            first_ms: o.first_decision_us.map(|t| t as f64 / 1e3),
+            switches: o.switches,
+        },
+        None => Decided::default(),
     }
+}
+
+/// What [`decide_press`] decided: the final textile (None: undecided),
+/// whether it was flagged unknown, when the first decision came (ms since
+/// the press started) and how often it changed after that.
+#[derive(Default)]
+struct Decided {
+    textile: Option<String>,
+    unknown: bool,
+    first_ms: Option<f64>,
+    switches: u32,
 }
 
 /// Score one method's embeddings under a split.
@@ -915,7 +979,8 @@ fn score(
             .copied()
             .filter(move |&i| roles[i] != Role::Query && Some(i) != except)
     };
-    let fixed_flat = flat_index(processed, m, class_of, textiles, index_presses(None));
+    let fixed_indexes = [false, true]
+        .map(|x| press_index(processed, m, class_of, textiles, index_presses(None), x));
     let mut sc = Score {
         per_class: textiles
             .iter()
@@ -976,25 +1041,33 @@ fn score(
         if let Some(&t) = e.t_ms.first() {
             first_ms.push(t);
         }
-        // The daemon's decider.
+        // The daemon's decider, against centroids and against the index
+        // `index build --presses` makes (centroids and per-press exemplars).
         let own;
-        let flat = if lopo {
-            own = flat_index(processed, m, class_of, textiles, index_presses(Some(q)));
-            own.as_ref()
+        let indexes = if lopo {
+            own = [false, true]
+                .map(|x| press_index(processed, m, class_of, textiles, index_presses(Some(q)), x));
+            &own
         } else {
-            fixed_flat.as_ref()
+            &fixed_indexes
         };
-        let (decided, first_decision, switches) = match flat {
-            Some(f) if !e.is_empty() => decide_press(f, e),
-            _ => (None, None, 0),
-        };
-        if decided.as_deref() == Some(textiles[truth as usize].as_str()) {
+        let [by_centroid, by_exemplar] = indexes.each_ref().map(|index| match index {
+            Some(index) if !e.is_empty() => decide_press(index, e),
+            _ => Decided::default(),
+        });
+        let right = |d: &Decided| d.textile.as_deref() == Some(textiles[truth as usize].as_str());
+        if right(&by_centroid) {
             sc.decider_correct += 1;
         }
-        if let Some(t) = first_decision {
+        if right(&by_exemplar) {
+            sc.exemplar_decider_correct += 1;
+        }
+        sc.unknown += by_centroid.unknown as usize;
+        sc.exemplar_unknown += by_exemplar.unknown as usize;
+        if let Some(t) = by_centroid.first_ms {
             sc.first_decision_ms.push(t);
         }
-        sc.switches += switches as usize;
+        sc.switches += by_centroid.switches as usize;
         let pc = &mut sc.per_class[truth as usize];
         pc.query_presses += 1;
         pc.query_frames += fr.len();
@@ -1018,8 +1091,9 @@ fn score(
             truth: textiles[truth as usize].clone(),
             knn: name(knn),
             centroid: name(cent),
-            decider: decided.unwrap_or_else(|| "-".into()),
-            first_decision_ms: first_decision,
+            decider: by_centroid.textile.unwrap_or_else(|| "-".into()),
+            decider_exemplars: by_exemplar.textile.unwrap_or_else(|| "-".into()),
+            first_decision_ms: by_centroid.first_ms,
             frame_top1: fc as f64 / fr.len().max(1) as f64,
         });
     }
@@ -1047,6 +1121,10 @@ struct Score {
     decisions: Vec<PressDecision>,
     nonfinite: usize,
     decider_correct: usize,
+    exemplar_decider_correct: usize,
+    /// Final decisions flagged unknown (every query's textile is known).
+    unknown: usize,
+    exemplar_unknown: usize,
     first_decision_ms: Vec<f64>,
     switches: usize,
 }
@@ -1228,6 +1306,9 @@ pub fn score_all(
             },
             press_top1_centroid: ratio(s.centroid_correct, s.presses),
             press_top1_decider: ratio(s.decider_correct, s.presses),
+            press_top1_decider_exemplars: ratio(s.exemplar_decider_correct, s.presses),
+            unknown_flagged: s.unknown,
+            unknown_flagged_exemplars: s.exemplar_unknown,
             first_decision_ms: crate::bench::median(&s.first_decision_ms),
             decided_presses: s.first_decision_ms.len(),
             switches: s.switches,
@@ -1462,15 +1543,18 @@ pub fn markdown(r: &StudyReport) -> String {
             .map_or(0, |m| m.summary.presses)
             .to_string(),
     );
-    s.push_str("). \"decider\": the daemon's decider (`telextiles-sensing`: running mean against the centroids, with its hysteresis) at the end of the press, an undecided press counted wrong; \"first decision\": median ms from the press start to its first decision.\n\n| method | top-1 per frame | per press, nearest index frame | per press, nearest textile centroid | decider | first decision | decided | switches |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    s.push_str("). \"decider\": the daemon's decider (`telextiles-sensing`: running mean against the index, with its hysteresis) at the end of the press, an undecided press counted wrong; against textile centroids, and against the index `telextilesd index build --presses` makes by default (centroids and every index press's mean embedding, a textile as near as its nearest); \"unknown\": query presses (all of known textiles) whose final decision is flagged unknown; \"first decision\" and \"switches\": the decider against centroids, median ms from the press start to its first decision.\n\n| method | top-1 per frame | per press, nearest index frame | per press, nearest textile centroid | decider, centroids | unknown | decider, centroids + exemplars | unknown | first decision | decided | switches |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for m in &r.methods {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {}/{} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |\n",
             m.summary.name,
             pct(m.summary.frame_top1),
             pct(m.summary.press_top1),
             pct(m.press_top1_centroid),
             pct(m.press_top1_decider),
+            m.unknown_flagged,
+            pct(m.press_top1_decider_exemplars),
+            m.unknown_flagged_exemplars,
             if m.first_decision_ms.is_finite() {
                 format!("{:.0} ms", m.first_decision_ms)
             } else {
@@ -1921,6 +2005,52 @@ mod tests {
         let m = &r.methods[0];
         assert_eq!(m.summary.presses, 6);
         assert_eq!(m.summary.press_top1, 5.0 / 6.0);
+    }
+
+    #[test]
+    fn the_decider_runs_against_centroids_and_against_press_exemplars() {
+        // Textile a: index presses at 0° and 80° (centroid at 40°);
+        // textile b: two at 60°. a's query at 75° is nearest b's centroid
+        // and a's press at 80°; b's query at 100° is nearest b's centroid
+        // (40° away: further than the unknown distance, 0.5 ≈ 29°) and
+        // a's press at 80° (20°).
+        let at = |deg: f32| [deg.to_radians().cos(), deg.to_radians().sin()];
+        let processed = vec![
+            embedded("a", &[at(0.0); 5]),
+            embedded("a", &[at(80.0); 5]),
+            embedded("a", &[at(75.0); 10]),
+            embedded("b", &[at(60.0); 5]),
+            embedded("b", &[at(60.0); 5]),
+            embedded("b", &[at(100.0); 10]),
+        ];
+        let methods = vec![Method::Rust {
+            base: Baseline {
+                kind: crate::baselines::BaselineKind::Lbp,
+                bgsub: false,
+            },
+            crop: 64,
+        }];
+        let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
+        cfg.runs = 0;
+        let r = score_all(&cfg, &methods, &[], &processed).unwrap();
+        let m = &r.methods[0];
+        let by: Vec<(&str, &str, &str)> = m
+            .decisions
+            .iter()
+            .map(|d| {
+                (
+                    d.truth.as_str(),
+                    d.decider.as_str(),
+                    d.decider_exemplars.as_str(),
+                )
+            })
+            .collect();
+        assert_eq!(by, vec![("a", "b", "a"), ("b", "b", "a")]);
+        assert_eq!(m.press_top1_decider, 0.5);
+        assert_eq!(m.press_top1_decider_exemplars, 0.5);
+        assert_eq!((m.unknown_flagged, m.unknown_flagged_exemplars), (1, 0));
+        let md = markdown(&r);
+        assert!(md.contains("| 50.0% | 1 | 50.0% | 0 |"), "{md}");
     }
 
     #[test]

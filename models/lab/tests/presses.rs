@@ -91,6 +91,15 @@ fn check(r: &StudyReport, queries: usize, min_press: f64) {
         assert!(m.first_decision_ms >= 50.0, "{}", m.first_decision_ms);
         let right = m.decisions.iter().filter(|d| d.decider == d.truth).count();
         assert!((m.press_top1_decider - right as f64 / queries as f64).abs() < 1e-12);
+        // And against the index `index build --presses` makes (centroids
+        // and per-press exemplars), right as counted.
+        let right = m
+            .decisions
+            .iter()
+            .filter(|d| d.decider_exemplars == d.truth)
+            .count();
+        assert!((m.press_top1_decider_exemplars - right as f64 / queries as f64).abs() < 1e-12);
+        assert!(m.unknown_flagged <= queries && m.unknown_flagged_exemplars <= queries);
         for d in m.decisions.iter().filter(|d| d.truth == "T090") {
             if let Some(t) = d.first_decision_ms {
                 assert!((t / 40.0 - (t / 40.0).round()).abs() < 1e-6, "{t}");
