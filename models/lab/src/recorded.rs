@@ -1951,6 +1951,18 @@ mod tests {
         p
     }
 
+    /// One method for studies of given embeddings (which method does not
+    /// matter: `score_all` only reads the embeddings).
+    fn one_method() -> Vec<Method> {
+        vec![Method::Rust {
+            base: Baseline {
+                kind: crate::baselines::BaselineKind::Lbp,
+                bgsub: false,
+            },
+            crop: 64,
+        }]
+    }
+
     #[test]
     fn scores_from_known_embeddings() {
         // Two textiles along the axes; a's query leans towards a, b's
@@ -1965,13 +1977,7 @@ mod tests {
             embedded("b", &b),
             embedded("b", &[]),
         ];
-        let methods = vec![Method::Rust {
-            base: Baseline {
-                kind: crate::baselines::BaselineKind::Lbp,
-                bgsub: false,
-            },
-            crop: 64,
-        }];
+        let methods = one_method();
         let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
         cfg.runs = 0;
         let r = score_all(&cfg, &methods, &[], &processed).unwrap();
@@ -2023,13 +2029,7 @@ mod tests {
             embedded("b", &[at(60.0); 5]),
             embedded("b", &[at(100.0); 10]),
         ];
-        let methods = vec![Method::Rust {
-            base: Baseline {
-                kind: crate::baselines::BaselineKind::Lbp,
-                bgsub: false,
-            },
-            crop: 64,
-        }];
+        let methods = one_method();
         let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
         cfg.runs = 0;
         let r = score_all(&cfg, &methods, &[], &processed).unwrap();
