@@ -209,12 +209,12 @@ impl FrontEnd {
         if let Some(ContactEvent::PressStart { t_us }) = up.event {
             if self.encode_run && self.encoder.has_reference() {
                 for h in self.held[..self.held_n].iter().filter(|h| h.t_us >= t_us) {
-                    let t1 = Instant::now();
-                    self.encoder.preprocess(&h.image)?;
-                    let t2 = Instant::now();
-                    let emb = self.encoder.infer()?;
-                    preprocess_ns += (t2 - t1).as_nanos() as u64;
-                    encode_ns += t2.elapsed().as_nanos() as u64;
+                    let emb = encode(
+                        &mut self.encoder,
+                        &h.image,
+                        &mut preprocess_ns,
+                        &mut encode_ns,
+                    )?;
                     let e = &mut self.early[self.early_n];
                     e.t_us = h.t_us;
                     e.score = h.score;
@@ -239,13 +239,12 @@ impl FrontEnd {
         let touching = up.in_contact && up.score >= self.contact.release_threshold();
         let mut embedding = None;
         if touching && self.encoder.has_reference() {
-            let t1 = Instant::now();
-            self.encoder.preprocess(&frame.image)?;
-            let t2 = Instant::now();
-            let emb = self.encoder.infer()?;
-            preprocess_ns += (t2 - t1).as_nanos() as u64;
-            encode_ns += t2.elapsed().as_nanos() as u64;
-            embedding = Some(emb);
+            embedding = Some(encode(
+                &mut self.encoder,
+                &frame.image,
+                &mut preprocess_ns,
+                &mut encode_ns,
+            )?);
         }
         Ok(FrontOutput {
             contact: up,
@@ -256,6 +255,23 @@ impl FrontEnd {
             encode_ns,
         })
     }
+}
+
+/// Preprocess and encode one frame, adding the time each stage took to
+/// `preprocess_ns` and `encode_ns`.
+fn encode<'a>(
+    encoder: &'a mut Encoder,
+    image: &image::RgbImage,
+    preprocess_ns: &mut u64,
+    encode_ns: &mut u64,
+) -> Result<&'a [f32], EncoderError> {
+    let t1 = Instant::now();
+    encoder.preprocess(image)?;
+    let t2 = Instant::now();
+    let emb = encoder.infer()?;
+    *preprocess_ns += (t2 - t1).as_nanos() as u64;
+    *encode_ns += t2.elapsed().as_nanos() as u64;
+    Ok(emb)
 }
 
 /// The no-contact reference a recording carries: the mean of its first
