@@ -434,13 +434,7 @@ pub fn evaluate(
     // The daemon's index: one centroid per textile.
     let (cindex, clabels) = centroids(&index, &labels, dim);
     let press_top1_centroid = {
-        let mut q = Vec::new();
-        let mut ql = Vec::new();
-        for (&(_, _, class), frames) in &presses {
-            q.extend(mean_rows(&qe, dim, frames));
-            ql.push(class);
-        }
-        normalize_rows(&mut q, dim);
+        let (q, ql) = press_means(&qe, dim, &presses);
         top1(&cindex, &clabels, &q, &ql, dim)
     };
     let centroid = (cindex.as_slice(), clabels.as_slice());
@@ -551,13 +545,7 @@ fn group_score(
                 .push(i);
         }
     }
-    let mut q = Vec::new();
-    let mut ql = Vec::new();
-    for (&(_, _, class), frames) in &presses {
-        q.extend(mean_rows(qe, dim, frames));
-        ql.push(class);
-    }
-    normalize_rows(&mut q, dim);
+    let (q, ql) = press_means(qe, dim, &presses);
     GroupScore {
         name: name.to_string(),
         presses: presses.len(),
@@ -566,26 +554,46 @@ fn group_score(
     }
 }
 
-/// One centroid per label, as `telextiles-sensing`'s `FlatIndex` and
-/// `index build` make them: the normalised mean of the label's
-/// (normalised) rows. Returns the rows, in label order, and their labels.
+/// One centroid per label, built by the daemon's own in-memory index
+/// (`telextiles_sensing::decide::FlatIndex`, the same normalised mean of
+/// normalised rows as `index build`). Returns the rows, in label order,
+/// and their labels (none for an empty index).
 pub fn centroids(index: &[f32], labels: &[u32], dim: usize) -> (Vec<f32>, Vec<u32>) {
-    let mut by: std::collections::BTreeMap<u32, Vec<f32>> = Default::default();
+    let mut by: std::collections::BTreeMap<u32, Vec<Vec<f32>>> = Default::default();
     for (row, &l) in index.chunks_exact(dim.max(1)).zip(labels) {
-        let n = row.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
-        let c = by.entry(l).or_insert_with(|| vec![0.0; dim]);
-        for (a, v) in c.iter_mut().zip(row) {
-            *a += v / n;
-        }
+        by.entry(l).or_default().push(row.to_vec());
     }
-    let mut rows = Vec::with_capacity(by.len() * dim);
-    let mut out = Vec::with_capacity(by.len());
-    for (l, c) in by {
-        rows.extend(c);
-        out.push(l);
+    let out: Vec<u32> = by.keys().copied().collect();
+    let entries: Vec<(String, Vec<Vec<f32>>)> = by
+        .into_iter()
+        .map(|(l, rows)| (l.to_string(), rows))
+        .collect();
+    match telextiles_sensing::decide::FlatIndex::from_embeddings(&entries) {
+        Ok(flat) => (
+            (0..out.len())
+                .flat_map(|i| flat.centroid(i).to_vec())
+                .collect(),
+            out,
+        ),
+        Err(_) => (Vec::new(), Vec::new()),
     }
-    normalize_rows(&mut rows, dim);
-    (rows, out)
+}
+
+/// The normalised mean embedding of each press (`presses`: its frames'
+/// rows in `qe`), and the press's class.
+fn press_means(
+    qe: &[f32],
+    dim: usize,
+    presses: &std::collections::BTreeMap<(u32, u32, u32), Vec<usize>>,
+) -> (Vec<f32>, Vec<u32>) {
+    let mut q = Vec::new();
+    let mut ql = Vec::new();
+    for (&(_, _, class), frames) in presses {
+        q.extend(mean_rows(qe, dim, frames));
+        ql.push(class);
+    }
+    normalize_rows(&mut q, dim);
+    (q, ql)
 }
 
 /// Sum of the given rows (normalise afterwards for a mean direction).

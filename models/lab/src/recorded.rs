@@ -935,8 +935,7 @@ fn score(
         class: Vec::new(),
         dim,
     };
-    // Per press: sum of all rows (centroids) and the sampled rows (bank).
-    let mut press_sum: Vec<Option<Vec<f32>>> = vec![None; processed.len()];
+    // The sampled rows of every index press (bank).
     for &i in &usable {
         let e = &processed[i].methods[m];
         if roles[i] == Role::Query {
@@ -947,32 +946,7 @@ fn score(
             bank.press.push(i);
             bank.class.push(class_of[i]);
         }
-        let mut s = vec![0f32; dim];
-        for k in 0..e.len() {
-            for (a, v) in s.iter_mut().zip(e.row(k)) {
-                *a += v;
-            }
-        }
-        press_sum[i] = Some(s);
     }
-    let centroids = |except: Option<usize>| -> Vec<Option<Vec<f32>>> {
-        let mut c: Vec<Option<Vec<f32>>> = vec![None; ntex];
-        for (i, s) in press_sum.iter().enumerate() {
-            let Some(s) = s else { continue };
-            if Some(i) == except {
-                continue;
-            }
-            let acc = c[class_of[i] as usize].get_or_insert_with(|| vec![0f32; dim]);
-            for (a, v) in acc.iter_mut().zip(s) {
-                *a += v;
-            }
-        }
-        for v in c.iter_mut().flatten() {
-            crate::knn::normalize_rows(v, dim);
-        }
-        c
-    };
-    let fixed = centroids(None);
     let index_presses = |except: Option<usize>| {
         usable
             .iter()
@@ -1016,19 +990,20 @@ fn score(
         // Per press.
         let mean = unit_mean((0..e.len()).map(|k| e.row(k)), dim);
         let knn = mean.as_ref().and_then(|x| bank.nearest(x, &allowed));
-        let cents = if lopo {
-            centroids(Some(q))
+        // The index the daemon would build of the other presses: its
+        // centroids, and centroids with per-press exemplars.
+        let own;
+        let indexes = if lopo {
+            own = [false, true]
+                .map(|x| press_index(processed, m, class_of, textiles, index_presses(Some(q)), x));
+            &own
         } else {
-            fixed.clone()
+            &fixed_indexes
         };
         let cent = mean.as_ref().and_then(|mean| {
-            cents
-                .iter()
-                .enumerate()
-                .filter_map(|(c, v)| v.as_ref().map(|v| (c, dot(mean, v))))
-                .filter(|x| x.1.is_finite())
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|x| x.0 as u32)
+            let index = indexes[0].as_ref()?;
+            let best = &index.entries[index.nearest(mean)?.best].id;
+            textiles.iter().position(|t| t == best).map(|c| c as u32)
         });
         // Against time.
         for (t, correct) in sc.by_time.iter_mut() {
@@ -1041,16 +1016,7 @@ fn score(
         if let Some(&t) = e.t_ms.first() {
             first_ms.push(t);
         }
-        // The daemon's decider, against centroids and against the index
-        // `index build --presses` makes (centroids and per-press exemplars).
-        let own;
-        let indexes = if lopo {
-            own = [false, true]
-                .map(|x| press_index(processed, m, class_of, textiles, index_presses(Some(q)), x));
-            &own
-        } else {
-            &fixed_indexes
-        };
+        // The daemon's decider, against both indexes.
         let [by_centroid, by_exemplar] = indexes.each_ref().map(|index| match index {
             Some(index) if !e.is_empty() => decide_press(index, e),
             _ => Decided::default(),
