@@ -3,7 +3,7 @@
 use crate::map::{self, MapLayout};
 use crate::select::{self, SelectionMethod};
 use crate::vecmath::{l2_normalise, normalised_mean};
-use crate::{Entry, Index, IndexError, RollerLayout};
+use crate::{Entry, Index, IndexError, Metric, RollerLayout};
 
 /// Everything known about one textile before it goes into the index.
 #[derive(Clone, Debug)]
@@ -20,7 +20,8 @@ pub struct TextileRecord {
     pub attributes: Vec<(String, f32)>,
     /// Embeddings of this textile's frames (any length; normalised here).
     pub embeddings: Vec<Vec<f32>>,
-    /// Per-press mean embeddings kept as exemplars (optional).
+    /// Per-press mean embeddings (optional): kept as exemplars unless the
+    /// builder's `keep_exemplars` is off, and what its metric learns from.
     pub exemplars: Vec<Vec<f32>>,
 }
 
@@ -38,6 +39,13 @@ pub struct IndexBuilder {
     pub method: SelectionMethod,
     /// Seed for the UMAP layouts and random selection.
     pub seed: u64,
+    /// Keep the records' per-press embeddings as exemplars (default: on).
+    pub keep_exemplars: bool,
+    /// Learn a within-fabric metric from the records' per-press embeddings
+    /// with this shrinkage ([`Metric::within_fabric`]); None (the default):
+    /// plain cosine distance. Without two presses of some fabric there is
+    /// nothing to learn and the index has no metric.
+    pub metric_shrinkage: Option<f32>,
 }
 
 impl IndexBuilder {
@@ -53,6 +61,8 @@ impl IndexBuilder {
             roller_n: 16,
             method: SelectionMethod::KMedoids,
             seed: 0,
+            keep_exemplars: true,
+            metric_shrinkage: None,
         }
     }
 
@@ -92,27 +102,39 @@ impl IndexBuilder {
     /// none is marked seen.
     pub fn build(self) -> Result<Index, IndexError> {
         let dim = self.dim;
+        let metric = match self.metric_shrinkage {
+            Some(a) if !(0.0..=1.0).contains(&a) => {
+                return Err(IndexError::Invalid(format!(
+                    "metric shrinkage {a} is outside 0..=1"
+                )))
+            }
+            Some(a) => {
+                let presses: Vec<Vec<Vec<f32>>> =
+                    self.records.iter().map(|r| r.exemplars.clone()).collect();
+                Metric::within_fabric(&presses, dim, a)
+            }
+            None => None,
+        };
+        // Every vector in the metric's space (normalised either way).
+        let map_in = |v: &[f32]| match &metric {
+            Some(m) if v.len() == dim => m.apply(v),
+            _ => {
+                let mut v = v.to_vec();
+                l2_normalise(&mut v);
+                v
+            }
+        };
+        let keep_exemplars = self.keep_exemplars;
         let entries: Vec<Entry> = self
             .records
             .into_iter()
             .map(|r| {
-                let normed: Vec<Vec<f32>> = r
-                    .embeddings
-                    .iter()
-                    .map(|v| {
-                        let mut v = v.clone();
-                        l2_normalise(&mut v);
-                        v
-                    })
-                    .collect();
-                let exemplars = r
-                    .exemplars
-                    .into_iter()
-                    .map(|mut v| {
-                        l2_normalise(&mut v);
-                        v
-                    })
-                    .collect();
+                let normed: Vec<Vec<f32>> = r.embeddings.iter().map(|v| map_in(v)).collect();
+                let exemplars = if keep_exemplars {
+                    r.exemplars.iter().map(|v| map_in(v)).collect()
+                } else {
+                    Vec::new()
+                };
                 Entry {
                     centroid: normalised_mean(&normed, dim),
                     id: r.id,
@@ -166,6 +188,7 @@ impl IndexBuilder {
                 seed: self.seed,
                 place_k: 3,
             },
+            metric,
         };
         for (e, p) in index.entries.iter_mut().zip(xy) {
             e.map_xy = [p[0], p[1]];

@@ -2,16 +2,22 @@
 //! length (u64 LE), payload (bincode 2, standard config), SHA-256 of the
 //! payload (32 bytes). The fingerprint peers compare is the hex SHA-256 of the
 //! payload, so any change of content changes it.
+//!
+//! Version 1's payload is the [`Index`] without a metric; version 2's is the
+//! index followed by its [`Metric`](crate::Metric). An index without a metric
+//! is written as version 1, byte for byte as before version 2 existed (same
+//! fingerprint, readable by older builds); this build reads both.
 
-use crate::Index;
+use crate::{Index, Metric};
 use sha2::{Digest, Sha256};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"TLXI";
-/// Current format version.
-pub const FORMAT_VERSION: u32 = 1;
+/// Newest format version (an index with a metric); an index without one is
+/// written as version 1.
+pub const FORMAT_VERSION: u32 = 2;
 const HEADER: usize = 4 + 4 + 8;
 const MAX_PAYLOAD: u64 = 256 << 20;
 
@@ -30,7 +36,9 @@ pub enum IndexError {
     #[error("{0}: not a Telextiles index file (bad magic)")]
     BadMagic(PathBuf),
     /// Written by another format version.
-    #[error("{path}: index format version {found}, this build reads version {FORMAT_VERSION}")]
+    #[error(
+        "{path}: index format version {found}, this build reads versions 1 to {FORMAT_VERSION}"
+    )]
     Version {
         /// File concerned.
         path: PathBuf,
@@ -73,7 +81,19 @@ fn config() -> impl bincode::config::Config {
 }
 
 pub(crate) fn payload(index: &Index) -> Vec<u8> {
-    bincode::serde::encode_to_vec(index, config()).expect("an index always encodes")
+    match &index.metric {
+        None => bincode::serde::encode_to_vec(index, config()),
+        Some(m) => bincode::serde::encode_to_vec((index, m), config()),
+    }
+    .expect("an index always encodes")
+}
+
+fn version_of(index: &Index) -> u32 {
+    if index.metric.is_some() {
+        2
+    } else {
+        1
+    }
 }
 
 pub(crate) fn fingerprint(index: &Index) -> String {
@@ -89,7 +109,7 @@ pub fn to_bytes(index: &Index) -> Vec<u8> {
     let p = payload(index);
     let mut out = Vec::with_capacity(HEADER + p.len() + 32);
     out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&version_of(index).to_le_bytes());
     out.extend_from_slice(&(p.len() as u64).to_le_bytes());
     out.extend_from_slice(&p);
     out.extend_from_slice(&Sha256::digest(&p));
@@ -110,7 +130,7 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
         });
     }
     let version = u32::from_le_bytes(bytes[4..8].try_into().unwrap());
-    if version != FORMAT_VERSION {
+    if !(1..=FORMAT_VERSION).contains(&version) {
         return Err(IndexError::Version {
             path: p(),
             found: version,
@@ -145,11 +165,18 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
             why: "checksum mismatch".into(),
         });
     }
-    let (index, used): (Index, usize) = bincode::serde::decode_from_slice(payload, config())
-        .map_err(|e| IndexError::Corrupt {
-            path: p(),
-            why: format!("undecodable content: {e}"),
-        })?;
+    let undecodable = |e: bincode::error::DecodeError| IndexError::Corrupt {
+        path: p(),
+        why: format!("undecodable content: {e}"),
+    };
+    let (index, used): (Index, usize) = if version == 1 {
+        bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?
+    } else {
+        let ((mut index, metric), used): ((Index, Metric), usize) =
+            bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
+        index.metric = Some(metric);
+        (index, used)
+    };
     if used != payload.len() {
         return Err(IndexError::Corrupt {
             path: p(),

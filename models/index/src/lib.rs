@@ -5,6 +5,11 @@
 //! its metadata and 2D map position, and the roller layout: which textile sits
 //! on which slot. Peers compare [`Index::fingerprint`] when they connect.
 //!
+//! An index built from several presses per fabric may carry a [`Metric`]
+//! learned from them (within-fabric whitening, [`metric`]): then its vectors
+//! live in the metric's space and every query method maps the query there
+//! first, so callers always pass encoder embeddings.
+//!
 //! Pure: no I/O except [`Index::read`] / [`Index::write`], which write
 //! atomically and reject truncated, corrupt or foreign files with a clear error.
 #![forbid(unsafe_code)]
@@ -12,12 +17,14 @@
 pub mod build;
 mod file;
 pub mod map;
+pub mod metric;
 pub mod select;
 mod vecmath;
 
 pub use build::{IndexBuilder, TextileRecord};
 pub use file::{from_bytes, to_bytes, IndexError, FORMAT_VERSION, MAGIC};
 pub use map::MapLayout;
+pub use metric::Metric;
 pub use select::{Coverage, SelectionMethod};
 pub use vecmath::{distance, l2_normalise};
 
@@ -36,9 +43,10 @@ pub struct Entry {
     pub structure: String,
     /// Ground-truth tactile attributes (name, value in 0..1), if known.
     pub attributes: Vec<(String, f32)>,
-    /// L2-normalised mean embedding.
+    /// L2-normalised mean embedding (in the index's metric space when it
+    /// has a metric).
     pub centroid: Vec<f32>,
-    /// Optional L2-normalised per-press exemplars.
+    /// Optional L2-normalised per-press exemplars (same space).
     pub exemplars: Vec<Vec<f32>>,
     /// Position on the 2D map.
     pub map_xy: [f32; 2],
@@ -79,6 +87,10 @@ pub struct Index {
     pub roller: RollerLayout,
     /// The 2D map.
     pub map: MapLayout,
+    /// The distance learned from the index's presses, if any (file format
+    /// version 2; encoded after the rest, see `file.rs`).
+    #[serde(skip)]
+    pub metric: Option<Metric>,
 }
 
 /// Result of a nearest-textile query.
@@ -102,9 +114,36 @@ impl Nearest {
 }
 
 impl Index {
+    /// A query (an encoder embedding, L2-normalised) in the space of the
+    /// index's vectors: through the metric when there is one, else as is.
+    /// The query must be of the index's dimension.
+    pub fn project<'a>(&self, q: &'a [f32]) -> std::borrow::Cow<'a, [f32]> {
+        match &self.metric {
+            Some(m) => std::borrow::Cow::Owned(m.apply(q)),
+            None => std::borrow::Cow::Borrowed(q),
+        }
+    }
+
+    /// An encoder embedding whose query lands on `v`, a vector of the
+    /// index's space (a centroid, an exemplar): `v` itself without a metric,
+    /// its preimage with one (None if there is none).
+    pub fn query_for(&self, v: &[f32]) -> Option<Vec<f32>> {
+        match &self.metric {
+            Some(m) => m.preimage(v),
+            None => (v.len() == self.dim).then(|| v.to_vec()),
+        }
+    }
+
     /// Distance from an L2-normalised query to entry `i`: the nearest of its
-    /// centroid and exemplars.
+    /// centroid and exemplars (after the metric, if any).
     pub fn entry_distance(&self, i: usize, q: &[f32]) -> f32 {
+        match &self.metric {
+            Some(m) => self.projected_distance(i, &m.apply(q)),
+            None => self.projected_distance(i, q),
+        }
+    }
+
+    fn projected_distance(&self, i: usize, q: &[f32]) -> f32 {
         let e = &self.entries[i];
         let mut d = distance(&e.centroid, q);
         for x in &e.exemplars {
@@ -120,10 +159,11 @@ impl Index {
         if q.len() != self.dim || self.entries.is_empty() || q.iter().any(|v| !v.is_finite()) {
             return None;
         }
+        let q = self.project(q);
         let mut best = (usize::MAX, f32::INFINITY);
         let mut second = (usize::MAX, f32::INFINITY);
         for i in 0..self.entries.len() {
-            let d = self.entry_distance(i, q);
+            let d = self.projected_distance(i, &q);
             if d < best.1 {
                 second = best;
                 best = (i, d);
@@ -141,8 +181,12 @@ impl Index {
 
     /// The `k` nearest entries to a query, nearest first, with distances.
     pub fn k_nearest(&self, q: &[f32], k: usize) -> Vec<(usize, f32)> {
+        if q.len() != self.dim {
+            return Vec::new();
+        }
+        let q = self.project(q);
         let mut all: Vec<(usize, f32)> = (0..self.entries.len())
-            .map(|i| (i, self.entry_distance(i, q)))
+            .map(|i| (i, self.projected_distance(i, &q)))
             .collect();
         all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
         all.truncate(k);
@@ -192,6 +236,14 @@ impl Index {
                 .any(|v| !v.is_finite())
             {
                 return bad(format!("textile {} has a non-finite embedding", e.id));
+            }
+        }
+        if let Some(m) = &self.metric {
+            if !m.is_valid(self.dim) {
+                return bad(format!(
+                    "the metric is not a finite {0} x {0} map",
+                    self.dim
+                ));
             }
         }
         let n = self.entries.len();

@@ -1,4 +1,5 @@
 use rand::{Rng, SeedableRng};
+use sha2::Digest;
 use telextiles_index::select::{self, coverage, order_wheel, wheel_length, SelectionMethod};
 use telextiles_index::{l2_normalise, Index, IndexBuilder, IndexError, TextileRecord};
 
@@ -223,6 +224,27 @@ proptest::proptest! {
         bytes[p] = val;
         let _ = telextiles_index_from_bytes(&bytes);
     }
+
+    /// Past the checksum: a payload changed and re-summed (with a metric,
+    /// format version 2, and without) decodes to an error or to a valid
+    /// index that answers queries, never a panic.
+    #[test]
+    fn decoder_never_panics_on_mutated_payloads(pos in 0usize..20000, val in proptest::num::u8::ANY, metric in proptest::bool::ANY) {
+        let index = nuisance_index(metric.then_some(0.5)).unwrap();
+        let mut bytes = index_bytes(&index);
+        let payload = 16..bytes.len() - 32;
+        let p = payload.start + pos % payload.len();
+        bytes[p] = val;
+        let sum = sha2::Sha256::digest(&bytes[payload.clone()]);
+        let n = bytes.len();
+        bytes[n - 32..].copy_from_slice(&sum);
+        if let Ok(back) = telextiles_index_from_bytes(&bytes) {
+            back.validate().unwrap();
+            let q = vec![0.25f32; back.dim];
+            let _ = back.nearest(&q);
+            let _ = back.place_on_map(&q);
+        }
+    }
 }
 
 fn small() -> Index {
@@ -240,4 +262,128 @@ fn index_bytes(index: &Index) -> Vec<u8> {
 
 fn telextiles_index_from_bytes(bytes: &[u8]) -> Result<Index, IndexError> {
     telextiles_index::from_bytes(bytes, std::path::Path::new("fuzz.tlxi"))
+}
+
+/// Four fabrics whose presses vary mostly along a nuisance direction (the
+/// last coordinate) that is larger than what tells them apart; fabric 0's
+/// presses happened to lean one way along it, fabric 1's the other.
+fn nuisance_records() -> Vec<TextileRecord> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    (0..4)
+        .map(|t| {
+            let presses: Vec<Vec<f32>> = (0..4)
+                .map(|_| {
+                    let mut v = vec![0.0f32; DIM];
+                    v[t] = 1.0;
+                    for x in v.iter_mut().take(DIM - 1) {
+                        *x += rng.gen_range(-0.05..0.05);
+                    }
+                    let lean = [1.0, -1.0, 0.0, 0.0][t];
+                    v[DIM - 1] = lean + rng.gen_range(-0.6..0.6);
+                    v
+                })
+                .collect();
+            TextileRecord {
+                id: format!("F{t}"),
+                name: format!("fabric {t}"),
+                seen: true,
+                structure: String::new(),
+                attributes: vec![],
+                embeddings: presses.clone(),
+                exemplars: presses,
+            }
+        })
+        .collect()
+}
+
+fn nuisance_index(shrinkage: Option<f32>) -> Result<Index, IndexError> {
+    let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
+    for r in nuisance_records() {
+        b.add(r).unwrap();
+    }
+    b.roller_n = 4;
+    b.keep_exemplars = false;
+    b.metric_shrinkage = shrinkage;
+    b.build()
+}
+
+#[test]
+fn a_metric_learned_from_the_presses_discounts_how_presses_of_one_fabric_differ() {
+    let plain = nuisance_index(None).unwrap();
+    let learned = nuisance_index(Some(0.5)).unwrap();
+    assert!(plain.metric.is_none());
+    let m = learned
+        .metric
+        .as_ref()
+        .expect("four fabrics of four presses");
+    assert_eq!((m.presses, m.fabrics, m.shrinkage), (16, 4, 0.5));
+    // Presses of fabric 1 leaning the other way along the nuisance: plain
+    // cosine calls most of them fabric 0, the learned metric none.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let (mut plain_right, mut learned_right) = (0, 0);
+    for _ in 0..50 {
+        let mut q = vec![0.0f32; DIM];
+        q[1] = 1.0;
+        q[0] = 0.3;
+        q[DIM - 1] = rng.gen_range(0.8..1.4);
+        l2_normalise(&mut q);
+        plain_right += (plain.nearest(&q).unwrap().best == 1) as usize;
+        learned_right += (learned.nearest(&q).unwrap().best == 1) as usize;
+        // Every query method agrees on the space.
+        let n = learned.nearest(&q).unwrap();
+        assert_eq!(learned.k_nearest(&q, 1)[0], (n.best, n.best_dist));
+        assert_eq!(learned.entry_distance(n.best, &q), n.best_dist);
+    }
+    assert!(plain_right < 25, "plain {plain_right}/50");
+    assert_eq!(learned_right, 50, "plain {plain_right}/50");
+    // A query of another dimension is no answer, not a panic.
+    assert!(learned.nearest(&[1.0; 3]).is_none());
+    assert!(learned.k_nearest(&[1.0; 3], 2).is_empty());
+}
+
+#[test]
+fn an_index_with_a_metric_is_format_version_2_and_one_without_stays_version_1() {
+    let dir = tempfile::tempdir().unwrap();
+    for (shrinkage, version) in [(None, 1u32), (Some(0.5), 2)] {
+        let index = nuisance_index(shrinkage).unwrap();
+        let path = dir.path().join(format!("v{version}.tlxi"));
+        index.write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(u32::from_le_bytes(bytes[4..8].try_into().unwrap()), version);
+        let back = Index::read(&path).unwrap();
+        assert_eq!(back, index);
+        assert_eq!(back.fingerprint(), index.fingerprint());
+    }
+    // The metric is part of the content peers compare.
+    let a = nuisance_index(Some(0.5)).unwrap();
+    let mut b = a.clone();
+    b.metric.as_mut().unwrap().matrix[0] += 1e-3;
+    assert_ne!(a.fingerprint(), b.fingerprint());
+    // A metric that is not a finite map of the index's dimension is refused
+    // on write and on read.
+    let mut bad = a.clone();
+    bad.metric.as_mut().unwrap().matrix[3] = f32::NAN;
+    assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))));
+    let path = dir.path().join("bad.tlxi");
+    assert!(bad.write(&path).is_err());
+    std::fs::write(&path, telextiles_index::to_bytes(&bad)).unwrap();
+    let e = Index::read(&path).unwrap_err();
+    assert!(e.to_string().contains("metric"), "{e}");
+    let mut short = a.clone();
+    short.metric.as_mut().unwrap().matrix.pop();
+    assert!(short.validate().is_err());
+    // Shrinkage outside 0..=1 is an error, not a silent identity.
+    assert!(matches!(
+        nuisance_index(Some(1.5)),
+        Err(IndexError::Invalid(_))
+    ));
+}
+
+#[test]
+fn the_shipped_version_1_index_still_reads_and_encodes_byte_for_byte() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../index.tlxi");
+    let bytes = std::fs::read(&path).unwrap();
+    let index = Index::read(&path).unwrap();
+    assert!(index.metric.is_none());
+    assert_eq!(telextiles_index::to_bytes(&index), bytes);
 }
