@@ -64,6 +64,20 @@ pub struct BuildArgs {
     /// One centroid per textile only, also with --presses.
     #[arg(long)]
     pub no_exemplars: bool,
+    /// Learn a distance from the presses: how presses of one fabric differ
+    /// (place on the cloth, hand, sensor unit) on your sensor counts less
+    /// than how fabrics differ (within-fabric whitening; needs two or more
+    /// presses of some fabric). The default with --presses; off by default
+    /// with --sim.
+    #[arg(long, conflicts_with = "no_metric")]
+    pub metric: bool,
+    /// Plain cosine distance, also with --presses.
+    #[arg(long)]
+    pub no_metric: bool,
+    /// Shrinkage of the learned distance towards plain cosine (0..=1; 1 is
+    /// plain cosine).
+    #[arg(long, default_value_t = telextiles_index::metric::DEFAULT_SHRINKAGE)]
+    pub metric_shrinkage: f32,
     /// Use every n-th contact frame.
     #[arg(long, default_value_t = 4)]
     pub stride: usize,
@@ -274,17 +288,15 @@ fn build(a: BuildArgs) -> Result<()> {
     builder.roller_n = slots;
     builder.method = a.method;
     builder.seed = a.seed;
+    builder.keep_exemplars = keep_exemplars(&a);
+    builder.metric_shrinkage = learn_metric(&a).then_some(a.metric_shrinkage);
     for (id, (embs, means)) in by_textile {
         builder.add(record(
             &cat,
             &id,
             names.get(&id).map(String::as_str),
             embs,
-            if keep_exemplars(&a) {
-                means
-            } else {
-                Vec::new()
-            },
+            means,
         ))?;
     }
     let index = builder.build()?;
@@ -293,14 +305,20 @@ fn build(a: BuildArgs) -> Result<()> {
     }
     index.write(&a.out)?;
     println!(
-        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, fingerprint {})",
+        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, {}, fingerprint {})",
         a.out.display(),
         index.entries.len(),
         index.dim,
         index.roller.n(),
         index.roller.method,
+        metric_summary(&index),
         &index.fingerprint()[..16]
     );
+    if learn_metric(&a) && index.metric.is_none() {
+        eprintln!(
+            "note: no fabric has two presses with contact, so the index keeps plain cosine distance"
+        );
+    }
     // Unseen textiles (not in the index) as the roller has to cover them:
     // one jig press of each by each simulated person, mean embedding.
     let mut unseen = Vec::new();
@@ -326,6 +344,22 @@ fn textile_name(press_dir: &std::path::Path, id: &str) -> Option<String> {
     let p = press_dir.parent()?.join("textile.json");
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).ok()?).ok()?;
     (v["id"] == id).then(|| v["name"].as_str().map(str::to_string))?
+}
+
+/// Whether the index learns a distance from the presses (see `--metric`).
+fn learn_metric(a: &BuildArgs) -> bool {
+    a.metric || (a.presses.is_some() && !a.no_metric)
+}
+
+/// How the index measures distance, in words.
+fn metric_summary(index: &Index) -> String {
+    match &index.metric {
+        Some(m) => format!(
+            "distance learned from {} presses of {} fabrics (shrinkage {})",
+            m.presses, m.fabrics, m.shrinkage
+        ),
+        None => "cosine distance".into(),
+    }
 }
 
 /// Whether the index keeps per-press exemplars (see `--exemplars`).
@@ -367,6 +401,13 @@ pub fn coverage_report(index: &Index, unseen: &[Vec<f32>], slots: usize, seed: u
     use std::fmt::Write;
     use telextiles_index::select::{coverage, select};
     let pts: Vec<Vec<f32>> = index.entries.iter().map(|e| e.centroid.clone()).collect();
+    // Unseen presses are encoder embeddings: into the index's space.
+    let unseen: Vec<Vec<f32>> = unseen
+        .iter()
+        .filter(|u| u.len() == index.dim)
+        .map(|u| index.project(u).into_owned())
+        .collect();
+    let unseen = &unseen[..];
     let slots = slots.min(pts.len());
     let mut out = String::new();
     let _ = writeln!(
@@ -436,6 +477,9 @@ fn inspect(a: InspectArgs) -> Result<()> {
             "encoder_arch": index.encoder_arch,
             "dim": index.dim,
             "catalogue_version": index.catalogue_version,
+            "metric": index.metric.as_ref().map(|m| serde_json::json!({
+                "presses": m.presses, "fabrics": m.fabrics, "shrinkage": m.shrinkage,
+            })),
             "textiles": index.entries.iter().map(|e| serde_json::json!({
                 "id": e.id, "name": e.name, "seen": e.seen, "structure": e.structure,
                 "exemplars": e.exemplars.len(), "map": e.map_xy,
@@ -456,6 +500,7 @@ fn inspect(a: InspectArgs) -> Result<()> {
     );
     println!("dimension    {}", index.dim);
     println!("catalogue    v{}", index.catalogue_version);
+    println!("distance     {}", metric_summary(&index));
     let seen = index.entries.iter().filter(|e| e.seen).count();
     println!(
         "textiles     {} ({} seen, {} unseen)",
@@ -543,6 +588,30 @@ mod tests {
             .all(|s| s.textile.starts_with('U') && s.sensor == 0));
         let none = parse(&["--people", "0"]);
         assert!(sim_protocol(&none, None).is_err());
+    }
+
+    #[test]
+    fn own_recordings_learn_a_distance_by_default() {
+        let parse = |args: &[&str]| {
+            Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
+                .unwrap()
+                .b
+        };
+        assert!(learn_metric(&parse(&["--presses", "r"])));
+        assert!(!learn_metric(&parse(&["--presses", "r", "--no-metric"])));
+        assert!(!learn_metric(&parse(&["--sim"])));
+        assert!(learn_metric(&parse(&["--sim", "--metric"])));
+        let a = parse(&["--presses", "r", "--metric-shrinkage", "0.3"]);
+        assert_eq!(a.metric_shrinkage, 0.3);
+        assert_eq!(parse(&["--presses", "r"]).metric_shrinkage, 0.5);
+        assert!(Cli::try_parse_from([
+            "index-build",
+            "--model",
+            "m.onnx",
+            "--metric",
+            "--no-metric"
+        ])
+        .is_err());
     }
 
     #[test]
@@ -635,6 +704,32 @@ mod tests {
             .collect();
         assert_eq!(names, [("denim", "blue denim"), ("wool", "wool")]);
         assert!(index.entries.iter().all(|e| e.exemplars.len() == 2));
+        // The distance is learned from the two presses of each fabric, and
+        // every query method maps an encoder embedding into its space.
+        let m = index.metric.as_ref().expect("two presses per fabric");
+        assert_eq!((m.presses, m.fabrics), (4, 2));
+        let q = index
+            .project(&vec![1.0 / (index.dim as f32).sqrt(); index.dim])
+            .into_owned();
+        assert!((q.iter().map(|x| x * x).sum::<f32>() - 1.0).abs() < 1e-4);
+        // --no-metric: plain cosine, a version-1 file.
+        let plain = dir.path().join("plain.tlxi");
+        let a = Cli::try_parse_from([
+            "index-build",
+            "--model",
+            model.to_str().unwrap(),
+            "--presses",
+            rec.to_str().unwrap(),
+            "--no-metric",
+            "-o",
+            plain.to_str().unwrap(),
+        ])
+        .unwrap()
+        .b;
+        build(a).unwrap();
+        let plain = Index::read(&plain).unwrap();
+        assert!(plain.metric.is_none());
+        assert_eq!(plain.entries.len(), 2);
     }
 
     /// Catalogue-2 recordings take their names and attributes from

@@ -58,7 +58,11 @@ impl Demo {
         let idx = self.index.clone();
         let target = self.rng.gen_range(0..idx.entries.len());
         let dim = idx.dim;
-        let centre = &idx.entries[target].centroid;
+        // The centroid lives in the index's space; the demo's queries are
+        // encoder embeddings, as a sender's are.
+        let centre = &idx
+            .query_for(&idx.entries[target].centroid)
+            .unwrap_or_else(|| idx.entries[target].centroid.clone());
         // A random start direction: the first frames of a press are far from
         // any textile; the running mean then settles on the one pressed.
         let start: Vec<f32> = (0..dim).map(|_| self.rng.gen_range(-1.0f32..1.0)).collect();
@@ -297,6 +301,38 @@ pub fn catalogue_index(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// With a learned distance, the index's centroids are not encoder
+    /// embeddings; the demo's presses still end on the textile pressed.
+    #[test]
+    fn demo_presses_land_on_their_textile_in_an_index_with_a_metric() {
+        let mut index = catalogue_index(Some(30), 8, 1).unwrap();
+        let dim = index.dim;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let groups: Vec<Vec<Vec<f32>>> = (0..6)
+            .map(|_| {
+                (0..4)
+                    .map(|_| (0..dim).map(|_| rng.gen_range(-1.0f32..1.0)).collect())
+                    .collect()
+            })
+            .collect();
+        index.metric = telextiles_index::Metric::within_fabric(&groups, dim, 0.3);
+        assert!(index.metric.is_some());
+        let index = Arc::new(index);
+        let mut demo = Demo::new(index.clone(), 7);
+        for _ in 0..6 {
+            let (target, evs) = demo.next_press();
+            let last = evs
+                .iter()
+                .rev()
+                .find_map(|t| match &t.event {
+                    MapEvent::Touch { latent, .. } => Some(latent),
+                    _ => None,
+                })
+                .unwrap();
+            assert_eq!(index.nearest(last).unwrap().best, target);
+        }
+    }
 
     #[test]
     fn demo_presses_decide_the_pressed_textile_and_turn_the_roller_there() {
