@@ -439,6 +439,21 @@ struct SplitArgs {
     /// threshold, two frames sooner.
     #[arg(long)]
     encode_run: bool,
+    /// The decider's indexes learn a distance from their presses, with
+    /// this shrinkage (within-fabric whitening, as `telextilesd index
+    /// build --presses` does by default; without a value 0.5). Without
+    /// the flag: cosine distance.
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.5", value_parser = shrinkage)]
+    index_metric: Option<f32>,
+}
+
+fn shrinkage(s: &str) -> Result<f32, String> {
+    let a: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if (0.0..=1.0).contains(&a) {
+        Ok(a)
+    } else {
+        Err(format!("{a} is outside 0..=1"))
+    }
 }
 
 impl SplitArgs {
@@ -455,7 +470,10 @@ impl SplitArgs {
     }
 
     fn given(&self) -> bool {
-        self.split.is_some() || self.index_presses.is_some() || self.encode_run
+        self.split.is_some()
+            || self.index_presses.is_some()
+            || self.encode_run
+            || self.index_metric.is_some()
     }
 }
 
@@ -951,6 +969,7 @@ fn eval(a: EvalArgs) -> Result<()> {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.encode_run = a.recorded.encode_run;
+        cfg.metric = a.recorded.index_metric;
         cfg.threads = 1;
         cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
@@ -1016,6 +1035,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.encode_run = a.recorded.encode_run;
+        cfg.metric = a.recorded.index_metric;
         cfg.threads = 1;
         cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();

@@ -545,6 +545,10 @@ pub struct StudyConfig {
     /// Encode the run of frames that starts each press too
     /// (`FrontEnd::set_encode_run`; off, as in the daemon).
     pub encode_run: bool,
+    /// The decider's indexes learn a distance from their presses with this
+    /// shrinkage, as `index build --presses` does by default
+    /// (`IndexBuilder::metric_shrinkage`); None: cosine distance.
+    pub metric: Option<f32>,
 }
 
 impl StudyConfig {
@@ -564,6 +568,7 @@ impl StudyConfig {
             ],
             contact: ContactConfig::default(),
             encode_run: false,
+            metric: None,
         }
     }
 }
@@ -670,6 +675,9 @@ pub struct StudyReport {
     /// The run of frames that starts each press was encoded too.
     #[serde(default)]
     pub encode_run: bool,
+    /// The decider's indexes learned a distance with this shrinkage.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub index_metric: Option<f32>,
     /// Textiles (class order of the confusion matrices).
     pub textiles: Vec<String>,
     pub recordings: Vec<RecordingRow>,
@@ -833,6 +841,7 @@ fn press_index(
     textiles: &[String],
     presses: impl Iterator<Item = usize>,
     exemplars: bool,
+    metric: Option<f32>,
 ) -> Option<Index> {
     // Per textile: its frames' embeddings, and its presses' means.
     type Rows = Vec<Vec<f32>>;
@@ -845,15 +854,13 @@ fn press_index(
         }
         dim = e.dim;
         let slot = &mut per[class_of[i] as usize];
-        if exemplars {
-            let mut mean = vec![0f32; e.dim];
-            for k in 0..e.len() {
-                for (a, v) in mean.iter_mut().zip(e.row(k)) {
-                    *a += v / e.len() as f32;
-                }
+        let mut mean = vec![0f32; e.dim];
+        for k in 0..e.len() {
+            for (a, v) in mean.iter_mut().zip(e.row(k)) {
+                *a += v / e.len() as f32;
             }
-            slot.1.push(mean);
         }
+        slot.1.push(mean);
         slot.0.extend((0..e.len()).map(|k| e.row(k).to_vec()));
     }
     let mut builder = IndexBuilder::new("", "lab", dim, 0);
@@ -876,6 +883,8 @@ fn press_index(
         n += 1;
     }
     builder.roller_n = n.min(16);
+    builder.keep_exemplars = exemplars;
+    builder.metric_shrinkage = metric;
     builder.build().ok()
 }
 
@@ -953,8 +962,17 @@ fn score(
             .copied()
             .filter(move |&i| roles[i] != Role::Query && Some(i) != except)
     };
-    let fixed_indexes = [false, true]
-        .map(|x| press_index(processed, m, class_of, textiles, index_presses(None), x));
+    let fixed_indexes = [false, true].map(|x| {
+        press_index(
+            processed,
+            m,
+            class_of,
+            textiles,
+            index_presses(None),
+            x,
+            cfg.metric,
+        )
+    });
     let mut sc = Score {
         per_class: textiles
             .iter()
@@ -994,8 +1012,17 @@ fn score(
         // centroids, and centroids with per-press exemplars.
         let own;
         let indexes = if lopo {
-            own = [false, true]
-                .map(|x| press_index(processed, m, class_of, textiles, index_presses(Some(q)), x));
+            own = [false, true].map(|x| {
+                press_index(
+                    processed,
+                    m,
+                    class_of,
+                    textiles,
+                    index_presses(Some(q)),
+                    x,
+                    cfg.metric,
+                )
+            });
             &own
         } else {
             &fixed_indexes
@@ -1349,6 +1376,7 @@ pub fn score_all(
         split_text: cfg.split.describe(),
         frames_per_press: cfg.frames_per_press,
         encode_run: cfg.encode_run,
+        index_metric: cfg.metric,
         textiles,
         recordings,
         fps,
@@ -1476,6 +1504,10 @@ pub fn markdown(r: &StudyReport) -> String {
             ""
         },
     ));
+    s.push_str(&match r.index_metric {
+        Some(a) => format!("The decider's indexes learn a distance from their presses (`--index-metric {a}`: within-fabric whitening, shrinkage {a}, as `telextilesd index build --presses` does by default).\n\n"),
+        None => "The decider's indexes use cosine distance (no `--index-metric`; `telextilesd index build --presses --no-metric`).\n\n".into(),
+    });
     let skipped: Vec<&RecordingRow> = r
         .recordings
         .iter()
@@ -2017,6 +2049,46 @@ mod tests {
         assert_eq!((m.unknown_flagged, m.unknown_flagged_exemplars), (1, 0));
         let md = markdown(&r);
         assert!(md.contains("| 50.0% | 1 | 50.0% | 0 |"), "{md}");
+    }
+
+    #[test]
+    fn the_decider_s_indexes_learn_a_distance_with_index_metric() {
+        // Presses of a and of b differ along y, c's a little along x: a's
+        // query leans along y, towards c in cosine distance. The distance
+        // learned from the index presses scales y down: a.
+        let processed = vec![
+            embedded("a", &[[1.0, 0.5]; 5]),
+            embedded("a", &[[1.0, -0.5]; 5]),
+            embedded("a", &[[0.35, 1.0]; 10]),
+            embedded("b", &[[-1.0, 0.5]; 5]),
+            embedded("b", &[[-1.0, -0.5]; 5]),
+            embedded("b", &[[-1.0, 0.1]; 10]),
+            embedded("c", &[[0.1, 1.0]; 5]),
+            embedded("c", &[[-0.1, 1.0]; 5]),
+            embedded("c", &[[0.0, 1.0]; 10]),
+        ];
+        let methods = one_method();
+        let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
+        cfg.runs = 0;
+        let decided = |cfg: &StudyConfig| {
+            let r = score_all(cfg, &methods, &[], &processed).unwrap();
+            let d: Vec<(String, String)> = r.methods[0]
+                .decisions
+                .iter()
+                .map(|d| (d.decider.clone(), d.decider_exemplars.clone()))
+                .collect();
+            (d, markdown(&r), r.index_metric)
+        };
+        let (cosine, md, metric) = decided(&cfg);
+        assert_eq!(cosine[0], ("c".into(), "c".into()));
+        assert_eq!(metric, None);
+        assert!(md.contains("use cosine distance"), "{md}");
+        cfg.metric = Some(0.1);
+        let (learned, md, metric) = decided(&cfg);
+        assert_eq!(learned[0], ("a".into(), "a".into()));
+        assert_eq!(&learned[1..], &cosine[1..]);
+        assert_eq!(metric, Some(0.1));
+        assert!(md.contains("`--index-metric 0.1`"), "{md}");
     }
 
     #[test]
