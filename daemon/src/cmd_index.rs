@@ -305,7 +305,7 @@ fn build(a: BuildArgs) -> Result<()> {
     }
     index.write(&a.out)?;
     println!(
-        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, {}, fingerprint {})",
+        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, distance {}, fingerprint {})",
         a.out.display(),
         index.entries.len(),
         index.dim,
@@ -355,10 +355,10 @@ fn learn_metric(a: &BuildArgs) -> bool {
 fn metric_summary(index: &Index) -> String {
     match &index.metric {
         Some(m) => format!(
-            "distance learned from {} presses of {} fabrics (shrinkage {})",
+            "learned from {} presses of {} fabrics (shrinkage {})",
             m.presses, m.fabrics, m.shrinkage
         ),
-        None => "cosine distance".into(),
+        None => "cosine".into(),
     }
 }
 
