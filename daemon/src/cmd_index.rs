@@ -681,21 +681,23 @@ mod tests {
             r#"{"id": "silk", "name": "silk"}"#,
         )
         .unwrap();
-        let out = dir.path().join("my.tlxi");
         let model = fixture_model();
-        let a = Cli::try_parse_from([
-            "index-build",
-            "--model",
-            model.to_str().unwrap(),
-            "--presses",
-            rec.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-        ])
-        .unwrap()
-        .b;
-        build(a).unwrap();
-        let index = Index::read(&out).unwrap();
+        // `index build --presses rec` with more flags, read back.
+        let build_with = |name: &str, flags: &[&str]| {
+            let out = dir.path().join(name);
+            let args = [
+                "index-build",
+                "--model",
+                model.to_str().unwrap(),
+                "--presses",
+                rec.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ];
+            build(Cli::try_parse_from(args.iter().chain(flags)).unwrap().b).unwrap();
+            Index::read(&out).unwrap()
+        };
+        let index = build_with("my.tlxi", &[]);
         assert_eq!(index.roller.n(), 2);
         let names: Vec<(&str, &str)> = index
             .entries
@@ -712,22 +714,8 @@ mod tests {
             .project(&vec![1.0 / (index.dim as f32).sqrt(); index.dim])
             .into_owned();
         assert!((q.iter().map(|x| x * x).sum::<f32>() - 1.0).abs() < 1e-4);
-        // --no-metric: plain cosine, a version-1 file.
-        let plain = dir.path().join("plain.tlxi");
-        let a = Cli::try_parse_from([
-            "index-build",
-            "--model",
-            model.to_str().unwrap(),
-            "--presses",
-            rec.to_str().unwrap(),
-            "--no-metric",
-            "-o",
-            plain.to_str().unwrap(),
-        ])
-        .unwrap()
-        .b;
-        build(a).unwrap();
-        let plain = Index::read(&plain).unwrap();
+        // --no-metric: plain cosine.
+        let plain = build_with("plain.tlxi", &["--no-metric"]);
         assert!(plain.metric.is_none());
         assert_eq!(plain.entries.len(), 2);
     }
