@@ -590,13 +590,15 @@ mod tests {
         assert!(sim_protocol(&none, None).is_err());
     }
 
+    /// `index build --model m.onnx` with these arguments, parsed.
+    fn parse(args: &[&str]) -> BuildArgs {
+        Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
+            .unwrap()
+            .b
+    }
+
     #[test]
     fn own_recordings_learn_a_distance_by_default() {
-        let parse = |args: &[&str]| {
-            Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
-                .unwrap()
-                .b
-        };
         assert!(learn_metric(&parse(&["--presses", "r"])));
         assert!(!learn_metric(&parse(&["--presses", "r", "--no-metric"])));
         assert!(!learn_metric(&parse(&["--sim"])));
@@ -616,11 +618,6 @@ mod tests {
 
     #[test]
     fn own_recordings_keep_per_press_exemplars_by_default() {
-        let parse = |args: &[&str]| {
-            Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args))
-                .unwrap()
-                .b
-        };
         assert!(keep_exemplars(&parse(&["--presses", "r"])));
         assert!(!keep_exemplars(&parse(&[
             "--presses",
