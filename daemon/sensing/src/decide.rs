@@ -12,8 +12,9 @@
 //! least two frames) in a row (hysteresis: no flip-flop between two close
 //! textiles). Durations, not frame counts, so a 25 fps sensor decides as
 //! soon as a 60 fps one; timestamps are the frames' own. A textile further
-//! than `unknown_distance` from everything is reported as its nearest known
-//! textile with `unknown = true`.
+//! than the unknown-textile distance from everything (the index's own,
+//! calibrated on its presses, or `unknown_distance`) is reported as its
+//! nearest known textile with `unknown = true`.
 //!
 //! Confidence is `(d2 - d1) / d2` in 0..=1, where `d1` is the distance to
 //! the decided textile and `d2` to the nearest other one: 0 for a tie, 1 for
@@ -52,6 +53,12 @@ pub trait TextileIndex {
     fn distance(&self, entry: usize, q: &[f32]) -> f32;
     /// Nearest roller slot for an entry.
     fn slot_of(&self, entry: usize) -> usize;
+    /// The index's own unknown-textile distance (calibrated on its presses),
+    /// if it has one; the decider's [`DecideConfig::unknown_distance`]
+    /// otherwise.
+    fn unknown_distance(&self) -> Option<f32> {
+        None
+    }
     /// Nearest and second-nearest entries; None for a query of another
     /// dimension, a non-finite one, or an empty index.
     fn nearest2(&self, q: &[f32]) -> Option<Nearest2> {
@@ -93,6 +100,9 @@ impl TextileIndex for telextiles_index::Index {
     }
     fn slot_of(&self, entry: usize) -> usize {
         self.slot_of_entry(entry)
+    }
+    fn unknown_distance(&self) -> Option<f32> {
+        telextiles_index::Index::unknown_distance(self)
     }
     fn nearest2(&self, q: &[f32]) -> Option<Nearest2> {
         self.nearest(q).map(|n| Nearest2 {
@@ -315,7 +325,9 @@ pub struct DecideConfig {
     pub switch_margin: f32,
     /// Milliseconds the challenger must lead by `switch_margin`.
     pub switch_ms: f32,
-    /// Beyond this distance the nearest known textile is flagged unknown.
+    /// Beyond this distance the nearest known textile is flagged unknown,
+    /// unless the index has its own ([`TextileIndex::unknown_distance`],
+    /// calibrated on the presses it was built from).
     pub unknown_distance: f32,
     /// How steeply the running mean favours the press's deepest frames: a
     /// frame of weight `w` ([`contact_weight`]) counts `(w / w_max)^depth_power`,
@@ -363,7 +375,8 @@ pub struct Decision {
     pub margin: f32,
     /// `(d2 - d1) / d2`, clamped to 0..=1.
     pub confidence: f32,
-    /// Further than `unknown_distance` from every known textile.
+    /// Further than the unknown-textile distance (the index's own, or
+    /// `unknown_distance`) from every known textile.
     pub unknown: bool,
     /// When this decision was first made (frame timestamp).
     pub since_us: u64,
@@ -630,7 +643,10 @@ impl Decider {
             distance: d1,
             margin: if margin.is_finite() { margin } else { f32::MAX },
             confidence,
-            unknown: d1 > self.cfg.unknown_distance,
+            unknown: d1
+                > index
+                    .unknown_distance()
+                    .unwrap_or(self.cfg.unknown_distance),
             since_us,
         }
     }

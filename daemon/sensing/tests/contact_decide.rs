@@ -376,6 +376,63 @@ fn far_textiles_get_the_nearest_known_flagged_unknown() {
     assert!(dec.confidence >= 0.0 && dec.confidence <= 1.0);
 }
 
+/// An index that carries its own unknown-textile distance (calibrated on
+/// its presses) overrides the decider's fixed one, both ways.
+#[test]
+fn the_index_s_own_unknown_distance_overrides_the_fixed_one() {
+    let mut b = telextiles_index::IndexBuilder::new("h", "test", 8, 0);
+    for k in 0..4 {
+        let mut v = vec![0f32; 8];
+        v[k] = 1.0;
+        b.add(telextiles_index::TextileRecord {
+            id: format!("T{k}"),
+            name: String::new(),
+            seen: true,
+            structure: String::new(),
+            attributes: vec![],
+            embeddings: vec![v],
+            exemplars: vec![],
+        })
+        .unwrap();
+    }
+    b.roller_n = 4;
+    let mut index = b.build().unwrap();
+    let decide = |index: &telextiles_index::Index, q: &[f32]| {
+        let mut d = Decider::new(DecideConfig::default(), 8);
+        d.press_start(0);
+        let mut last = None;
+        for t in 1..20 {
+            last = d
+                .on_embedding(index, t * 16_667, q)
+                .unwrap()
+                .decision
+                .or(last);
+        }
+        let dec = last.unwrap();
+        assert_eq!(index.id(dec.entry), "T0");
+        dec
+    };
+    // About 0.3 from T0: known under the fixed 0.5.
+    let near = unit(&[1.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // About 0.8 from T0: unknown under the fixed 0.5.
+    let far = unit(&[1.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    assert!(!decide(&index, &near).unknown);
+    assert!(decide(&index, &far).unknown);
+    let calibrated = |distance| telextiles_index::UnknownDistance {
+        distance,
+        quantile: 0.95,
+        presses: 20,
+    };
+    index.unknown = Some(calibrated(0.2));
+    let dec = decide(&index, &near);
+    assert!(
+        dec.unknown && dec.distance > 0.2 && dec.distance < 0.5,
+        "{dec:?}"
+    );
+    index.unknown = Some(calibrated(1.0));
+    assert!(!decide(&index, &far).unknown);
+}
+
 /// Whatever a peer sends: an embedding of another dimension, with NaN or
 /// infinity, or all zeros is refused (None) and leaves the press as it was;
 /// decisions go on with the next good one.

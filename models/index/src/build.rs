@@ -2,8 +2,8 @@
 
 use crate::map::{self, MapLayout};
 use crate::select::{self, SelectionMethod};
-use crate::vecmath::{l2_normalise, normalised_mean};
-use crate::{Entry, Index, IndexError, Metric, RollerLayout};
+use crate::vecmath::{distance, l2_normalise, normalised_mean};
+use crate::{Entry, Index, IndexError, Metric, RollerLayout, UnknownDistance};
 
 /// Everything known about one textile before it goes into the index.
 #[derive(Clone, Debug)]
@@ -46,7 +46,22 @@ pub struct IndexBuilder {
     /// plain cosine distance. Without two presses of some fabric there is
     /// nothing to learn and the index has no metric.
     pub metric_shrinkage: Option<f32>,
+    /// Calibrate the index's unknown-textile distance on the records'
+    /// per-press embeddings: the share `q` (0 < q <= 1) of presses that
+    /// should count as known, leaving each out in turn
+    /// ([`press_distances`]); None (the default): no calibrated distance,
+    /// the decider's fixed one. Without [`MIN_CALIBRATION_PRESSES`] presses
+    /// of fabrics with two or more the index has none.
+    pub unknown_quantile: Option<f32>,
 }
+
+/// The quantile `telextilesd index build --presses` calibrates at by
+/// default (docs/recording.md, "Telling a fabric the index does not have").
+pub const DEFAULT_UNKNOWN_QUANTILE: f32 = 0.9;
+
+/// The fewest left-out press distances an unknown-textile distance is
+/// calibrated on.
+pub const MIN_CALIBRATION_PRESSES: usize = 4;
 
 impl IndexBuilder {
     /// A builder for embeddings of dimension `dim` from the encoder whose
@@ -63,6 +78,7 @@ impl IndexBuilder {
             seed: 0,
             keep_exemplars: true,
             metric_shrinkage: None,
+            unknown_quantile: None,
         }
     }
 
@@ -101,7 +117,27 @@ impl IndexBuilder {
     /// (the physical samples come from the training book), or among all if
     /// none is marked seen.
     pub fn build(self) -> Result<Index, IndexError> {
+        let measure = self.unknown_quantile.is_some();
+        self.build_inner(measure).map(|(index, _)| index)
+    }
+
+    /// [`IndexBuilder::build`], also returning the left-out press distances
+    /// the unknown-textile distance is (or would be) calibrated on, sorted
+    /// ([`press_distances`]; computed whether or not `unknown_quantile` is
+    /// set, so a study can try several quantiles on one build).
+    pub fn build_calibrated(self) -> Result<(Index, Vec<f32>), IndexError> {
+        self.build_inner(true)
+    }
+
+    fn build_inner(self, measure: bool) -> Result<(Index, Vec<f32>), IndexError> {
         let dim = self.dim;
+        if let Some(q) = self.unknown_quantile {
+            if !(q > 0.0 && q <= 1.0) {
+                return Err(IndexError::Invalid(format!(
+                    "unknown-textile quantile {q} is outside (0, 1]"
+                )));
+            }
+        }
         let metric = match self.metric_shrinkage {
             Some(a) if !(0.0..=1.0).contains(&a) => {
                 return Err(IndexError::Invalid(format!(
@@ -125,6 +161,27 @@ impl IndexBuilder {
             }
         };
         let keep_exemplars = self.keep_exemplars;
+        let press_d = if !measure {
+            Vec::new()
+        } else {
+            press_distances(
+                &self
+                    .records
+                    .iter()
+                    .map(|r| r.exemplars.clone())
+                    .collect::<Vec<_>>(),
+                dim,
+                keep_exemplars,
+                self.metric_shrinkage,
+            )
+        };
+        let unknown = self.unknown_quantile.and_then(|q| {
+            Some(UnknownDistance {
+                distance: calibrated_distance(&press_d, q)?,
+                quantile: q,
+                presses: press_d.len() as u32,
+            })
+        });
         let entries: Vec<Entry> = self
             .records
             .into_iter()
@@ -189,11 +246,151 @@ impl IndexBuilder {
                 place_k: 3,
             },
             metric,
+            unknown,
         };
         for (e, p) in index.entries.iter_mut().zip(xy) {
             e.map_xy = [p[0], p[1]];
         }
         index.validate()?;
-        Ok(index)
+        Ok((index, press_d))
+    }
+}
+
+/// How many folds [`press_distances`] leaves out in turn, at most.
+pub const MAX_CALIBRATION_FOLDS: usize = 4;
+
+/// Left-out press distances, sorted: what a new press of a known fabric is
+/// likely to be from that fabric's entry, measured on the owner's own
+/// presses. `fabrics`: each fabric's per-press embeddings (encoder space).
+/// The presses are dealt into folds (press `i` of a fabric into fold
+/// `i mod F`, `F` = the most presses of a fabric, at most
+/// [`MAX_CALIBRATION_FOLDS`]); for each fold the index is made again without
+/// it, its metric learned again with `shrinkage` when given (a metric
+/// learned with the press in it would flatter it: whitening shrinks the
+/// directions its own presses vary in), and every left-out press of a
+/// fabric with another press left in is measured to that fabric's entry:
+/// the normalised mean of its remaining presses, or (with `exemplars`) the
+/// nearest of that and the remaining presses. (The entry's real centroid is
+/// the mean of its frames, not of its presses' means; with presses of equal
+/// frame counts the two agree.)
+pub fn press_distances(
+    fabrics: &[Vec<Vec<f32>>],
+    dim: usize,
+    exemplars: bool,
+    shrinkage: Option<f32>,
+) -> Vec<f32> {
+    let folds = fabrics
+        .iter()
+        .map(Vec::len)
+        .max()
+        .unwrap_or(0)
+        .min(MAX_CALIBRATION_FOLDS);
+    let fabrics: Vec<Vec<&Vec<f32>>> = fabrics
+        .iter()
+        .map(|f| f.iter().filter(|v| v.len() == dim).collect())
+        .collect();
+    let mut out = Vec::new();
+    for fold in 0..folds {
+        let kept: Vec<Vec<Vec<f32>>> = fabrics
+            .iter()
+            .map(|f| {
+                f.iter()
+                    .enumerate()
+                    .filter(|&(i, _)| i % folds != fold)
+                    .map(|(_, v)| v.to_vec())
+                    .collect()
+            })
+            .collect();
+        let metric = shrinkage.and_then(|a| Metric::within_fabric(&kept, dim, a));
+        let map_in = |v: &[f32]| match &metric {
+            Some(m) => m.apply(v),
+            None => {
+                let mut v = v.to_vec();
+                l2_normalise(&mut v);
+                v
+            }
+        };
+        for (f, k) in fabrics.iter().zip(&kept) {
+            if k.is_empty() {
+                continue;
+            }
+            let others: Vec<Vec<f32>> = k.iter().map(|v| map_in(v)).collect();
+            let centroid = normalised_mean(&others, dim);
+            for (_, p) in f.iter().enumerate().filter(|&(i, _)| i % folds == fold) {
+                let p = map_in(p);
+                let mut d = distance(&p, &centroid);
+                if exemplars {
+                    for o in &others {
+                        d = d.min(distance(&p, o));
+                    }
+                }
+                if d.is_finite() {
+                    out.push(d);
+                }
+            }
+        }
+    }
+    out.sort_by(f32::total_cmp);
+    out
+}
+
+/// The nearest-rank `q` quantile of sorted left-out distances, as an
+/// unknown-textile distance: None with fewer than
+/// [`MIN_CALIBRATION_PRESSES`] distances, for `q` outside (0, 1], or when
+/// the quantile is 0 (presses that do not differ at all say nothing about
+/// how far a new one may be).
+pub fn calibrated_distance(sorted: &[f32], q: f32) -> Option<f32> {
+    if sorted.len() < MIN_CALIBRATION_PRESSES || !(q > 0.0 && q <= 1.0) {
+        return None;
+    }
+    let rank = ((q as f64 * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
+    let t = sorted[rank - 1];
+    (t > 0.0 && t <= 2.0).then_some(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit(a: f32) -> Vec<f32> {
+        vec![a.cos(), a.sin()]
+    }
+
+    #[test]
+    fn left_out_distances_measure_each_press_from_the_others() {
+        // Three presses of one fabric at -0.1, 0 and 0.1 rad; a fabric with
+        // one press adds nothing.
+        let d = press_distances(
+            &[vec![unit(-0.1), unit(0.0), unit(0.1)], vec![unit(2.0)]],
+            2,
+            false,
+            None,
+        );
+        assert_eq!(d.len(), 3);
+        // The middle press is at the others' mean; each outer one is 0.15 rad
+        // from the mean of the middle and the other outer (0.05 rad).
+        let chord = |a: f32| 2.0 * (a / 2.0).sin();
+        assert!(d[0].abs() < 1e-6, "{d:?}");
+        assert!(
+            (d[1] - chord(0.15)).abs() < 1e-5 && (d[2] - chord(0.15)).abs() < 1e-5,
+            "{d:?}"
+        );
+        // With exemplars, each outer press is 0.1 rad from the middle one.
+        let e = press_distances(&[vec![unit(-0.1), unit(0.0), unit(0.1)]], 2, true, None);
+        assert!((e[2] - chord(0.1)).abs() < 1e-5, "{e:?}");
+    }
+
+    #[test]
+    fn the_calibrated_distance_is_a_nearest_rank_quantile() {
+        let d: Vec<f32> = (1..=20).map(|i| i as f32 / 100.0).collect();
+        assert_eq!(calibrated_distance(&d, 0.95), Some(0.19));
+        assert_eq!(calibrated_distance(&d, 1.0), Some(0.2));
+        assert_eq!(calibrated_distance(&d, 0.5), Some(0.1));
+        assert_eq!(calibrated_distance(&d, 0.001), Some(0.01));
+        assert_eq!(calibrated_distance(&d, 0.0), None);
+        assert_eq!(calibrated_distance(&d, 1.5), None);
+        assert_eq!(calibrated_distance(&d, f32::NAN), None);
+        assert_eq!(calibrated_distance(&d[..3], 0.95), None);
+        assert_eq!(calibrated_distance(&[0.0; 8], 0.95), None);
     }
 }

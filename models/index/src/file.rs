@@ -4,20 +4,25 @@
 //! payload, so any change of content changes it.
 //!
 //! Version 1's payload is the [`Index`] without a metric; version 2's is the
-//! index followed by its [`Metric`](crate::Metric). An index without a metric
-//! is written as version 1, byte for byte as before version 2 existed (same
-//! fingerprint, readable by older builds); this build reads both.
+//! index followed by its [`Metric`](crate::Metric); version 3's is the index
+//! followed by its optional metric and its optional calibrated
+//! unknown-textile distance. Each index is written in the oldest version
+//! that holds it: without either as version 1, byte for byte as before
+//! version 2 existed (same fingerprint, readable by older builds); with a
+//! metric only as version 2; with a calibrated distance as version 3. This
+//! build reads all three.
 
-use crate::{Index, Metric};
+use crate::{Index, Metric, UnknownDistance};
 use sha2::{Digest, Sha256};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"TLXI";
-/// Newest format version (an index with a metric); an index without one is
-/// written as version 1.
-pub const FORMAT_VERSION: u32 = 2;
+/// Newest format version (an index with a calibrated unknown-textile
+/// distance); older indexes are written in the oldest version that holds
+/// them (see the module docs).
+pub const FORMAT_VERSION: u32 = 3;
 const HEADER: usize = 4 + 4 + 8;
 const MAX_PAYLOAD: u64 = 256 << 20;
 
@@ -81,18 +86,19 @@ fn config() -> impl bincode::config::Config {
 }
 
 pub(crate) fn payload(index: &Index) -> Vec<u8> {
-    match &index.metric {
-        None => bincode::serde::encode_to_vec(index, config()),
-        Some(m) => bincode::serde::encode_to_vec((index, m), config()),
+    match (&index.metric, index.unknown) {
+        (None, None) => bincode::serde::encode_to_vec(index, config()),
+        (Some(m), None) => bincode::serde::encode_to_vec((index, m), config()),
+        (m, Some(t)) => bincode::serde::encode_to_vec((index, m, t), config()),
     }
     .expect("an index always encodes")
 }
 
 fn version_of(index: &Index) -> u32 {
-    if index.metric.is_some() {
-        2
-    } else {
-        1
+    match (&index.metric, index.unknown) {
+        (None, None) => 1,
+        (Some(_), None) => 2,
+        (_, Some(_)) => 3,
     }
 }
 
@@ -169,13 +175,22 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
         path: p(),
         why: format!("undecodable content: {e}"),
     };
-    let (index, used): (Index, usize) = if version == 1 {
-        bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?
-    } else {
-        let ((mut index, metric), used): ((Index, Metric), usize) =
-            bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
-        index.metric = Some(metric);
-        (index, used)
+    let (index, used): (Index, usize) = match version {
+        1 => bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?,
+        2 => {
+            let ((mut index, metric), used): ((Index, Metric), usize) =
+                bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
+            index.metric = Some(metric);
+            (index, used)
+        }
+        _ => {
+            type V3 = (Index, Option<Metric>, UnknownDistance);
+            let ((mut index, metric, unknown), used): (V3, usize) =
+                bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
+            index.metric = metric;
+            index.unknown = Some(unknown);
+            (index, used)
+        }
     };
     if used != payload.len() {
         return Err(IndexError::Corrupt {

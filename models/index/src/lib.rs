@@ -8,7 +8,9 @@
 //! An index built from several presses per fabric may carry a [`Metric`]
 //! learned from them (within-fabric whitening, [`metric`]): then its vectors
 //! live in the metric's space and every query method maps the query there
-//! first, so callers always pass encoder embeddings.
+//! first, so callers always pass encoder embeddings. It may also carry the
+//! distance beyond which a press is of a textile it does not know,
+//! calibrated on those presses ([`Index::unknown`]).
 //!
 //! Pure: no I/O except [`Index::read`] / [`Index::write`], which write
 //! atomically and reject truncated, corrupt or foreign files with a clear error.
@@ -91,6 +93,25 @@ pub struct Index {
     /// version 2; encoded after the rest, see `file.rs`).
     #[serde(skip)]
     pub metric: Option<Metric>,
+    /// The distance beyond which a press is of a textile the index does not
+    /// know, calibrated on the index's own presses
+    /// ([`IndexBuilder::unknown_quantile`]); None: the decider's fixed
+    /// default. File format version 3, encoded after the rest.
+    #[serde(skip)]
+    pub unknown: Option<UnknownDistance>,
+}
+
+/// An unknown-textile distance calibrated on an index's presses.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UnknownDistance {
+    /// Beyond this distance from every textile (in the index's space, after
+    /// the metric) a press is of a textile the index does not have.
+    pub distance: f32,
+    /// The share of the index's own presses, each measured with its fold
+    /// left out, within it ([`build::press_distances`]).
+    pub quantile: f32,
+    /// How many left-out press distances it was calibrated on.
+    pub presses: u32,
 }
 
 /// Result of a nearest-textile query.
@@ -193,6 +214,11 @@ impl Index {
         all
     }
 
+    /// The calibrated unknown-textile distance, if the index has one.
+    pub fn unknown_distance(&self) -> Option<f32> {
+        self.unknown.map(|u| u.distance)
+    }
+
     /// Roller slot whose textile is nearest to entry `entry`.
     pub fn slot_of_entry(&self, entry: usize) -> usize {
         self.roller.entry_slot[entry]
@@ -236,6 +262,21 @@ impl Index {
                 .any(|v| !v.is_finite())
             {
                 return bad(format!("textile {} has a non-finite embedding", e.id));
+            }
+        }
+        if let Some(u) = self.unknown {
+            // Distances between unit vectors lie in 0..=2.
+            let t = u.distance;
+            if !(t.is_finite() && t > 0.0 && t <= 2.0) {
+                return bad(format!(
+                    "the unknown-textile distance {t} is outside (0, 2]"
+                ));
+            }
+            if !(u.quantile > 0.0 && u.quantile <= 1.0) {
+                return bad(format!(
+                    "the unknown-textile distance's quantile {} is outside (0, 1]",
+                    u.quantile
+                ));
             }
         }
         if let Some(m) = &self.metric {

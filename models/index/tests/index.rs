@@ -225,12 +225,13 @@ proptest::proptest! {
         let _ = telextiles_index_from_bytes(&bytes);
     }
 
-    /// Past the checksum: a payload changed and re-summed (with a metric,
-    /// format version 2, and without) decodes to an error or to a valid
-    /// index that answers queries, never a panic.
+    /// Past the checksum: a payload changed and re-summed (format version 1,
+    /// 2 with a metric, 3 with a calibrated unknown-textile distance)
+    /// decodes to an error or to a valid index that answers queries, never
+    /// a panic.
     #[test]
-    fn decoder_never_panics_on_mutated_payloads(pos in 0usize..20000, val in proptest::num::u8::ANY, metric in proptest::bool::ANY) {
-        let index = nuisance_index(metric.then_some(0.5)).unwrap();
+    fn decoder_never_panics_on_mutated_payloads(pos in 0usize..20000, val in proptest::num::u8::ANY, version in 1u8..=3) {
+        let index = nuisance_index_with((version >= 2).then_some(0.5), (version == 3).then_some(0.95)).unwrap();
         let mut bytes = index_bytes(&index);
         let payload = 16..bytes.len() - 32;
         let p = payload.start + pos % payload.len();
@@ -297,6 +298,10 @@ fn nuisance_records() -> Vec<TextileRecord> {
 }
 
 fn nuisance_index(shrinkage: Option<f32>) -> Result<Index, IndexError> {
+    nuisance_index_with(shrinkage, None)
+}
+
+fn nuisance_index_with(shrinkage: Option<f32>, quantile: Option<f32>) -> Result<Index, IndexError> {
     let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
     for r in nuisance_records() {
         b.add(r).unwrap();
@@ -304,7 +309,121 @@ fn nuisance_index(shrinkage: Option<f32>) -> Result<Index, IndexError> {
     b.roller_n = 4;
     b.keep_exemplars = false;
     b.metric_shrinkage = shrinkage;
+    b.unknown_quantile = quantile;
     b.build()
+}
+
+/// A new press of fabric `t` drawn as the nuisance records' presses are
+/// (fabric 4 and above: fabrics the index does not have).
+fn nuisance_press(t: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<f32> {
+    let mut v = vec![0.0f32; DIM];
+    v[t] = 1.0;
+    for x in v.iter_mut().take(DIM - 1) {
+        *x += rng.gen_range(-0.05..0.05);
+    }
+    let lean = [1.0, -1.0].get(t).copied().unwrap_or(0.0);
+    v[DIM - 1] = lean + rng.gen_range(-0.6..0.6);
+    l2_normalise(&mut v);
+    v
+}
+
+#[test]
+fn an_unknown_textile_distance_calibrated_on_the_presses_tells_new_fabrics_from_known_ones() {
+    for shrinkage in [None, Some(0.5)] {
+        let index = nuisance_index_with(shrinkage, Some(0.95)).unwrap();
+        let u = index.unknown.expect("16 presses of 4 fabrics");
+        assert_eq!((u.quantile, u.presses), (0.95, 16));
+        let t = u.distance;
+        // The 0.95 quantile of the 16 left-out distances the builder reports.
+        let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
+        for r in nuisance_records() {
+            b.add(r).unwrap();
+        }
+        b.roller_n = 4;
+        b.keep_exemplars = false;
+        b.metric_shrinkage = shrinkage;
+        let (uncalibrated, d) = b.build_calibrated().unwrap();
+        assert_eq!(uncalibrated.unknown, None);
+        assert_eq!(d.len(), 16);
+        assert!(d.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(
+            Some(t),
+            telextiles_index::build::calibrated_distance(&d, 0.95)
+        );
+        assert_eq!(t, d[15]);
+        // New presses of known fabrics are mostly within it; presses of
+        // fabrics the index does not have are all beyond it.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let flagged = |t_fab: usize, rng: &mut rand_chacha::ChaCha8Rng| {
+            (0..50)
+                .filter(|_| {
+                    index
+                        .nearest(&nuisance_press(t_fab, rng))
+                        .unwrap()
+                        .best_dist
+                        > t
+                })
+                .count()
+        };
+        let known: usize = (0..4).map(|f| flagged(f, &mut rng)).sum();
+        let unseen: usize = (4..8).map(|f| flagged(f, &mut rng)).sum();
+        assert!(
+            known <= 20,
+            "{shrinkage:?}: {known} of 200 known presses flagged (t {t})"
+        );
+        assert_eq!(unseen, 200, "{shrinkage:?}: t {t}");
+    }
+    // Fewer than four left-out presses: nothing to calibrate on.
+    let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
+    for mut r in nuisance_records() {
+        r.exemplars.truncate(1);
+        b.add(r).unwrap();
+    }
+    b.roller_n = 4;
+    b.unknown_quantile = Some(0.95);
+    assert_eq!(b.build().unwrap().unknown, None);
+    // A quantile outside (0, 1] is an error.
+    for q in [0.0, 1.5, f32::NAN] {
+        assert!(matches!(
+            nuisance_index_with(None, Some(q)),
+            Err(IndexError::Invalid(_))
+        ));
+    }
+}
+
+#[test]
+fn an_index_with_an_unknown_textile_distance_is_format_version_3() {
+    let dir = tempfile::tempdir().unwrap();
+    for shrinkage in [None, Some(0.5)] {
+        let index = nuisance_index_with(shrinkage, Some(0.95)).unwrap();
+        let path = dir.path().join("v3.tlxi");
+        index.write(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(u32::from_le_bytes(bytes[4..8].try_into().unwrap()), 3);
+        let back = Index::read(&path).unwrap();
+        assert_eq!(back, index);
+        assert_eq!(back.metric.is_some(), shrinkage.is_some());
+        assert_eq!(back.fingerprint(), index.fingerprint());
+        // The distance is part of the content peers compare.
+        let mut other = index.clone();
+        other.unknown.as_mut().unwrap().distance += 1e-3;
+        assert_ne!(other.fingerprint(), index.fingerprint());
+        // One that is no distance between unit vectors is refused on write
+        // and on read.
+        for t in [0.0, -0.1, 2.5, f32::NAN, f32::INFINITY] {
+            let mut bad = index.clone();
+            bad.unknown.as_mut().unwrap().distance = t;
+            assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))), "{t}");
+            let path = dir.path().join("bad.tlxi");
+            assert!(bad.write(&path).is_err());
+            std::fs::write(&path, telextiles_index::to_bytes(&bad)).unwrap();
+            let e = Index::read(&path).unwrap_err();
+            assert!(e.to_string().contains("unknown-textile distance"), "{e}");
+        }
+        let mut bad = index.clone();
+        bad.unknown.as_mut().unwrap().quantile = 0.0;
+        assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))));
+    }
 }
 
 #[test]
