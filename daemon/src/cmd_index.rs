@@ -78,6 +78,22 @@ pub struct BuildArgs {
     /// plain cosine).
     #[arg(long, default_value_t = telextiles_index::metric::DEFAULT_SHRINKAGE)]
     pub metric_shrinkage: f32,
+    /// Calibrate the distance beyond which a press is of a fabric the index
+    /// does not have on the presses themselves (how far each of your
+    /// presses is from its fabric, with it left out; needs 4 such presses).
+    /// The default with --presses; off by default with --sim, whose index
+    /// keeps the decider's fixed distance.
+    #[arg(long, conflicts_with = "no_calibrate_unknown")]
+    pub calibrate_unknown: bool,
+    /// Keep the decider's fixed unknown-textile distance, also with
+    /// --presses.
+    #[arg(long)]
+    pub no_calibrate_unknown: bool,
+    /// The share of your own presses that must count as known (0 < Q <= 1):
+    /// higher flags fewer presses of known fabrics, and fewer of fabrics
+    /// the index does not have.
+    #[arg(long, default_value_t = telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE, value_parser = quantile)]
+    pub unknown_quantile: f32,
     /// Use every n-th contact frame.
     #[arg(long, default_value_t = 4)]
     pub stride: usize,
@@ -290,6 +306,7 @@ fn build(a: BuildArgs) -> Result<()> {
     builder.seed = a.seed;
     builder.keep_exemplars = keep_exemplars(&a);
     builder.metric_shrinkage = learn_metric(&a).then_some(a.metric_shrinkage);
+    builder.unknown_quantile = calibrate_unknown(&a).then_some(a.unknown_quantile);
     for (id, (embs, means)) in by_textile {
         builder.add(record(
             &cat,
@@ -305,18 +322,25 @@ fn build(a: BuildArgs) -> Result<()> {
     }
     index.write(&a.out)?;
     println!(
-        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, distance {}, fingerprint {})",
+        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, distance {}, unknown beyond {}, fingerprint {})",
         a.out.display(),
         index.entries.len(),
         index.dim,
         index.roller.n(),
         index.roller.method,
         metric_summary(&index),
+        unknown_summary(&index),
         &index.fingerprint()[..16]
     );
     if learn_metric(&a) && index.metric.is_none() {
         eprintln!(
             "note: no fabric has two presses with contact, so the index keeps plain cosine distance"
+        );
+    }
+    if calibrate_unknown(&a) && index.unknown.is_none() {
+        eprintln!(
+            "note: fewer than {} presses of fabrics pressed twice or more, so the index keeps the decider's fixed unknown-textile distance",
+            telextiles_index::build::MIN_CALIBRATION_PRESSES
         );
     }
     // Unseen textiles (not in the index) as the roller has to cover them:
@@ -359,6 +383,37 @@ fn metric_summary(index: &Index) -> String {
             m.presses, m.fabrics, m.shrinkage
         ),
         None => "cosine".into(),
+    }
+}
+
+/// Whether the index calibrates its unknown-textile distance (see
+/// `--calibrate-unknown`).
+fn calibrate_unknown(a: &BuildArgs) -> bool {
+    a.calibrate_unknown || (a.presses.is_some() && !a.no_calibrate_unknown)
+}
+
+fn quantile(s: &str) -> Result<f32, String> {
+    let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if q > 0.0 && q <= 1.0 {
+        Ok(q)
+    } else {
+        Err(format!("{q} is outside (0, 1]"))
+    }
+}
+
+/// Where the index's unknown textiles begin, in words.
+fn unknown_summary(index: &Index) -> String {
+    match index.unknown {
+        Some(u) => format!(
+            "{:.3} (calibrated: {:.0} % of {} presses of known fabrics within it)",
+            u.distance,
+            100.0 * u.quantile,
+            u.presses
+        ),
+        None => format!(
+            "{} (the decider's fixed distance)",
+            telextiles_sensing::decide::DecideConfig::default().unknown_distance
+        ),
     }
 }
 
@@ -480,6 +535,9 @@ fn inspect(a: InspectArgs) -> Result<()> {
             "metric": index.metric.as_ref().map(|m| serde_json::json!({
                 "presses": m.presses, "fabrics": m.fabrics, "shrinkage": m.shrinkage,
             })),
+            "unknown": index.unknown.map(|u| serde_json::json!({
+                "distance": u.distance, "quantile": u.quantile, "presses": u.presses,
+            })),
             "textiles": index.entries.iter().map(|e| serde_json::json!({
                 "id": e.id, "name": e.name, "seen": e.seen, "structure": e.structure,
                 "exemplars": e.exemplars.len(), "map": e.map_xy,
@@ -501,6 +559,7 @@ fn inspect(a: InspectArgs) -> Result<()> {
     println!("dimension    {}", index.dim);
     println!("catalogue    v{}", index.catalogue_version);
     println!("distance     {}", metric_summary(&index));
+    println!("unknown      beyond {}", unknown_summary(&index));
     let seen = index.entries.iter().filter(|e| e.seen).count();
     println!(
         "textiles     {} ({} seen, {} unseen)",
@@ -617,6 +676,40 @@ mod tests {
     }
 
     #[test]
+    fn own_recordings_calibrate_the_unknown_distance_by_default() {
+        assert!(calibrate_unknown(&parse(&["--presses", "r"])));
+        assert!(!calibrate_unknown(&parse(&[
+            "--presses",
+            "r",
+            "--no-calibrate-unknown"
+        ])));
+        assert!(!calibrate_unknown(&parse(&["--sim"])));
+        assert!(calibrate_unknown(&parse(&["--sim", "--calibrate-unknown"])));
+        assert_eq!(
+            parse(&["--presses", "r"]).unknown_quantile,
+            telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE
+        );
+        for bad in ["0", "1.5", "x"] {
+            assert!(Cli::try_parse_from([
+                "index-build",
+                "--model",
+                "m",
+                "--unknown-quantile",
+                bad
+            ])
+            .is_err());
+        }
+        assert!(Cli::try_parse_from([
+            "index-build",
+            "--model",
+            "m",
+            "--calibrate-unknown",
+            "--no-calibrate-unknown"
+        ])
+        .is_err());
+    }
+
+    #[test]
     fn own_recordings_keep_per_press_exemplars_by_default() {
         assert!(keep_exemplars(&parse(&["--presses", "r"])));
         assert!(!keep_exemplars(&parse(&[
@@ -711,10 +804,22 @@ mod tests {
             .project(&vec![1.0 / (index.dim as f32).sqrt(); index.dim])
             .into_owned();
         assert!((q.iter().map(|x| x * x).sum::<f32>() - 1.0).abs() < 1e-4);
-        // --no-metric: plain cosine.
-        let plain = build_with("plain.tlxi", &["--no-metric"]);
-        assert!(plain.metric.is_none());
+        // The unknown-textile distance is calibrated on the four presses,
+        // each with its fold left out (one press of each fabric).
+        let u = index.unknown.expect("four presses of two fabrics");
+        assert_eq!(
+            (u.quantile, u.presses),
+            (telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE, 4)
+        );
+        assert!(u.distance > 0.0 && u.distance <= 2.0, "{u:?}");
+        // --no-metric: plain cosine; --no-calibrate-unknown: the fixed
+        // distance.
+        let plain = build_with("plain.tlxi", &["--no-metric", "--no-calibrate-unknown"]);
+        assert!(plain.metric.is_none() && plain.unknown.is_none());
         assert_eq!(plain.entries.len(), 2);
+        let q = build_with("q.tlxi", &["--unknown-quantile", "0.5"]);
+        assert_eq!(q.unknown.unwrap().quantile, 0.5);
+        assert!(q.unknown.unwrap().distance <= u.distance);
     }
 
     /// Catalogue-2 recordings take their names and attributes from
