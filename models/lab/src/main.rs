@@ -445,6 +445,23 @@ struct SplitArgs {
     /// the flag: cosine distance.
     #[arg(long, num_args = 0..=1, default_missing_value = "0.5", value_parser = shrinkage)]
     index_metric: Option<f32>,
+    /// Also measure the unknown-textile flag on an open set: every query
+    /// press against the index of the other textiles, besides the known
+    /// presses; with the decider's fixed distance and with a distance
+    /// calibrated on each index's presses at each of these quantiles (as
+    /// `telextilesd index build --presses --unknown-quantile Q` makes it),
+    /// e.g. 0.9,0.95,1.
+    #[arg(long, value_delimiter = ',', value_parser = quantile)]
+    unknown_quantiles: Vec<f32>,
+}
+
+fn quantile(s: &str) -> Result<f32, String> {
+    let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if q > 0.0 && q <= 1.0 {
+        Ok(q)
+    } else {
+        Err(format!("{q} is outside (0, 1]"))
+    }
 }
 
 fn shrinkage(s: &str) -> Result<f32, String> {
@@ -474,6 +491,7 @@ impl SplitArgs {
             || self.index_presses.is_some()
             || self.encode_run
             || self.index_metric.is_some()
+            || !self.unknown_quantiles.is_empty()
     }
 }
 
@@ -970,6 +988,7 @@ fn eval(a: EvalArgs) -> Result<()> {
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.encode_run = a.recorded.encode_run;
         cfg.metric = a.recorded.index_metric;
+        cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
         cfg.threads = 1;
         cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
@@ -1036,6 +1055,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         cfg.frames_per_press = a.recorded.frames_per_press;
         cfg.encode_run = a.recorded.encode_run;
         cfg.metric = a.recorded.index_metric;
+        cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
         cfg.threads = 1;
         cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();

@@ -549,6 +549,11 @@ pub struct StudyConfig {
     /// shrinkage, as `index build --presses` does by default
     /// (`IndexBuilder::metric_shrinkage`); None: cosine distance.
     pub metric: Option<f32>,
+    /// Measure the unknown-textile flag on an open set (see
+    /// [`OpenSetRow`]) with the decider's fixed distance and with a
+    /// distance calibrated on each index's presses at each of these
+    /// quantiles; empty (the default): not measured.
+    pub unknown_quantiles: Vec<f32>,
 }
 
 impl StudyConfig {
@@ -569,6 +574,7 @@ impl StudyConfig {
             contact: ContactConfig::default(),
             encode_run: false,
             metric: None,
+            unknown_quantiles: Vec::new(),
         }
     }
 }
@@ -659,6 +665,36 @@ pub struct RecordedMethod {
     /// (a query the method embedded no frame of is undecided and not in it).
     pub confusion: Vec<Vec<usize>>,
     pub decisions: Vec<PressDecision>,
+    /// The unknown-textile flag on an open set, one row per distance
+    /// (`StudyConfig::unknown_quantiles`; empty when not measured).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub open_set: Vec<OpenSetRow>,
+}
+
+/// The decider's unknown-textile flag under one distance, against the
+/// index `index build --presses` makes by default (centroids and
+/// exemplars): how many known presses it flags (each query against the
+/// study's index, as in the main table) and how many presses of a textile
+/// the index does not have (each query again, against the index of the
+/// other textiles' index presses, built, and calibrated, without it).
+#[derive(Clone, Debug, Serialize)]
+pub struct OpenSetRow {
+    /// None: the decider's fixed `DecideConfig::unknown_distance`; else the
+    /// quantile the index's distance was calibrated at.
+    pub quantile: Option<f32>,
+    /// Median distance used over the indexes (one index per query with
+    /// leave one out, one per left-out textile for the unseen queries).
+    pub median_distance_known: f64,
+    pub median_distance_unseen: f64,
+    /// Indexes that had too few presses to calibrate (the fixed distance
+    /// was used instead).
+    pub uncalibrated: usize,
+    /// Known query presses decided, and flagged unknown.
+    pub known_decided: usize,
+    pub known_flagged: usize,
+    /// Unseen query presses decided, and flagged unknown.
+    pub unseen_decided: usize,
+    pub unseen_flagged: usize,
 }
 
 /// Everything the study measured.
@@ -678,6 +714,9 @@ pub struct StudyReport {
     /// The decider's indexes learned a distance with this shrinkage.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub index_metric: Option<f32>,
+    /// The open-set measurement's quantiles (empty: not measured).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unknown_quantiles: Vec<f32>,
     /// Textiles (class order of the confusion matrices).
     pub textiles: Vec<String>,
     pub recordings: Vec<RecordingRow>,
@@ -828,6 +867,19 @@ impl Bank {
     }
 }
 
+/// An index and its sorted calibration distances (empty unless asked
+/// for; `IndexBuilder::build_calibrated`).
+type Calibrated = (Index, Vec<f32>);
+
+/// Which index [`press_index`] builds: with per-press exemplars, with a
+/// metric learned with this shrinkage, with the calibration distances.
+#[derive(Clone, Copy)]
+struct IndexKind {
+    exemplars: bool,
+    metric: Option<f32>,
+    calibrate: bool,
+}
+
 /// The index `telextilesd index build --presses` makes of these presses
 /// (`telextiles_index::IndexBuilder`, the same code): one centroid per
 /// textile, the normalised mean of its frames, and with `exemplars` each
@@ -840,9 +892,13 @@ fn press_index(
     class_of: &[u32],
     textiles: &[String],
     presses: impl Iterator<Item = usize>,
-    exemplars: bool,
-    metric: Option<f32>,
-) -> Option<Index> {
+    how: IndexKind,
+) -> Option<Calibrated> {
+    let IndexKind {
+        exemplars,
+        metric,
+        calibrate,
+    } = how;
     // Per textile: its frames' embeddings, and its presses' means.
     type Rows = Vec<Vec<f32>>;
     let mut per: Vec<(Rows, Rows)> = vec![Default::default(); textiles.len()];
@@ -885,7 +941,11 @@ fn press_index(
     builder.roller_n = n.min(16);
     builder.keep_exemplars = exemplars;
     builder.metric_shrinkage = metric;
-    builder.build().ok()
+    if calibrate {
+        builder.build_calibrated().ok()
+    } else {
+        builder.build().ok().map(|i| (i, Vec::new()))
+    }
 }
 
 /// The daemon's decider over one press's frames (running mean against
@@ -903,6 +963,7 @@ fn decide_press(index: &impl TextileIndex, e: &PressEmbedding) -> Decided {
         Some(o) => Decided {
             textile: o.decision.map(|x| index.id(x.entry).to_string()),
             unknown: o.decision.is_some_and(|x| x.unknown),
+            distance: o.decision.map(|x| x.distance),
             first_ms: o.first_decision_us.map(|t| t as f64 / 1e3),
             switches: o.switches,
         },
@@ -917,6 +978,8 @@ fn decide_press(index: &impl TextileIndex, e: &PressEmbedding) -> Decided {
 struct Decided {
     textile: Option<String>,
     unknown: bool,
+    /// The final decision's distance.
+    distance: Option<f32>,
     first_ms: Option<f64>,
     switches: u32,
 }
@@ -962,6 +1025,9 @@ fn score(
             .copied()
             .filter(move |&i| roles[i] != Role::Query && Some(i) != except)
     };
+    // Calibration distances only where the open set is measured (the
+    // exemplars index; they cost a metric learned again per fold).
+    let open = !cfg.unknown_quantiles.is_empty();
     let fixed_indexes = [false, true].map(|x| {
         press_index(
             processed,
@@ -969,10 +1035,17 @@ fn score(
             class_of,
             textiles,
             index_presses(None),
-            x,
-            cfg.metric,
+            IndexKind {
+                exemplars: x,
+                metric: cfg.metric,
+                calibrate: open && x,
+            },
         )
     });
+    let mut open_set = OpenSet::new(&cfg.unknown_quantiles);
+    // Per textile: the default index of the other textiles' index presses
+    // (a query of it is then of a textile the index does not have).
+    let mut without: Vec<Option<Option<Calibrated>>> = vec![None; ntex];
     let mut sc = Score {
         per_class: textiles
             .iter()
@@ -1019,8 +1092,11 @@ fn score(
                     class_of,
                     textiles,
                     index_presses(Some(q)),
-                    x,
-                    cfg.metric,
+                    IndexKind {
+                        exemplars: x,
+                        metric: cfg.metric,
+                        calibrate: open && x,
+                    },
                 )
             });
             &own
@@ -1028,7 +1104,7 @@ fn score(
             &fixed_indexes
         };
         let cent = mean.as_ref().and_then(|mean| {
-            let index = indexes[0].as_ref()?;
+            let (index, _) = indexes[0].as_ref()?;
             let best = &index.entries[index.nearest(mean)?.best].id;
             textiles.iter().position(|t| t == best).map(|c| c as u32)
         });
@@ -1045,9 +1121,34 @@ fn score(
         }
         // The daemon's decider, against both indexes.
         let [by_centroid, by_exemplar] = indexes.each_ref().map(|index| match index {
-            Some(index) if !e.is_empty() => decide_press(index, e),
+            Some((index, _)) if !e.is_empty() => decide_press(index, e),
             _ => Decided::default(),
         });
+        if open {
+            if let Some((_, press_d)) = &indexes[1] {
+                open_set.add(false, by_exemplar.distance, press_d);
+            }
+            let other = without[truth as usize].get_or_insert_with(|| {
+                press_index(
+                    processed,
+                    m,
+                    class_of,
+                    textiles,
+                    index_presses(None).filter(|&i| class_of[i] != truth),
+                    IndexKind {
+                        exemplars: true,
+                        metric: cfg.metric,
+                        calibrate: true,
+                    },
+                )
+            });
+            if let Some((index, press_d)) = other {
+                let d = (!e.is_empty())
+                    .then(|| decide_press(index, e).distance)
+                    .flatten();
+                open_set.add(true, d, press_d);
+            }
+        }
         let right = |d: &Decided| d.textile.as_deref() == Some(textiles[truth as usize].as_str());
         if right(&by_centroid) {
             sc.decider_correct += 1;
@@ -1096,7 +1197,82 @@ fn score(
         .sum();
     sc.first_frame_ms = crate::bench::median(&first_ms);
     sc.dim = dim;
+    sc.open_set = open_set.rows();
     sc
+}
+
+/// Accumulates [`OpenSetRow`]s: the fixed distance, then one row per
+/// quantile.
+struct OpenSet {
+    rules: Vec<Option<f32>>,
+    rows: Vec<OpenSetRow>,
+    /// Per rule: the distances used for known and for unseen queries.
+    used: Vec<[Vec<f64>; 2]>,
+}
+
+impl OpenSet {
+    fn new(quantiles: &[f32]) -> OpenSet {
+        let rules: Vec<Option<f32>> = if quantiles.is_empty() {
+            Vec::new()
+        } else {
+            std::iter::once(None)
+                .chain(quantiles.iter().map(|&q| Some(q)))
+                .collect()
+        };
+        OpenSet {
+            rows: rules
+                .iter()
+                .map(|&quantile| OpenSetRow {
+                    quantile,
+                    median_distance_known: f64::NAN,
+                    median_distance_unseen: f64::NAN,
+                    uncalibrated: 0,
+                    known_decided: 0,
+                    known_flagged: 0,
+                    unseen_decided: 0,
+                    unseen_flagged: 0,
+                })
+                .collect(),
+            used: vec![Default::default(); rules.len()],
+            rules,
+        }
+    }
+
+    /// One query's final decision distance (None: undecided) against an
+    /// index whose sorted calibration distances are `press_d`.
+    fn add(&mut self, unseen: bool, d1: Option<f32>, press_d: &[f32]) {
+        let fixed = DecideConfig::default().unknown_distance;
+        for ((rule, row), used) in self.rules.iter().zip(&mut self.rows).zip(&mut self.used) {
+            let t = match rule {
+                None => fixed,
+                Some(q) => match telextiles_index::build::calibrated_distance(press_d, *q) {
+                    Some(t) => t,
+                    None => {
+                        row.uncalibrated += 1;
+                        fixed
+                    }
+                },
+            };
+            used[unseen as usize].push(t as f64);
+            let Some(d1) = d1 else { continue };
+            let flagged = d1 > t;
+            if unseen {
+                row.unseen_decided += 1;
+                row.unseen_flagged += flagged as usize;
+            } else {
+                row.known_decided += 1;
+                row.known_flagged += flagged as usize;
+            }
+        }
+    }
+
+    fn rows(mut self) -> Vec<OpenSetRow> {
+        for (row, [k, u]) in self.rows.iter_mut().zip(&self.used) {
+            row.median_distance_known = crate::bench::median(k);
+            row.median_distance_unseen = crate::bench::median(u);
+        }
+        self.rows
+    }
 }
 
 #[derive(Default)]
@@ -1120,6 +1296,7 @@ struct Score {
     exemplar_unknown: usize,
     first_decision_ms: Vec<f64>,
     switches: usize,
+    open_set: Vec<OpenSetRow>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1310,6 +1487,7 @@ pub fn score_all(
             per_class: s.per_class,
             confusion: s.confusion,
             decisions: s.decisions,
+            open_set: s.open_set,
         });
     }
     let scoring_s = t.elapsed().as_secs_f64();
@@ -1377,6 +1555,7 @@ pub fn score_all(
         frames_per_press: cfg.frames_per_press,
         encode_run: cfg.encode_run,
         index_metric: cfg.metric,
+        unknown_quantiles: cfg.unknown_quantiles.clone(),
         textiles,
         recordings,
         fps,
@@ -1563,6 +1742,9 @@ pub fn markdown(r: &StudyReport) -> String {
             m.switches
         ));
     }
+    if r.methods.iter().any(|m| !m.open_set.is_empty()) {
+        s.push_str(&open_set_markdown(r));
+    }
     // Against time.
     let cols: Vec<f64> = [50.0, 100.0, 250.0, 500.0, 1000.0]
         .into_iter()
@@ -1681,6 +1863,36 @@ pub fn markdown(r: &StudyReport) -> String {
     s.push_str("\n## Run time\n\n| part | s |\n|---|---:|\n");
     for (p, t) in &r.seconds {
         s.push_str(&format!("| {p} | {t:.1} |\n"));
+    }
+    s
+}
+
+/// The open-set section (`--unknown-quantiles`).
+fn open_set_markdown(r: &StudyReport) -> String {
+    let fixed = DecideConfig::default().unknown_distance;
+    let mut s = format!(
+        "\n## Unknown textiles: the flag on an open set\n\nThe decider against the index `index build --presses` makes by default (centroids and exemplars), final decision of each press. \"known\": every query press against the study's index (its textile is in it), flagged unknown: a false alarm. \"unseen\": every query press again, against the index of the other textiles' index presses, built (and calibrated) without its textile, flagged unknown: a detection. Distances: the decider's fixed {fixed}, or the index's own calibrated on its presses at quantile q (`index build --presses --unknown-quantile q`: the q quantile of each index press's distance to its textile's entry, with the presses of one fold of every textile left out and the index and its metric made again without them); \"distance\": its median over the indexes (known / unseen); \"uncalibrated\": indexes with too few presses to calibrate, which keep the fixed distance.\n\n| method | distance | median distance (known / unseen) | known flagged | unseen flagged | uncalibrated |\n|---|---|---:|---:|---:|---:|\n"
+    );
+    for m in &r.methods {
+        for row in &m.open_set {
+            s.push_str(&format!(
+                "| {} | {} | {:.3} / {:.3} | {} of {} ({}) | {} of {} ({}) | {} |\n",
+                m.summary.name,
+                match row.quantile {
+                    None => format!("fixed {fixed}"),
+                    Some(q) => format!("calibrated, q = {q}"),
+                },
+                row.median_distance_known,
+                row.median_distance_unseen,
+                row.known_flagged,
+                row.known_decided,
+                pct(ratio(row.known_flagged, row.known_decided)),
+                row.unseen_flagged,
+                row.unseen_decided,
+                pct(ratio(row.unseen_flagged, row.unseen_decided)),
+                row.uncalibrated,
+            ));
+        }
     }
     s
 }
@@ -2089,6 +2301,68 @@ mod tests {
         assert_eq!(&learned[1..], &cosine[1..]);
         assert_eq!(metric, Some(0.1));
         assert!(md.contains("`--index-metric 0.1`"), "{md}");
+    }
+
+    #[test]
+    fn the_open_set_counts_false_alarms_and_detections_per_distance() {
+        // Three textiles 20° apart, index presses 4° apart around each,
+        // a query 1° off each centre. Each query is known to the study's
+        // index (1° from a press); left out, its textile's query is 17°
+        // from the nearest press of another (chord 0.30): within the fixed
+        // 0.5, beyond the distance calibrated on the presses (chord of 4°).
+        let at = |deg: f32| [deg.to_radians().cos(), deg.to_radians().sin()];
+        let mut processed = Vec::new();
+        for (t, c) in [("a", 0.0), ("b", 20.0), ("c", 40.0)] {
+            processed.push(embedded(t, &[at(c - 2.0); 5]));
+            processed.push(embedded(t, &[at(c + 2.0); 5]));
+            processed.push(embedded(t, &[at(c + 1.0); 10]));
+        }
+        let methods = one_method();
+        let mut cfg = StudyConfig::new("unused", Split::IndexPresses(2));
+        cfg.runs = 0;
+        let r = score_all(&cfg, &methods, &[], &processed).unwrap();
+        assert!(r.methods[0].open_set.is_empty());
+        assert!(!markdown(&r).contains("open set"));
+        cfg.unknown_quantiles = vec![0.5, 1.0];
+        let r = score_all(&cfg, &methods, &[], &processed).unwrap();
+        let m = &r.methods[0];
+        let rows: Vec<(Option<f32>, usize, usize, usize, usize, usize)> = m
+            .open_set
+            .iter()
+            .map(|x| {
+                (
+                    x.quantile,
+                    x.known_flagged,
+                    x.known_decided,
+                    x.unseen_flagged,
+                    x.unseen_decided,
+                    x.uncalibrated,
+                )
+            })
+            .collect();
+        assert_eq!(
+            rows,
+            vec![
+                (None, 0, 3, 0, 3, 0),
+                (Some(0.5), 0, 3, 3, 3, 0),
+                (Some(1.0), 0, 3, 3, 3, 0)
+            ]
+        );
+        // The fixed row is the main table's count.
+        assert_eq!(m.unknown_flagged_exemplars, 0);
+        let chord4 = 2.0 * (2f64.to_radians()).sin();
+        let t = m.open_set[2].median_distance_known;
+        assert!((t - chord4).abs() < 1e-4, "{t}");
+        assert_eq!(m.open_set[0].median_distance_unseen, 0.5);
+        assert_eq!(r.unknown_quantiles, vec![0.5, 1.0]);
+        let md = markdown(&r);
+        assert!(md.contains("open set"), "{md}");
+        assert!(
+            md.contains(
+                "| calibrated, q = 1 | 0.070 / 0.070 | 0 of 3 (0.0%) | 3 of 3 (100.0%) | 0 |"
+            ),
+            "{md}"
+        );
     }
 
     #[test]
