@@ -979,7 +979,7 @@ fn embed_set_raw(encoder: &telextiles_lab::model::Encoder, set: &ImageSet) -> Re
         .map_err(|e| anyhow::anyhow!("{e:?}"))
 }
 
-fn eval(a: EvalArgs) -> Result<()> {
+fn eval(mut a: EvalArgs) -> Result<()> {
     let bytes =
         std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
     let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes)?;
@@ -1004,9 +1004,10 @@ fn eval(a: EvalArgs) -> Result<()> {
         }
         return Ok(());
     }
+    let metric = a.recorded.index_metric.take();
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split/--encode-run are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run/--unknown-quantiles are for --source presses:<dir>"
     );
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
@@ -1015,7 +1016,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     p.crop = crop;
     p.input = input;
     let sets = protocol::load_or_build(&p, a.data.kind()?, &a.data.cache_dir, a.data.threads)?;
-    let report = protocol::evaluate(&m, &sets, &p, a.ort_threads)?;
+    let report = protocol::evaluate_with(&m, &sets, &p, a.ort_threads, metric)?;
     println!("{}", report.markdown(&a.model));
     if let Some(j) = a.json {
         write_atomic(&j, serde_json::to_string_pretty(&report)?.as_bytes())?;

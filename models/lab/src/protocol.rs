@@ -462,6 +462,10 @@ pub struct UnseenRow {
 pub struct Report {
     /// Protocol used.
     pub protocol: Protocol,
+    /// The learned distance every embedding was mapped by (`eval
+    /// --index-metric`), in words; None: cosine.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metric: Option<String>,
     /// (a) across people.
     pub across_people: Vec<Row>,
     /// (b) one person, jig vs hand-held.
@@ -505,13 +509,43 @@ pub fn evaluate(
     p: &Protocol,
     threads: usize,
 ) -> Result<Report> {
+    evaluate_with(model, sets, p, threads, None)
+}
+
+/// [`evaluate`], every embedding first mapped by the within-fabric
+/// whitening (`telextiles_index::Metric`, shrinkage `metric`) learned from
+/// the training people's index presses alone (the presses a `--sim` index
+/// is built from; nothing of the held-out people, hand-held presses or
+/// unseen textiles), as an index with a learned distance maps its
+/// queries. `metric.report` says which.
+pub fn evaluate_with(
+    model: &crate::methods::Method,
+    sets: &Sets,
+    p: &Protocol,
+    threads: usize,
+    metric: Option<f32>,
+) -> Result<Report> {
     let mut enc = crate::methods::Embedder::new(model, threads)?;
     let bg = |s: u32| sets.background(s);
-    let (e_train, d) = enc.embed(&sets.train_index, bg)?;
-    let (e_held, _) = enc.embed(&sets.heldout, bg)?;
-    let (e_hand, _) = enc.embed(&sets.handheld, bg)?;
-    let (e_unseen, _) = enc.embed(&sets.unseen, bg)?;
+    let (mut e_train, d) = enc.embed(&sets.train_index, bg)?;
+    let (mut e_held, _) = enc.embed(&sets.heldout, bg)?;
+    let (mut e_hand, _) = enc.embed(&sets.handheld, bg)?;
+    let (mut e_unseen, _) = enc.embed(&sets.unseen, bg)?;
     let is_idx = |m: &crate::data::FrameMeta| m.frame < INDEX_FRAMES;
+    let learned = match metric {
+        Some(a) => {
+            let m = learn_metric(&sets.train_index, &e_train, d, a, is_idx)
+                .context("no training textile has two index presses to learn a distance from")?;
+            for e in [&mut e_train, &mut e_held, &mut e_hand, &mut e_unseen] {
+                apply_metric(&m, e, d);
+            }
+            Some(format!(
+                "within-fabric whitening, shrinkage {a}, learned from {} training presses of {} textiles",
+                m.presses, m.fabrics
+            ))
+        }
+        None => None,
+    };
     let is_q = |m: &crate::data::FrameMeta| m.frame >= INDEX_FRAMES;
     let mut across = Vec::new();
     let train_idx = sel(&sets.train_index, &e_train, d, is_idx);
@@ -646,11 +680,62 @@ pub fn evaluate(
     }
     Ok(Report {
         protocol: p.clone(),
+        metric: learned,
         across_people: across,
         jig_vs_handheld: jig_rows,
         unseen: unseen_rows,
         attr_dist_random: (rd.1 > 0).then(|| rd.0 / rd.1 as f64),
     })
+}
+
+/// Within-fabric whitening learned from `set`'s presses (frames passing
+/// `keep`): each press's mean embedding, grouped by textile.
+fn learn_metric(
+    set: &ImageSet,
+    emb: &[f32],
+    dim: usize,
+    shrinkage: f32,
+    keep: impl Fn(&crate::data::FrameMeta) -> bool,
+) -> Option<telextiles_index::Metric> {
+    let mut sums: std::collections::BTreeMap<(u32, u32, u32, u32), (Vec<f32>, usize)> =
+        Default::default();
+    for (i, m) in set.items.iter().enumerate() {
+        if !keep(m) {
+            continue;
+        }
+        let row = &emb[i * dim..(i + 1) * dim];
+        let n = row.iter().map(|x| x * x).sum::<f32>().sqrt();
+        if !(n.is_finite() && n > 0.0) {
+            continue;
+        }
+        let e = sums
+            .entry((m.class, m.press, m.person, m.sensor))
+            .or_insert_with(|| (vec![0.0; dim], 0));
+        for (a, v) in e.0.iter_mut().zip(row) {
+            *a += v / n;
+        }
+        e.1 += 1;
+    }
+    let mut fabrics: std::collections::BTreeMap<u32, Vec<Vec<f32>>> = Default::default();
+    for ((class, ..), (sum, k)) in sums {
+        fabrics
+            .entry(class)
+            .or_default()
+            .push(sum.into_iter().map(|x| x / k as f32).collect());
+    }
+    let fabrics: Vec<Vec<Vec<f32>>> = fabrics.into_values().collect();
+    telextiles_index::Metric::within_fabric(&fabrics, dim, shrinkage)
+}
+
+/// Map every row of `emb` by the metric (unit rows out; non-finite rows
+/// stay as they are).
+fn apply_metric(m: &telextiles_index::Metric, emb: &mut [f32], dim: usize) {
+    for row in emb.chunks_mut(dim) {
+        if row.iter().all(|x| x.is_finite()) {
+            let v = m.apply(row);
+            row.copy_from_slice(&v);
+        }
+    }
 }
 
 impl Sets {
@@ -672,6 +757,9 @@ impl Report {
         let mut s = String::new();
         let pct = |x: f64| format!("{:.2}%", 100.0 * x);
         s.push_str(&format!("Model: `{}`\n\n", model.display()));
+        if let Some(m) = &self.metric {
+            s.push_str(&format!("Distance: {m} (`--index-metric`), every embedding mapped by it.\n\n"));
+        }
         let rows = |s: &mut String, rows: &[Row]| {
             for r in rows {
                 s.push_str(&format!(
@@ -714,5 +802,79 @@ impl Report {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::{FrameMeta, ImageKind};
+
+    /// Two textiles whose presses differ along the second axis more than
+    /// the textiles differ along the third: the whitening learned from the
+    /// index presses (only those `keep` passes) brings a press of b that
+    /// leans the way a's presses do back to b.
+    #[test]
+    fn the_metric_is_learned_from_the_index_presses_and_maps_every_row() {
+        let press = |class: u32, press: u32, v: [f32; 3]| {
+            (0..4).map(move |frame| {
+                (
+                    FrameMeta {
+                        class,
+                        press,
+                        person: press,
+                        sensor: 0,
+                        jig: true,
+                        frame,
+                    },
+                    v,
+                )
+            })
+        };
+        // a's presses lean +y, b's -y; b differs from a along z.
+        let rows: Vec<(FrameMeta, [f32; 3])> = press(0, 0, [1.0, 1.0, 0.0])
+            .chain(press(0, 1, [1.0, 0.2, 0.0]))
+            .chain(press(1, 2, [1.0, -0.2, 0.3]))
+            .chain(press(1, 3, [1.0, -1.0, 0.3]))
+            // Frames `keep` leaves out: they must not count.
+            .chain(press(1, 4, [0.0, 0.0, 5.0]).map(|(mut m, v)| {
+                m.frame += 200;
+                (m, v)
+            }))
+            .collect();
+        let set = ImageSet {
+            kind: ImageKind::Input,
+            side: 1,
+            crop: 1,
+            classes: vec!["a".into(), "b".into()],
+            items: rows.iter().map(|r| r.0.clone()).collect(),
+            pixels: Vec::new(),
+            source: "test".into(),
+        };
+        let emb: Vec<f32> = rows.iter().flat_map(|r| r.1).collect();
+        let m = learn_metric(&set, &emb, 3, 0.1, |f| f.frame < 100).unwrap();
+        assert_eq!((m.presses, m.fabrics), (4, 2));
+        // A press of b leaning far along the nuisance: cosine puts it
+        // nearer a's centroid, the learned distance nearer b's.
+        let unit = |v: [f32; 3]| {
+            let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.map(|x| x / n)
+        };
+        let (a, b, q) = (
+            unit([1.0, 0.6, 0.0]),
+            unit([1.0, -0.6, 0.3]),
+            unit([1.0, 0.6, 0.3]),
+        );
+        let dist = |x: &[f32], y: &[f32]| {
+            x.iter().zip(y).map(|(p, q)| (p - q) * (p - q)).sum::<f32>().sqrt()
+        };
+        let mut rows = [a, b, q].concat();
+        assert!(dist(&q, &a) < dist(&q, &b));
+        apply_metric(&m, &mut rows, 3);
+        let (a, b, q) = (&rows[0..3], &rows[3..6], &rows[6..9]);
+        assert!(dist(q, b) < dist(q, a), "{rows:?}");
+        assert!(rows.chunks(3).all(|r| (dist(r, &[0.0; 3]) - 1.0).abs() < 1e-4));
+        // No textile with two presses: nothing to learn.
+        assert!(learn_metric(&set, &emb, 3, 0.1, |f| f.press == 0).is_none());
     }
 }
