@@ -457,6 +457,20 @@ pub struct UnseenRow {
     pub attr_rank: Option<usize>,
 }
 
+/// One press of an unseen textile, decided as the daemon decides a press:
+/// its mean embedding against the known textiles' centroids.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnseenPress {
+    /// Unseen textile id.
+    pub textile: String,
+    /// The known textile whose centroid is nearest the press's mean.
+    pub chosen: String,
+    /// Attribute distance to `chosen` (if attributes are known).
+    pub attr_dist: Option<f64>,
+    /// Rank of `chosen` among all known textiles by attribute distance.
+    pub attr_rank: Option<usize>,
+}
+
 /// Evaluation results.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -472,6 +486,9 @@ pub struct Report {
     pub jig_vs_handheld: Vec<Row>,
     /// (c) unseen textiles.
     pub unseen: Vec<UnseenRow>,
+    /// (c) per press of an unseen textile, as the daemon decides.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unseen_presses: Vec<UnseenPress>,
     /// Mean attribute distance between random pairs of known textiles.
     pub attr_dist_random: Option<f64>,
 }
@@ -669,6 +686,22 @@ pub fn evaluate_with(
             attr_rank: rank,
         });
     }
+    // Per press, as the daemon decides one.
+    let mut unseen_presses = Vec::new();
+    for (uc, best) in press_choices(&known, n_train_classes, &sets.unseen.items, &e_unseen, d) {
+        let ad = attr_dist(uc as usize, best);
+        unseen_presses.push(UnseenPress {
+            textile: sets.train.classes[uc as usize].clone(),
+            chosen: sets.train.classes[best].clone(),
+            attr_dist: ad,
+            attr_rank: ad.map(|dist| {
+                (0..n_train_classes)
+                    .filter(|&k| attr_dist(uc as usize, k).is_some_and(|x| x < dist))
+                    .count()
+                    + 1
+            }),
+        });
+    }
     let mut rd = (0.0, 0usize);
     for a in 0..n_train_classes {
         for b in 0..a {
@@ -684,8 +717,58 @@ pub fn evaluate_with(
         across_people: across,
         jig_vs_handheld: jig_rows,
         unseen: unseen_rows,
+        unseen_presses,
         attr_dist_random: (rd.1 > 0).then(|| rd.0 / rd.1 as f64),
     })
+}
+
+/// The known textile each press of `items` is decided as, the way the
+/// daemon decides a press: the press's mean embedding (frames grouped by
+/// class, press, person and sensor; each frame normalised) against each
+/// known textile's centroid (the normalised mean of its `known` frames,
+/// classes below `n_known`). (press class, chosen class) in press order.
+fn press_choices(
+    known: &(Vec<f32>, Vec<u32>),
+    n_known: usize,
+    items: &[crate::data::FrameMeta],
+    emb: &[f32],
+    d: usize,
+) -> Vec<(u32, usize)> {
+    let unit = |v: &[f32]| -> Option<Vec<f32>> {
+        let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        (n.is_finite() && n > 0.0).then(|| v.iter().map(|x| x / n).collect())
+    };
+    let mut centroids = vec![vec![0f32; d]; n_known];
+    for (row, &c) in known.0.chunks(d).zip(&known.1) {
+        if let (Some(v), Some(cen)) = (unit(row), centroids.get_mut(c as usize)) {
+            cen.iter_mut().zip(&v).for_each(|(a, b)| *a += b);
+        }
+    }
+    let centroids: Vec<Option<Vec<f32>>> = centroids.iter().map(|c| unit(c)).collect();
+    let mut sums: std::collections::BTreeMap<(u32, u32, u32, u32), Vec<f32>> = Default::default();
+    for (m, row) in items.iter().zip(emb.chunks(d)) {
+        if let Some(v) = unit(row) {
+            let s = sums
+                .entry((m.class, m.press, m.person, m.sensor))
+                .or_insert_with(|| vec![0.0; d]);
+            s.iter_mut().zip(&v).for_each(|(a, b)| *a += b);
+        }
+    }
+    sums.into_iter()
+        .filter_map(|((class, ..), sum)| {
+            let q = unit(&sum)?;
+            let best = centroids
+                .iter()
+                .enumerate()
+                .filter_map(|(k, c)| {
+                    let c = c.as_ref()?;
+                    Some((k, c.iter().zip(&q).map(|(a, b)| a * b).sum::<f32>()))
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))?
+                .0;
+            Some((class, best))
+        })
+        .collect()
 }
 
 /// Within-fabric whitening learned from `set`'s presses (frames passing
@@ -758,7 +841,9 @@ impl Report {
         let pct = |x: f64| format!("{:.2}%", 100.0 * x);
         s.push_str(&format!("Model: `{}`\n\n", model.display()));
         if let Some(m) = &self.metric {
-            s.push_str(&format!("Distance: {m} (`--index-metric`), every embedding mapped by it.\n\n"));
+            s.push_str(&format!(
+                "Distance: {m} (`--index-metric`), every embedding mapped by it.\n\n"
+            ));
         }
         let rows = |s: &mut String, rows: &[Row]| {
             for r in rows {
@@ -800,6 +885,24 @@ impl Report {
                 "\nMean attribute distance unseen -> nearest known: {mean:.3}; between random known pairs: {r:.3}; median attribute rank of the nearest: {}.\n",
                 crate::bench::median(&ranks)
             ));
+            if !self.unseen_presses.is_empty() {
+                let p = &self.unseen_presses;
+                let mean = p.iter().filter_map(|u| u.attr_dist).sum::<f64>() / p.len() as f64;
+                let ranks: Vec<f64> = p
+                    .iter()
+                    .filter_map(|u| u.attr_rank.map(|x| x as f64))
+                    .collect();
+                let within = |k: f64| ranks.iter().filter(|&&x| x <= k).count();
+                s.push_str(&format!(
+                    "\nPer press, as the daemon decides one (each press's mean embedding against the known textiles' centroids; {} presses of {} unseen textiles): median attribute rank of the chosen known textile {}, mean attribute distance {mean:.3}; rank 1: {} presses, rank <= 5: {}, rank <= 10: {}.\n",
+                    p.len(),
+                    self.unseen.len(),
+                    crate::bench::median(&ranks),
+                    within(1.0),
+                    within(5.0),
+                    within(10.0),
+                ));
+            }
         }
         s
     }
@@ -809,6 +912,34 @@ impl Report {
 mod tests {
     use super::*;
     use crate::data::{FrameMeta, ImageKind};
+
+    /// Each press is decided by its mean against the known centroids: a
+    /// press whose frames straddle two textiles goes to the one its mean
+    /// is nearer, whatever a single frame says.
+    #[test]
+    fn unseen_presses_are_decided_by_their_mean_against_the_centroids() {
+        // Known: class 0 along x, class 1 along y (two frames each).
+        let known = (
+            vec![1.0, 0.0, 1.0, 0.1, 0.0, 1.0, 0.1, 1.0],
+            vec![0, 0, 1, 1],
+        );
+        let meta = |class, press| FrameMeta {
+            class,
+            press,
+            person: 9,
+            sensor: 4,
+            jig: true,
+            frame: 0,
+        };
+        // Unseen class 2: press 0's frames lean x (one of them y), press 1's
+        // y; a zero frame is skipped.
+        let items = vec![meta(2, 0), meta(2, 0), meta(2, 0), meta(2, 1), meta(2, 1)];
+        let emb = vec![1.0, 0.2, 0.9, 0.0, 0.0, 1.0, 0.2, 1.0, 0.0, 0.0];
+        assert_eq!(
+            press_choices(&known, 2, &items, &emb, 2),
+            vec![(2, 0), (2, 1)]
+        );
+    }
 
     /// Two textiles whose presses differ along the second axis more than
     /// the textiles differ along the third: the whitening learned from the
@@ -866,14 +997,20 @@ mod tests {
             unit([1.0, 0.6, 0.3]),
         );
         let dist = |x: &[f32], y: &[f32]| {
-            x.iter().zip(y).map(|(p, q)| (p - q) * (p - q)).sum::<f32>().sqrt()
+            x.iter()
+                .zip(y)
+                .map(|(p, q)| (p - q) * (p - q))
+                .sum::<f32>()
+                .sqrt()
         };
         let mut rows = [a, b, q].concat();
         assert!(dist(&q, &a) < dist(&q, &b));
         apply_metric(&m, &mut rows, 3);
         let (a, b, q) = (&rows[0..3], &rows[3..6], &rows[6..9]);
         assert!(dist(q, b) < dist(q, a), "{rows:?}");
-        assert!(rows.chunks(3).all(|r| (dist(r, &[0.0; 3]) - 1.0).abs() < 1e-4));
+        assert!(rows
+            .chunks(3)
+            .all(|r| (dist(r, &[0.0; 3]) - 1.0).abs() < 1e-4));
         // No textile with two presses: nothing to learn.
         assert!(learn_metric(&set, &emb, 3, 0.1, |f| f.press == 0).is_none());
     }
