@@ -722,6 +722,9 @@ pub fn evaluate_with(
     })
 }
 
+/// One press: class, press, person, sensor.
+type PressId = (u32, u32, u32, u32);
+
 /// The known textile each press of `items` is decided as, the way the
 /// daemon decides a press: the press's mean embedding (frames grouped by
 /// class, press, person and sensor; each frame normalised) against each
@@ -745,7 +748,7 @@ fn press_choices(
         }
     }
     let centroids: Vec<Option<Vec<f32>>> = centroids.iter().map(|c| unit(c)).collect();
-    let mut sums: std::collections::BTreeMap<(u32, u32, u32, u32), Vec<f32>> = Default::default();
+    let mut sums: std::collections::BTreeMap<PressId, Vec<f32>> = Default::default();
     for (m, row) in items.iter().zip(emb.chunks(d)) {
         if let Some(v) = unit(row) {
             let s = sums
@@ -780,8 +783,7 @@ fn learn_metric(
     shrinkage: f32,
     keep: impl Fn(&crate::data::FrameMeta) -> bool,
 ) -> Option<telextiles_index::Metric> {
-    let mut sums: std::collections::BTreeMap<(u32, u32, u32, u32), (Vec<f32>, usize)> =
-        Default::default();
+    let mut sums: std::collections::BTreeMap<PressId, (Vec<f32>, usize)> = Default::default();
     for (i, m) in set.items.iter().enumerate() {
         if !keep(m) {
             continue;
