@@ -92,7 +92,7 @@ pub struct BuildArgs {
     /// The share of your own presses that must count as known (0 < Q <= 1):
     /// higher flags fewer presses of known fabrics, and fewer of fabrics
     /// the index does not have.
-    #[arg(long, default_value_t = telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE, value_parser = quantile)]
+    #[arg(long, default_value_t = telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE, value_parser = telextiles_index::build::parse_quantile)]
     pub unknown_quantile: f32,
     /// Use every n-th contact frame.
     #[arg(long, default_value_t = 4)]
@@ -392,15 +392,6 @@ fn calibrate_unknown(a: &BuildArgs) -> bool {
     a.calibrate_unknown || (a.presses.is_some() && !a.no_calibrate_unknown)
 }
 
-fn quantile(s: &str) -> Result<f32, String> {
-    let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
-    if q > 0.0 && q <= 1.0 {
-        Ok(q)
-    } else {
-        Err(format!("{q} is outside (0, 1]"))
-    }
-}
-
 /// Where the index's unknown textiles begin, in words.
 fn unknown_summary(index: &Index) -> String {
     match index.unknown {
@@ -656,79 +647,49 @@ mod tests {
             .b
     }
 
+    /// Whether `index build --model m.onnx` refuses these arguments.
+    fn refused(args: &[&str]) -> bool {
+        Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args)).is_err()
+    }
+
+    /// A feature that is on by default with --presses and off with --sim:
+    /// `--off` turns it off with --presses, `--on` on with --sim, and the
+    /// two together are refused.
+    fn on_with_presses_only(feature: fn(&BuildArgs) -> bool, on: &str, off: &str) {
+        assert!(feature(&parse(&["--presses", "r"])), "{on}");
+        assert!(!feature(&parse(&["--presses", "r", off])), "{off}");
+        assert!(!feature(&parse(&["--sim"])), "{on}");
+        assert!(feature(&parse(&["--sim", on])), "{on}");
+        assert!(refused(&["--presses", "r", on, off]), "{on} {off}");
+    }
+
     #[test]
     fn own_recordings_learn_a_distance_by_default() {
-        assert!(learn_metric(&parse(&["--presses", "r"])));
-        assert!(!learn_metric(&parse(&["--presses", "r", "--no-metric"])));
-        assert!(!learn_metric(&parse(&["--sim"])));
-        assert!(learn_metric(&parse(&["--sim", "--metric"])));
+        on_with_presses_only(learn_metric, "--metric", "--no-metric");
         let a = parse(&["--presses", "r", "--metric-shrinkage", "0.3"]);
         assert_eq!(a.metric_shrinkage, 0.3);
         assert_eq!(parse(&["--presses", "r"]).metric_shrinkage, 0.5);
-        assert!(Cli::try_parse_from([
-            "index-build",
-            "--model",
-            "m.onnx",
-            "--metric",
-            "--no-metric"
-        ])
-        .is_err());
     }
 
     #[test]
     fn own_recordings_calibrate_the_unknown_distance_by_default() {
-        assert!(calibrate_unknown(&parse(&["--presses", "r"])));
-        assert!(!calibrate_unknown(&parse(&[
-            "--presses",
-            "r",
-            "--no-calibrate-unknown"
-        ])));
-        assert!(!calibrate_unknown(&parse(&["--sim"])));
-        assert!(calibrate_unknown(&parse(&["--sim", "--calibrate-unknown"])));
+        on_with_presses_only(
+            calibrate_unknown,
+            "--calibrate-unknown",
+            "--no-calibrate-unknown",
+        );
         assert_eq!(
             parse(&["--presses", "r"]).unknown_quantile,
             telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE
         );
         for bad in ["0", "1.5", "x"] {
-            assert!(Cli::try_parse_from([
-                "index-build",
-                "--model",
-                "m",
-                "--unknown-quantile",
-                bad
-            ])
-            .is_err());
+            assert!(refused(&["--unknown-quantile", bad]), "{bad}");
         }
-        assert!(Cli::try_parse_from([
-            "index-build",
-            "--model",
-            "m",
-            "--calibrate-unknown",
-            "--no-calibrate-unknown"
-        ])
-        .is_err());
     }
 
     #[test]
     fn own_recordings_keep_per_press_exemplars_by_default() {
-        assert!(keep_exemplars(&parse(&["--presses", "r"])));
-        assert!(!keep_exemplars(&parse(&[
-            "--presses",
-            "r",
-            "--no-exemplars"
-        ])));
-        assert!(!keep_exemplars(&parse(&["--sim"])));
-        assert!(keep_exemplars(&parse(&["--sim", "--exemplars"])));
-        assert!(Cli::try_parse_from([
-            "index-build",
-            "--model",
-            "m",
-            "--presses",
-            "r",
-            "--exemplars",
-            "--no-exemplars"
-        ])
-        .is_err());
+        on_with_presses_only(keep_exemplars, "--exemplars", "--no-exemplars");
     }
 
     /// From a user's own recordings: the roller gets one slot per fabric

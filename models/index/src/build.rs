@@ -59,6 +59,17 @@ pub struct IndexBuilder {
 /// default (docs/recording.md, "Telling a fabric the index does not have").
 pub const DEFAULT_UNKNOWN_QUANTILE: f32 = 0.9;
 
+/// A quantile for [`IndexBuilder::unknown_quantile`] from text (command
+/// lines): a number in (0, 1], or an error that says why not.
+pub fn parse_quantile(s: &str) -> Result<f32, String> {
+    let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if q > 0.0 && q <= 1.0 {
+        Ok(q)
+    } else {
+        Err(format!("{q} is outside (0, 1]"))
+    }
+}
+
 /// The fewest left-out press distances an unknown-textile distance is
 /// calibrated on.
 pub const MIN_CALIBRATION_PRESSES: usize = 4;
@@ -392,5 +403,14 @@ mod tests {
         assert_eq!(calibrated_distance(&d, f32::NAN), None);
         assert_eq!(calibrated_distance(&d[..3], 0.95), None);
         assert_eq!(calibrated_distance(&[0.0; 8], 0.95), None);
+    }
+
+    #[test]
+    fn quantiles_parse_within_zero_to_one() {
+        assert_eq!(parse_quantile("0.9"), Ok(0.9));
+        assert_eq!(parse_quantile("1"), Ok(1.0));
+        for bad in ["0", "-0.5", "1.01", "NaN", "x", ""] {
+            assert!(parse_quantile(bad).is_err(), "{bad}");
+        }
     }
 }

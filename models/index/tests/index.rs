@@ -302,6 +302,11 @@ fn nuisance_index(shrinkage: Option<f32>) -> Result<Index, IndexError> {
 }
 
 fn nuisance_index_with(shrinkage: Option<f32>, quantile: Option<f32>) -> Result<Index, IndexError> {
+    nuisance_builder(shrinkage, quantile).build()
+}
+
+/// The builder of the nuisance records: centroids only, 4 slots.
+fn nuisance_builder(shrinkage: Option<f32>, quantile: Option<f32>) -> IndexBuilder {
     let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
     for r in nuisance_records() {
         b.add(r).unwrap();
@@ -310,7 +315,7 @@ fn nuisance_index_with(shrinkage: Option<f32>, quantile: Option<f32>) -> Result<
     b.keep_exemplars = false;
     b.metric_shrinkage = shrinkage;
     b.unknown_quantile = quantile;
-    b.build()
+    b
 }
 
 /// A new press of fabric `t` drawn as the nuisance records' presses are
@@ -335,14 +340,9 @@ fn an_unknown_textile_distance_calibrated_on_the_presses_tells_new_fabrics_from_
         assert_eq!((u.quantile, u.presses), (0.95, 16));
         let t = u.distance;
         // The 0.95 quantile of the 16 left-out distances the builder reports.
-        let mut b = IndexBuilder::new("abc123", "test", DIM, 0);
-        for r in nuisance_records() {
-            b.add(r).unwrap();
-        }
-        b.roller_n = 4;
-        b.keep_exemplars = false;
-        b.metric_shrinkage = shrinkage;
-        let (uncalibrated, d) = b.build_calibrated().unwrap();
+        let (uncalibrated, d) = nuisance_builder(shrinkage, None)
+            .build_calibrated()
+            .unwrap();
         assert_eq!(uncalibrated.unknown, None);
         assert_eq!(d.len(), 16);
         assert!(d.windows(2).all(|w| w[0] <= w[1]));
@@ -413,12 +413,7 @@ fn an_index_with_an_unknown_textile_distance_is_format_version_3() {
         for t in [0.0, -0.1, 2.5, f32::NAN, f32::INFINITY] {
             let mut bad = index.clone();
             bad.unknown.as_mut().unwrap().distance = t;
-            assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))), "{t}");
-            let path = dir.path().join("bad.tlxi");
-            assert!(bad.write(&path).is_err());
-            std::fs::write(&path, telextiles_index::to_bytes(&bad)).unwrap();
-            let e = Index::read(&path).unwrap_err();
-            assert!(e.to_string().contains("unknown-textile distance"), "{e}");
+            refused_on_write_and_read(&bad, dir.path(), "unknown-textile distance");
         }
         let mut bad = index.clone();
         bad.unknown.as_mut().unwrap().quantile = 0.0;
@@ -460,6 +455,17 @@ fn a_metric_learned_from_the_presses_discounts_how_presses_of_one_fabric_differ(
     assert!(learned.k_nearest(&[1.0; 3], 2).is_empty());
 }
 
+/// `bad` is invalid: `validate` says so, `write` refuses it, and the same
+/// content written anyway is refused on read with an error naming `what`.
+fn refused_on_write_and_read(bad: &Index, dir: &std::path::Path, what: &str) {
+    assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))));
+    let path = dir.join("bad.tlxi");
+    assert!(bad.write(&path).is_err());
+    std::fs::write(&path, telextiles_index::to_bytes(bad)).unwrap();
+    let e = Index::read(&path).unwrap_err();
+    assert!(e.to_string().contains(what), "{e}");
+}
+
 #[test]
 fn an_index_with_a_metric_is_format_version_2_and_one_without_stays_version_1() {
     let dir = tempfile::tempdir().unwrap();
@@ -482,12 +488,7 @@ fn an_index_with_a_metric_is_format_version_2_and_one_without_stays_version_1() 
     // on write and on read.
     let mut bad = a.clone();
     bad.metric.as_mut().unwrap().matrix[3] = f32::NAN;
-    assert!(matches!(bad.validate(), Err(IndexError::Invalid(_))));
-    let path = dir.path().join("bad.tlxi");
-    assert!(bad.write(&path).is_err());
-    std::fs::write(&path, telextiles_index::to_bytes(&bad)).unwrap();
-    let e = Index::read(&path).unwrap_err();
-    assert!(e.to_string().contains("metric"), "{e}");
+    refused_on_write_and_read(&bad, dir.path(), "metric");
     let mut short = a.clone();
     short.metric.as_mut().unwrap().matrix.pop();
     assert!(short.validate().is_err());

@@ -451,17 +451,8 @@ struct SplitArgs {
     /// calibrated on each index's presses at each of these quantiles (as
     /// `telextilesd index build --presses --unknown-quantile Q` makes it),
     /// e.g. 0.9,0.95,1.
-    #[arg(long, value_delimiter = ',', value_parser = quantile)]
+    #[arg(long, value_delimiter = ',', value_parser = telextiles_index::build::parse_quantile)]
     unknown_quantiles: Vec<f32>,
-}
-
-fn quantile(s: &str) -> Result<f32, String> {
-    let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
-    if q > 0.0 && q <= 1.0 {
-        Ok(q)
-    } else {
-        Err(format!("{q} is outside (0, 1]"))
-    }
 }
 
 fn shrinkage(s: &str) -> Result<f32, String> {
