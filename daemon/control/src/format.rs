@@ -104,6 +104,7 @@ pub fn human_event(e: &Event) -> String {
             name,
             slot,
             distance,
+            unknown,
             latency_ms,
             peer,
             press,
@@ -133,6 +134,9 @@ pub fn human_event(e: &Event) -> String {
             }
             if let Some(t) = since_contact_ms {
                 let _ = write!(s, "  {t:.0} ms after contact");
+            }
+            if *unknown {
+                s.push_str("  (unknown textile: nearest known)");
             }
             s
         }
@@ -279,6 +283,7 @@ empty: (none)
             name: Some("denim".into()),
             slot: 3,
             distance: 0.2134,
+            unknown: false,
             latency_ms: 41.46,
             peer: Some("alice".into()),
             press: Some(7),
@@ -289,6 +294,11 @@ empty: (none)
             human_event(&e),
             "final     T012 (denim) -> slot 3  distance 0.213  latency 41.5 ms  from alice  press 7  350 ms after contact"
         );
+        let mut far = e.clone();
+        if let Event::Decision { unknown, .. } = &mut far {
+            *unknown = true;
+        }
+        assert!(human_event(&far).ends_with("after contact  (unknown textile: nearest known)"));
         assert_eq!(
             human_event(&Event::RollerArrived {
                 slot: 5,

@@ -928,6 +928,10 @@ pub enum Event {
         slot: u32,
         /// Distance of the running latent to the textile's centroid.
         distance: f32,
+        /// Further than the index's unknown-textile distance from every
+        /// textile: `textile` is the nearest known one (omitted when false).
+        #[serde(default, skip_serializing_if = "is_false")]
+        unknown: bool,
         /// Milliseconds from the sender's frame capture to this decision.
         latency_ms: f64,
         /// The peer whose touch this is (None = local).
@@ -1542,6 +1546,7 @@ mod tests {
             name: None,
             slot: 3,
             distance: 0.25,
+            unknown: false,
             latency_ms: 41.5,
             peer: Some("alice".into()),
             press: None,
@@ -1554,7 +1559,22 @@ mod tests {
         );
         assert_eq!(
             parse_server_line(ev.to_line().trim_end().as_bytes()).unwrap(),
-            ServerLine::Event(ev)
+            ServerLine::Event(ev.clone())
+        );
+        // A textile the index does not know: the flag is on the line and
+        // reads back; a line without it is a known textile.
+        let mut far = ev;
+        if let Event::Decision { unknown, .. } = &mut far {
+            *unknown = true;
+        }
+        assert!(
+            far.to_line().contains(",\"unknown\":true,"),
+            "{}",
+            far.to_line()
+        );
+        assert_eq!(
+            parse_server_line(far.to_line().trim_end().as_bytes()).unwrap(),
+            ServerLine::Event(far)
         );
         let saved = Event::RecordSaved {
             textile: "T030".into(),

@@ -187,6 +187,7 @@ async fn three_hundred_concurrent_clients_are_served_or_shed() {
         name: None,
         slot: 1,
         distance: 0.1,
+        unknown: false,
         latency_ms: 12.0,
         peer: None,
         press: None,

@@ -433,6 +433,7 @@ fn every_control_event_converts_except_dropped() {
             name: Some("denim".into()),
             slot: 3,
             distance: 0.25,
+            unknown: false,
             latency_ms: 41.5,
             peer: Some("bob".into()),
             press: None,

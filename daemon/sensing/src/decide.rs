@@ -453,6 +453,15 @@ impl Decider {
         &self.cfg
     }
 
+    /// The distance beyond which a decision against `index` is of a
+    /// textile the index does not know: the index's own (calibrated on its
+    /// presses), else [`DecideConfig::unknown_distance`].
+    pub fn unknown_beyond<I: TextileIndex + ?Sized>(&self, index: &I) -> f32 {
+        index
+            .unknown_distance()
+            .unwrap_or(self.cfg.unknown_distance)
+    }
+
     /// Start a new press (forgets the previous one).
     pub fn press_start(&mut self, t_us: u64) {
         self.sum.clear();
@@ -643,10 +652,7 @@ impl Decider {
             distance: d1,
             margin: if margin.is_finite() { margin } else { f32::MAX },
             confidence,
-            unknown: d1
-                > index
-                    .unknown_distance()
-                    .unwrap_or(self.cfg.unknown_distance),
+            unknown: d1 > self.unknown_beyond(index),
             since_us,
         }
     }

@@ -79,6 +79,9 @@ pub struct RxDecision {
     pub slot: usize,
     /// Distance of the press's latent(s) to it.
     pub distance: f32,
+    /// Further than the index's unknown-textile distance from every
+    /// textile (`Decider::unknown_beyond`): the nearest known one.
+    pub unknown: bool,
     /// Capture there → this decision, where the link knows the clock
     /// offset.
     pub latency_ms: Option<f64>,
@@ -381,6 +384,7 @@ impl<I: TextileIndex> ReceiverCore<I> {
             entry,
             slot,
             distance,
+            unknown: distance > p.decider.unknown_beyond(index),
             latency_ms,
             since_contact_ms: latency_ms.map(|l| pressed_ms + l),
             final_decision,

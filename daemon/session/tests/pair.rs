@@ -479,6 +479,50 @@ fn malformed_messages_are_refused_and_decisions_go_on() {
     );
 }
 
+/// A press far from every textile of the index is decided as the nearest
+/// one and flagged unknown (the decider's unknown-textile distance); a press
+/// on a textile is not.
+#[test]
+fn a_press_of_a_textile_the_index_does_not_have_is_flagged_unknown() {
+    let idx = index();
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let far: Vec<f32> = (0..DIM).map(|_| rng.gen_range(-1.0f32..1.0)).collect();
+    let n = far.iter().map(|x| x * x).sum::<f32>().sqrt();
+    let far: Vec<f32> = far.iter().map(|x| x / n).collect();
+    let nearest = idx.nearest2(&far).unwrap();
+    assert!(nearest.best_dist > 0.5, "{nearest:?}");
+    for (press_id, v, unknown) in [(1, far, true), (2, centroid(&idx, 4), false)] {
+        let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
+        let mut out = Vec::new();
+        rx.handle(
+            "p",
+            RxInput::PressStart {
+                press_id,
+                capture_us: 0,
+            },
+            &mut out,
+        );
+        rx.handle(
+            "p",
+            RxInput::PressStop {
+                press_id,
+                capture_us: 9,
+                final_latent: Some((&v, 9)),
+            },
+            &mut out,
+        );
+        let d = out
+            .iter()
+            .find_map(|a| match a {
+                RxAction::Decision(d) if d.final_decision => Some(d.clone()),
+                _ => None,
+            })
+            .expect("a final decision");
+        assert_eq!(d.entry, idx.nearest2(&v).unwrap().best);
+        assert_eq!(d.unknown, unknown, "{d:?}");
+    }
+}
+
 #[test]
 fn late_and_duplicated_messages_of_finished_presses_are_ignored() {
     let idx = index();

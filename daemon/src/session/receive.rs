@@ -184,6 +184,7 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
                     name: Some(e.name.clone()),
                     slot: d.slot as u32,
                     distance: d.distance,
+                    unknown: d.unknown,
                     latency_ms: d.latency_ms.unwrap_or(0.0),
                     peer: Some(d.peer),
                     press: Some(d.press_id),
