@@ -647,6 +647,27 @@ mod tests {
             .b
     }
 
+    /// `index build --model <model> --presses <rec> -o <out>` with more
+    /// flags, run, and the index it wrote read back.
+    fn build_presses(
+        model: &std::path::Path,
+        rec: &std::path::Path,
+        out: &std::path::Path,
+        flags: &[&str],
+    ) -> Index {
+        let args = [
+            "index-build",
+            "--model",
+            model.to_str().unwrap(),
+            "--presses",
+            rec.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        build(Cli::try_parse_from(args.iter().chain(flags)).unwrap().b).unwrap();
+        Index::read(out).unwrap()
+    }
+
     /// Whether `index build --model m.onnx` refuses these arguments.
     fn refused(args: &[&str]) -> bool {
         Cli::try_parse_from(["index-build", "--model", "m.onnx"].iter().chain(args)).is_err()
@@ -733,21 +754,8 @@ mod tests {
         )
         .unwrap();
         let model = fixture_model();
-        // `index build --presses rec` with more flags, read back.
-        let build_with = |name: &str, flags: &[&str]| {
-            let out = dir.path().join(name);
-            let args = [
-                "index-build",
-                "--model",
-                model.to_str().unwrap(),
-                "--presses",
-                rec.to_str().unwrap(),
-                "-o",
-                out.to_str().unwrap(),
-            ];
-            build(Cli::try_parse_from(args.iter().chain(flags)).unwrap().b).unwrap();
-            Index::read(&out).unwrap()
-        };
+        let build_with =
+            |name: &str, flags: &[&str]| build_presses(&model, &rec, &dir.path().join(name), flags);
         let index = build_with("my.tlxi", &[]);
         assert_eq!(index.roller.n(), 2);
         let names: Vec<(&str, &str)> = index
@@ -803,18 +811,7 @@ mod tests {
         let model = fixture_model();
         let build_with = |extra: &[&str]| {
             let out = dir.path().join(format!("i{}.tlxi", extra.len()));
-            let mut argv = vec![
-                "index-build",
-                "--model",
-                model.to_str().unwrap(),
-                "--presses",
-                rec.to_str().unwrap(),
-                "-o",
-                out.to_str().unwrap(),
-            ];
-            argv.extend_from_slice(extra);
-            build(Cli::try_parse_from(argv).unwrap().b).unwrap();
-            Index::read(&out).unwrap()
+            build_presses(&model, &rec, &out, extra)
         };
         let v2 = build_with(&["--catalogue", "2"]);
         let v1 = build_with(&[]);
