@@ -63,10 +63,29 @@ pub const DEFAULT_UNKNOWN_QUANTILE: f32 = 0.9;
 /// lines): a number in (0, 1], or an error that says why not.
 pub fn parse_quantile(s: &str) -> Result<f32, String> {
     let q: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
-    if q > 0.0 && q <= 1.0 {
+    if is_quantile(q) {
         Ok(q)
     } else {
         Err(format!("{q} is outside (0, 1]"))
+    }
+}
+
+/// Whether `q` is a share of presses an unknown-textile distance can be
+/// calibrated at: 0 < q <= 1 (NaN is not).
+pub fn is_quantile(q: f32) -> bool {
+    q > 0.0 && q <= 1.0
+}
+
+/// A vector in the space of an index with `metric`: mapped by it, or only
+/// L2-normalised without one.
+fn in_space(metric: Option<&Metric>, v: &[f32]) -> Vec<f32> {
+    match metric {
+        Some(m) => m.apply(v),
+        None => {
+            let mut v = v.to_vec();
+            l2_normalise(&mut v);
+            v
+        }
     }
 }
 
@@ -143,48 +162,32 @@ impl IndexBuilder {
     fn build_inner(self, measure: bool) -> Result<(Index, Vec<f32>), IndexError> {
         let dim = self.dim;
         if let Some(q) = self.unknown_quantile {
-            if !(q > 0.0 && q <= 1.0) {
+            if !is_quantile(q) {
                 return Err(IndexError::Invalid(format!(
                     "unknown-textile quantile {q} is outside (0, 1]"
                 )));
             }
         }
+        // Each fabric's per-press embeddings: what the metric learns from
+        // and the calibration measures.
+        let presses: Vec<Vec<Vec<f32>>> =
+            self.records.iter().map(|r| r.exemplars.clone()).collect();
         let metric = match self.metric_shrinkage {
             Some(a) if !(0.0..=1.0).contains(&a) => {
                 return Err(IndexError::Invalid(format!(
                     "metric shrinkage {a} is outside 0..=1"
                 )))
             }
-            Some(a) => {
-                let presses: Vec<Vec<Vec<f32>>> =
-                    self.records.iter().map(|r| r.exemplars.clone()).collect();
-                Metric::within_fabric(&presses, dim, a)
-            }
+            Some(a) => Metric::within_fabric(&presses, dim, a),
             None => None,
         };
         // Every vector in the metric's space (normalised either way).
-        let map_in = |v: &[f32]| match &metric {
-            Some(m) if v.len() == dim => m.apply(v),
-            _ => {
-                let mut v = v.to_vec();
-                l2_normalise(&mut v);
-                v
-            }
-        };
+        let map_in = |v: &[f32]| in_space(metric.as_ref().filter(|_| v.len() == dim), v);
         let keep_exemplars = self.keep_exemplars;
-        let press_d = if !measure {
-            Vec::new()
+        let press_d = if measure {
+            press_distances(&presses, dim, keep_exemplars, self.metric_shrinkage)
         } else {
-            press_distances(
-                &self
-                    .records
-                    .iter()
-                    .map(|r| r.exemplars.clone())
-                    .collect::<Vec<_>>(),
-                dim,
-                keep_exemplars,
-                self.metric_shrinkage,
-            )
+            Vec::new()
         };
         let unknown = self.unknown_quantile.and_then(|q| {
             Some(UnknownDistance {
@@ -313,14 +316,7 @@ pub fn press_distances(
             })
             .collect();
         let metric = shrinkage.and_then(|a| Metric::within_fabric(&kept, dim, a));
-        let map_in = |v: &[f32]| match &metric {
-            Some(m) => m.apply(v),
-            None => {
-                let mut v = v.to_vec();
-                l2_normalise(&mut v);
-                v
-            }
-        };
+        let map_in = |v: &[f32]| in_space(metric.as_ref(), v);
         for (f, k) in fabrics.iter().zip(&kept) {
             if k.is_empty() {
                 continue;
@@ -351,7 +347,7 @@ pub fn press_distances(
 /// the quantile is 0 (presses that do not differ at all say nothing about
 /// how far a new one may be).
 pub fn calibrated_distance(sorted: &[f32], q: f32) -> Option<f32> {
-    if sorted.len() < MIN_CALIBRATION_PRESSES || !(q > 0.0 && q <= 1.0) {
+    if sorted.len() < MIN_CALIBRATION_PRESSES || !is_quantile(q) {
         return None;
     }
     let rank = ((q as f64 * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());

@@ -272,7 +272,7 @@ impl Index {
                     "the unknown-textile distance {t} is outside (0, 2]"
                 ));
             }
-            if !(u.quantile > 0.0 && u.quantile <= 1.0) {
+            if !build::is_quantile(u.quantile) {
                 return bad(format!(
                     "the unknown-textile distance's quantile {} is outside (0, 1]",
                     u.quantile
