@@ -725,6 +725,35 @@ pub fn evaluate_with(
 /// One press: class, press, person, sensor.
 type PressId = (u32, u32, u32, u32);
 
+/// `v` scaled to unit length; None for a zero or non-finite vector.
+fn unit(v: &[f32]) -> Option<Vec<f32>> {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    (n.is_finite() && n > 0.0).then(|| v.iter().map(|x| x / n).collect())
+}
+
+/// Per press (frames of `items` passing `keep`, rows of `emb`): the sum of
+/// its frames' unit embeddings and how many there are (zero or non-finite
+/// rows skipped).
+fn press_sums(
+    items: &[crate::data::FrameMeta],
+    emb: &[f32],
+    d: usize,
+    keep: impl Fn(&crate::data::FrameMeta) -> bool,
+) -> std::collections::BTreeMap<PressId, (Vec<f32>, usize)> {
+    let mut sums: std::collections::BTreeMap<PressId, (Vec<f32>, usize)> = Default::default();
+    for (m, row) in items.iter().zip(emb.chunks(d)) {
+        let Some(v) = unit(row).filter(|_| keep(m)) else {
+            continue;
+        };
+        let s = sums
+            .entry((m.class, m.press, m.person, m.sensor))
+            .or_insert_with(|| (vec![0.0; d], 0));
+        s.0.iter_mut().zip(&v).for_each(|(a, b)| *a += b);
+        s.1 += 1;
+    }
+    sums
+}
+
 /// The known textile each press of `items` is decided as, the way the
 /// daemon decides a press: the press's mean embedding (frames grouped by
 /// class, press, person and sensor; each frame normalised) against each
@@ -737,10 +766,6 @@ fn press_choices(
     emb: &[f32],
     d: usize,
 ) -> Vec<(u32, usize)> {
-    let unit = |v: &[f32]| -> Option<Vec<f32>> {
-        let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
-        (n.is_finite() && n > 0.0).then(|| v.iter().map(|x| x / n).collect())
-    };
     let mut centroids = vec![vec![0f32; d]; n_known];
     for (row, &c) in known.0.chunks(d).zip(&known.1) {
         if let (Some(v), Some(cen)) = (unit(row), centroids.get_mut(c as usize)) {
@@ -748,17 +773,9 @@ fn press_choices(
         }
     }
     let centroids: Vec<Option<Vec<f32>>> = centroids.iter().map(|c| unit(c)).collect();
-    let mut sums: std::collections::BTreeMap<PressId, Vec<f32>> = Default::default();
-    for (m, row) in items.iter().zip(emb.chunks(d)) {
-        if let Some(v) = unit(row) {
-            let s = sums
-                .entry((m.class, m.press, m.person, m.sensor))
-                .or_insert_with(|| vec![0.0; d]);
-            s.iter_mut().zip(&v).for_each(|(a, b)| *a += b);
-        }
-    }
+    let sums = press_sums(items, emb, d, |_| true);
     sums.into_iter()
-        .filter_map(|((class, ..), sum)| {
+        .filter_map(|((class, ..), (sum, _))| {
             let q = unit(&sum)?;
             let best = centroids
                 .iter()
@@ -783,24 +800,7 @@ fn learn_metric(
     shrinkage: f32,
     keep: impl Fn(&crate::data::FrameMeta) -> bool,
 ) -> Option<telextiles_index::Metric> {
-    let mut sums: std::collections::BTreeMap<PressId, (Vec<f32>, usize)> = Default::default();
-    for (i, m) in set.items.iter().enumerate() {
-        if !keep(m) {
-            continue;
-        }
-        let row = &emb[i * dim..(i + 1) * dim];
-        let n = row.iter().map(|x| x * x).sum::<f32>().sqrt();
-        if !(n.is_finite() && n > 0.0) {
-            continue;
-        }
-        let e = sums
-            .entry((m.class, m.press, m.person, m.sensor))
-            .or_insert_with(|| (vec![0.0; dim], 0));
-        for (a, v) in e.0.iter_mut().zip(row) {
-            *a += v / n;
-        }
-        e.1 += 1;
-    }
+    let sums = press_sums(&set.items, emb, dim, keep);
     let mut fabrics: std::collections::BTreeMap<u32, Vec<Vec<f32>>> = Default::default();
     for ((class, ..), (sum, k)) in sums {
         fabrics
