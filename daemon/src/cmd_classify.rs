@@ -132,9 +132,7 @@ fn print(
 
 /// Run the command, printing to stdout.
 pub fn run(args: Args) -> Result<()> {
-    let stdout = std::io::stdout();
-    let mut lock = stdout.lock();
-    run_to(args, &mut lock)
+    run_to(args, &mut crate::out::stdout())
 }
 
 /// Run the command, printing to `out`.

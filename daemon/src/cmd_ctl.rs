@@ -259,7 +259,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
-    let mut out = std::io::stdout();
+    let mut out = crate::out::stdout();
     rt.block_on(execute(&args, &socket, &mut out))
 }
 

@@ -3,6 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args as ClapArgs, Subcommand};
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::PathBuf;
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
@@ -321,7 +322,8 @@ fn build(a: BuildArgs) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     index.write(&a.out)?;
-    println!(
+    writeln!(
+        crate::out::stdout(),
         "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, distance {}, unknown beyond {}, fingerprint {})",
         a.out.display(),
         index.entries.len(),
@@ -331,7 +333,7 @@ fn build(a: BuildArgs) -> Result<()> {
         metric_summary(&index),
         unknown_summary(&index),
         &index.fingerprint()[..16]
-    );
+    )?;
     if learn_metric(&a) && index.metric.is_none() {
         eprintln!(
             "note: no fabric has two presses with contact, so the index keeps plain cosine distance"
@@ -357,7 +359,11 @@ fn build(a: BuildArgs) -> Result<()> {
             }
         }
     }
-    print!("{}", coverage_report(&index, &unseen, slots, a.seed));
+    write!(
+        crate::out::stdout(),
+        "{}",
+        coverage_report(&index, &unseen, slots, a.seed)
+    )?;
     Ok(())
 }
 
@@ -515,6 +521,7 @@ fn inspect(a: InspectArgs) -> Result<()> {
         index.check_encoder(&hash)?;
     }
     let fp = index.fingerprint();
+    let mut out = crate::out::stdout();
     if a.json {
         let v = serde_json::json!({
             "file": a.file,
@@ -538,39 +545,43 @@ fn inspect(a: InspectArgs) -> Result<()> {
                 "slots": index.roller.slots.iter().map(|&i| &index.entries[i].id).collect::<Vec<_>>(),
             },
         });
-        println!("{v}");
+        writeln!(out, "{v}")?;
         return Ok(());
     }
-    println!("index        {}", a.file.display());
-    println!("fingerprint  {fp}");
-    println!(
+    writeln!(out, "index        {}", a.file.display())?;
+    writeln!(out, "fingerprint  {fp}")?;
+    writeln!(
+        out,
         "encoder      {} ({})",
         index.encoder_hash, index.encoder_arch
-    );
-    println!("dimension    {}", index.dim);
-    println!("catalogue    v{}", index.catalogue_version);
-    println!("distance     {}", metric_summary(&index));
-    println!("unknown      beyond {}", unknown_summary(&index));
+    )?;
+    writeln!(out, "dimension    {}", index.dim)?;
+    writeln!(out, "catalogue    v{}", index.catalogue_version)?;
+    writeln!(out, "distance     {}", metric_summary(&index))?;
+    writeln!(out, "unknown      beyond {}", unknown_summary(&index))?;
     let seen = index.entries.iter().filter(|e| e.seen).count();
-    println!(
+    writeln!(
+        out,
         "textiles     {} ({} seen, {} unseen)",
         index.entries.len(),
         seen,
         index.entries.len() - seen
-    );
-    println!(
+    )?;
+    writeln!(
+        out,
         "roller       {} slots, chosen by {}",
         index.roller.n(),
         index.roller.method
-    );
+    )?;
     for (slot, &i) in index.roller.slots.iter().enumerate() {
         let e = &index.entries[i];
-        println!(
+        writeln!(
+            out,
             "  slot {slot:>2} {:>6.1} deg  {:<6} {}",
             slot as f32 * 360.0 / index.roller.n() as f32,
             e.id,
             e.name
-        );
+        )?;
     }
     Ok(())
 }

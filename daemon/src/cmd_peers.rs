@@ -75,7 +75,7 @@ pub fn id(args: IdArgs) -> anyhow::Result<()> {
     let dir = args.store.state_dir()?;
     let (me, created) = Identity::load_or_create(&dir)?;
     let file = Identity::path_in(&dir);
-    let mut out = std::io::stdout().lock();
+    let mut out = crate::out::stdout();
     if args.json {
         writeln!(
             out,
@@ -96,7 +96,7 @@ pub fn id(args: IdArgs) -> anyhow::Result<()> {
 pub fn peers(args: PeersArgs) -> anyhow::Result<()> {
     let dir = args.store.state_dir()?;
     let store = TrustStore::load(&dir)?;
-    let mut out = std::io::stdout().lock();
+    let mut out = crate::out::stdout();
     if args.json {
         writeln!(
             out,
@@ -121,12 +121,13 @@ pub fn unpair(args: UnpairArgs) -> anyhow::Result<()> {
     })?
     .with_context(|| format!("cannot unpair {:?}", args.peer))?;
     if let Some(p) = removed {
-        println!(
+        writeln!(
+            crate::out::stdout(),
             "Unpaired {} ({}): removed from {}.\nA running daemon drops the peer's connection within a second.\nTo pair again, run `telextilesd pair` on both devices.",
             p.name,
             p.device_id,
             TrustStore::path_in(&dir).display()
-        );
+        )?;
     }
     Ok(())
 }

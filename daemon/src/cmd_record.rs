@@ -557,8 +557,7 @@ async fn futures_poll_once<F: std::future::Future + Unpin>(f: &mut F) -> bool {
 
 /// Run the command.
 pub fn run(args: Args) -> Result<()> {
-    let stdout = std::io::stdout();
-    let mut out = stdout.lock();
+    let mut out = crate::out::stdout();
     let stop = interrupt_flag();
     run_to(args, &mut out, &stop)
 }

@@ -1,6 +1,7 @@
 //! `telextilesd roller ...`: run the simulated roller, or drive a roller directly.
 use anyhow::{bail, Context, Result};
 use clap::Subcommand;
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 use telextiles_roller::{
@@ -69,7 +70,9 @@ async fn sim(link: Option<PathBuf>, slots: u16, speed: f64) -> Result<()> {
         ..SimConfig::default()
     })
     .context("starting the simulated roller")?;
-    println!("{}", sim.path().display());
+    // The path for scripts (also on stderr); a closed stdout does not stop
+    // the simulated roller.
+    let _ = writeln!(crate::out::stdout(), "{}", sim.path().display());
     eprintln!(
         "simulated roller on {} ({slots} slots); Ctrl-C to stop",
         sim.path().display()
@@ -128,7 +131,11 @@ async fn goto(
                     );
                     anyhow::anyhow!("{e}{why}")
                 })?;
-                println!("arrived at {target:?}: position {} microsteps", s.position);
+                writeln!(
+                    crate::out::stdout(),
+                    "arrived at {target:?}: position {} microsteps",
+                    s.position
+                )?;
                 return Ok(());
             }
             e = events.recv() => match e {

@@ -198,14 +198,15 @@ fn press(a: PressArgs) -> Result<()> {
     let press = sim.render_press(&spec)?;
     recording::write_press(&out, &press)?;
     let p = press.meta.params.as_ref();
-    println!(
+    writeln!(
+        crate::out::stdout(),
         "wrote {} frames of {} to {} (rotation {:.1} deg, force {:.2} N)",
         press.frames.len(),
         spec.textile,
         out.display(),
         p.map_or(0.0, |p| p.rotation_deg),
         p.map_or(0.0, |p| p.force_n)
-    );
+    )?;
     Ok(())
 }
 
@@ -240,8 +241,7 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
         .take(total)
         .map(move |s| PressSpec { generator, ..s });
     if d.stream {
-        let stdout = std::io::stdout();
-        let mut w = std::io::BufWriter::new(stdout.lock());
+        let mut w = std::io::BufWriter::new(crate::out::stdout());
         for s in specs {
             writeln!(w, "{}", s.to_json())?;
         }
@@ -254,10 +254,11 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
             eprintln!("{n}/{total} presses ({})", s.textile);
         }
     })?;
-    println!(
+    writeln!(
+        crate::out::stdout(),
         "wrote {n} presses under {} ({total} in the protocol slice)",
         out.display()
-    );
+    )?;
     Ok(())
 }
 
@@ -272,7 +273,7 @@ fn contact_sheet(out: &Path, catalogue: u32) -> Result<()> {
         .with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, out).with_context(|| format!("renaming to {}", out.display()))?;
     for (i, t) in tiles.iter().enumerate() {
-        println!("{i:2} {}: {}", t.label, t.description);
+        writeln!(crate::out::stdout(), "{i:2} {}: {}", t.label, t.description)?;
     }
     Ok(())
 }
@@ -284,7 +285,8 @@ fn image_png() -> telextiles_sim::ImageFormat {
 fn list(catalogue: u32) -> Result<()> {
     let sim = Simulator::with_catalogue(catalogue)?;
     for t in &sim.catalogue().textiles {
-        println!(
+        writeln!(
+            crate::out::stdout(),
             "{}\t{:?}\t{:?}\t{}{}",
             t.id,
             t.book,
@@ -294,7 +296,7 @@ fn list(catalogue: u32) -> Result<()> {
                 .as_ref()
                 .map(|x| format!(" (near-twin of {x})"))
                 .unwrap_or_default()
-        );
+        )?;
     }
     Ok(())
 }
@@ -307,10 +309,10 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
     for s in &specs {
         let r = stats::press_stats(&sim, s)?;
         if a.verbose {
-            println!(
+            writeln!(crate::out::stdout(),
                 "{} {:?} sensor {}: contact std {:.2} DN, peak/median {:.0}, noise lag-1 {:.2}, colour {:.2}",
                 r.textile, r.family, s.sensor, r.contact_std, r.peak_to_median, r.noise_lag1, r.noise_colour
-            );
+            )?;
         }
         rows.push(r);
     }
@@ -338,9 +340,9 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
     } else {
         "catalogue 1".to_string()
     };
-    println!("| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | single-frame residual std (DN) / lag-1 | unit-to-unit background (DN) | frames/s/core |");
-    println!("|---|---|---|---|---|---|---|---|");
-    println!(
+    writeln!(crate::out::stdout(), "| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | single-frame residual std (DN) / lag-1 | unit-to-unit background (DN) | frames/s/core |")?;
+    writeln!(crate::out::stdout(), "|---|---|---|---|---|---|---|---|")?;
+    writeln!(crate::out::stdout(),
         "| {label} | {} | {:.2} / {} / {} | {:.0} ({:.0}), n = {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.1} (units 0..{}) | {} |",
         sum.presses,
         sum.contact_std_median,
@@ -356,16 +358,16 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
         sum.unit_bg_difference,
         a.units,
         speed.map_or("-".to_string(), |s| format!("{s:.0}")),
-    );
+    )?;
     let real = stats::background_difference(sim.real_background(), sim.real_background_tvl());
     let (ta, tb) = (
         stats::residual_noise(sim.real_background()),
         stats::residual_noise(sim.real_background_tvl()),
     );
-    println!(
+    writeln!(crate::out::stdout(),
         "| real no-contact frames: tacto, tvl | - | - | - | - | {:.2} / {:.2}, {:.2} / {:.2} | {real:.1} (tacto vs tvl) | - |",
         ta.0, ta.1, tb.0, tb.1
-    );
+    )?;
     Ok(())
 }
 

@@ -12,6 +12,7 @@ mod cmd_record;
 mod cmd_roller;
 mod cmd_sim;
 mod config;
+mod out;
 mod session;
 mod trace;
 
@@ -83,7 +84,7 @@ fn main() -> anyhow::Result<()> {
         .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
         .init();
     let cli = Cli::parse();
-    match cli.cmd {
+    let result = match cli.cmd {
         Cmd::Classify(a) => cmd_classify::run(a),
         Cmd::Ctl(a) => cmd_ctl::run(a),
         Cmd::Index(a) => cmd_index::run(a),
@@ -97,5 +98,11 @@ fn main() -> anyhow::Result<()> {
         Cmd::Unpair(a) => cmd_peers::unpair(a),
         Cmd::Map(a) => cmd_map::run(a),
         Cmd::Roller(a) => cmd_roller::run(a),
+    };
+    match result {
+        // The reader of stdout went away (`telextilesd sim list | head`):
+        // everything it wanted was written, so end quietly, as `cat` does.
+        Err(e) if out::is_closed(&e) => Ok(()),
+        r => r,
     }
 }
