@@ -106,6 +106,7 @@ impl Demo {
                         name: Some(e.name.clone()),
                         slot: slot as u32,
                         distance: near.best_dist,
+                        unknown: idx.unknown_distance().is_some_and(|d| near.best_dist > d),
                         latency_ms: at.as_secs_f64() * 1000.0,
                         peer: peer.clone(),
                     },

@@ -55,6 +55,11 @@ pub enum MapEvent {
         name: Option<String>,
         slot: u32,
         distance: f32,
+        /// Farther from every textile of the index than its unknown-textile
+        /// distance: a fabric the index does not have, `textile` only its
+        /// nearest known one.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        unknown: bool,
         #[serde(default)]
         latency_ms: f64,
         #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -162,6 +167,7 @@ impl Live {
                 name,
                 slot,
                 distance,
+                unknown,
                 latency_ms,
                 peer,
             } => {
@@ -170,8 +176,8 @@ impl Live {
                     .clone()
                     .or_else(|| i.map(|i| idx.entries[i].name.clone()));
                 let m = json!({"type": "decision", "i": i, "id": textile, "name": name,
-                               "slot": slot, "distance": distance, "latency_ms": latency_ms,
-                               "peer": peer});
+                               "slot": slot, "distance": distance, "unknown": unknown,
+                               "latency_ms": latency_ms, "peer": peer});
                 self.decision = Some(m.clone());
                 m
             }

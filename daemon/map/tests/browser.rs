@@ -104,6 +104,7 @@ async fn send_press(
     events: &tokio::sync::broadcast::Sender<MapEvent>,
     index: &Index,
     touches: &[Vec<f32>],
+    unknown: bool,
 ) {
     let peer = Some("browser-test".to_string());
     let _ = events.send(MapEvent::PeerUp {
@@ -130,6 +131,7 @@ async fn send_press(
         name: None,
         slot,
         distance: index.nearest(last).unwrap().best_dist,
+        unknown,
         latency_ms: 30.0,
         peer,
     });
@@ -218,8 +220,10 @@ async fn map_page_in_headless_chromium() {
             Some("press") => {
                 presses += 1;
                 match &srv {
-                    Some(s) if presses == 1 => send_press(&s.events, &index, &touches).await,
-                    Some(s) => send_press(&s.events, &index2, &touches2).await,
+                    // The second press is of a fabric the index does not
+                    // have: the page says so.
+                    Some(s) if presses == 1 => send_press(&s.events, &index, &touches, false).await,
+                    Some(s) => send_press(&s.events, &index2, &touches2, true).await,
                     None => unreachable!(),
                 }
             }

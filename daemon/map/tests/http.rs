@@ -265,6 +265,7 @@ async fn event_stream_places_touches_and_keeps_state() {
         name: None,
         slot: index.slot_of_entry(k) as u32,
         distance: 0.01,
+        unknown: false,
         latency_ms: 12.5,
         peer: Some("alice".into()),
     })
@@ -301,6 +302,7 @@ async fn event_stream_places_touches_and_keeps_state() {
     let dec = sse.next().await.unwrap();
     assert_eq!(dec["type"], "decision");
     assert_eq!(dec["i"], k);
+    assert_eq!(dec["unknown"], false, "{dec}");
     assert_eq!(
         dec["name"],
         index.entries[k].name.as_str(),
@@ -440,6 +442,19 @@ fn every_control_event_converts_except_dropped() {
             final_decision: false,
             since_contact_ms: None,
         },
+        // A fabric the index does not have: flagged on the map too.
+        Event::Decision {
+            textile: "T047".into(),
+            name: None,
+            slot: 5,
+            distance: 0.71,
+            unknown: true,
+            latency_ms: 40.0,
+            peer: None,
+            press: Some(4),
+            final_decision: true,
+            since_contact_ms: Some(180.0),
+        },
         Event::PeerUp {
             peer: "bob".into(),
             addr: Some("[::1]:1".into()),
@@ -479,6 +494,7 @@ fn every_control_event_converts_except_dropped() {
                     name,
                     slot,
                     distance,
+                    unknown,
                     latency_ms,
                     peer,
                     ..
@@ -488,6 +504,7 @@ fn every_control_event_converts_except_dropped() {
                     name: n,
                     slot: s,
                     distance: d,
+                    unknown: u,
                     latency_ms: l,
                     peer: p,
                 },
@@ -496,6 +513,7 @@ fn every_control_event_converts_except_dropped() {
                     && name == n
                     && slot == s
                     && distance == d
+                    && unknown == u
                     && latency_ms == l
                     && peer == p
             }
@@ -538,4 +556,32 @@ fn every_control_event_converts_except_dropped() {
     }
     .to_line();
     assert!(MapEvent::from_control_json(&dropped).is_err());
+}
+
+#[test]
+fn a_decision_on_a_fabric_the_index_does_not_have_reaches_the_page_flagged() {
+    let index = small_index(12, 4, 5);
+    let id = index.entries[2].id.clone();
+    let mut live = telextiles_map::Live::new(index);
+    // As the control socket writes it: `unknown` only when true.
+    let flagged = format!(
+        r#"{{"event":"decision","textile":"{id}","slot":1,"distance":0.8,"unknown":true,"latency_ms":40.0}}"#
+    );
+    let msg = live
+        .apply(&MapEvent::from_control_json(&flagged).unwrap())
+        .unwrap();
+    assert_eq!(
+        (msg["type"].as_str(), msg["i"].as_u64()),
+        (Some("decision"), Some(2))
+    );
+    assert_eq!(msg["unknown"], true, "{msg}");
+    assert_eq!(live.snapshot()["decision"]["unknown"], true);
+    let known = format!(
+        r#"{{"event":"decision","textile":"{id}","slot":1,"distance":0.1,"latency_ms":40.0}}"#
+    );
+    let msg = live
+        .apply(&MapEvent::from_control_json(&known).unwrap())
+        .unwrap();
+    assert_eq!(msg["unknown"], false, "{msg}");
+    assert_eq!(live.snapshot()["decision"]["unknown"], false);
 }

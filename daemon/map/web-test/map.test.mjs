@@ -144,6 +144,7 @@ try {
   if (layer.live !== 1 || layer.trail < 2 || layer.near !== 3) throw new Error(`live layer: ${JSON.stringify(layer)}`);
   await page.waitForFunction((name) => document.getElementById('nearest').textContent.includes(name), sc.press_nearest_name);
   await page.waitForFunction((name) => document.getElementById('decision').textContent.includes(name), sc.press_nearest_name);
+  if ((await page.textContent('#decision')).includes('unknown')) throw new Error('a known fabric shown as unknown');
   await page.waitForFunction((slot) => document.getElementById('roller').textContent.includes('at slot ' + slot), sc.press_slot);
   await page.waitForFunction(() => document.getElementById('peers').textContent.includes('browser-test'));
   // The rendered marker sits where the map puts the touch.
@@ -184,6 +185,9 @@ try {
   need('press');
   await ack();
   await page.waitForFunction((n) => Number(document.getElementById('map').dataset.touches || 0) >= n, n2 + sc.press_touches);
+  // That press was decided as a fabric the index does not have.
+  await page.waitForFunction(() => document.getElementById('decision').textContent.startsWith('unknown fabric; nearest known: '));
+  await page.waitForSelector('#decision.unknown');
   if (errors.length) throw new Error('browser errors:\n' + errors.join('\n'));
   process.stdout.write(JSON.stringify({ ok: true, drawn, tooltip: tipText, live: t1 }) + '\n');
 } catch (e) {

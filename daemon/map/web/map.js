@@ -240,8 +240,11 @@
     }
     if (S.decision) {
       const d = S.decision;
-      $('decision').className = 'big';
-      $('decision').textContent = (d.name || d.id) + ' → slot ' + d.slot;
+      // A fabric the index does not have: say so, and name the nearest
+      // known one the roller turns to.
+      $('decision').className = d.unknown ? 'big unknown' : 'big';
+      $('decision').textContent = (d.unknown ? 'unknown fabric; nearest known: ' : '') +
+        (d.name || d.id) + ' → slot ' + d.slot;
       $('decision').title = 'distance ' + Number(d.distance).toFixed(3) + ', ' + Number(d.latency_ms).toFixed(0) + ' ms';
     } else {
       $('decision').className = 'muted';
