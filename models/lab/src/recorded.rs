@@ -669,6 +669,45 @@ pub struct RecordedMethod {
     /// (`StudyConfig::unknown_quantiles`; empty when not measured).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub open_set: Vec<OpenSetRow>,
+    /// How well two scores of a final decision tell the open set's unseen
+    /// presses from its known ones, whatever the threshold (None when the
+    /// open set is not measured).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub separation: Option<Separation>,
+}
+
+/// Threshold-free separation of the open set's known and unseen query
+/// presses (see [`OpenSetRow`]): the area under the ROC curve, i.e. the
+/// chance that a random unseen press scores higher than a random known
+/// one (ties half). 0.5 is no separation, 1 perfect.
+#[derive(Clone, Debug, Serialize)]
+pub struct Separation {
+    /// Scored by the final decision's distance `d1` (the decider's flag).
+    pub distance_auroc: f64,
+    /// Scored by `d1 / d2`, the distance over the nearest other textile's
+    /// (`1 - confidence`): scale-free, the ratio test.
+    pub ratio_auroc: f64,
+    /// Decided presses scored: known, unseen.
+    pub known: usize,
+    pub unseen: usize,
+}
+
+/// The area under the ROC curve of `pos` against `neg` (higher scores
+/// mean positive): P(pos > neg) + P(pos = neg) / 2. NaN when either is
+/// empty.
+pub fn auroc(neg: &[f64], pos: &[f64]) -> f64 {
+    if neg.is_empty() || pos.is_empty() {
+        return f64::NAN;
+    }
+    let mut sorted = neg.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let mut wins = 0.0;
+    for &p in pos {
+        let below = sorted.partition_point(|&n| n < p);
+        let ties = sorted.partition_point(|&n| n <= p) - below;
+        wins += below as f64 + ties as f64 / 2.0;
+    }
+    wins / (neg.len() * pos.len()) as f64
 }
 
 /// The decider's unknown-textile flag under one distance, against the
@@ -964,6 +1003,7 @@ fn decide_press(index: &impl TextileIndex, e: &PressEmbedding) -> Decided {
             textile: o.decision.map(|x| index.id(x.entry).to_string()),
             unknown: o.decision.is_some_and(|x| x.unknown),
             distance: o.decision.map(|x| x.distance),
+            confidence: o.decision.map(|x| x.confidence),
             first_ms: o.first_decision_us.map(|t| t as f64 / 1e3),
             switches: o.switches,
         },
@@ -980,6 +1020,8 @@ struct Decided {
     unknown: bool,
     /// The final decision's distance.
     distance: Option<f32>,
+    /// Its `(d2 - d1) / d2` against the nearest other textile.
+    confidence: Option<f32>,
     first_ms: Option<f64>,
     switches: u32,
 }
@@ -1127,6 +1169,7 @@ fn score(
         if open {
             if let Some((_, press_d)) = &indexes[1] {
                 open_set.add(false, by_exemplar.distance, press_d);
+                open_set.score(false, &by_exemplar);
             }
             let other = without[truth as usize].get_or_insert_with(|| {
                 press_index(
@@ -1143,10 +1186,13 @@ fn score(
                 )
             });
             if let Some((index, press_d)) = other {
-                let d = (!e.is_empty())
-                    .then(|| decide_press(index, e).distance)
-                    .flatten();
-                open_set.add(true, d, press_d);
+                let decided = if e.is_empty() {
+                    Decided::default()
+                } else {
+                    decide_press(index, e)
+                };
+                open_set.add(true, decided.distance, press_d);
+                open_set.score(true, &decided);
             }
         }
         let right = |d: &Decided| d.textile.as_deref() == Some(textiles[truth as usize].as_str());
@@ -1197,6 +1243,7 @@ fn score(
         .sum();
     sc.first_frame_ms = crate::bench::median(&first_ms);
     sc.dim = dim;
+    sc.separation = open_set.separation();
     sc.open_set = open_set.rows();
     sc
 }
@@ -1208,6 +1255,8 @@ struct OpenSet {
     rows: Vec<OpenSetRow>,
     /// Per rule: the distances used for known and for unseen queries.
     used: Vec<[Vec<f64>; 2]>,
+    /// Known, unseen decided presses: (d1, d1 / d2).
+    scores: [Vec<(f64, f64)>; 2],
 }
 
 impl OpenSet {
@@ -1234,8 +1283,35 @@ impl OpenSet {
                 })
                 .collect(),
             used: vec![Default::default(); rules.len()],
+            scores: Default::default(),
             rules,
         }
+    }
+
+    /// One query's final decision, for [`Separation`].
+    fn score(&mut self, unseen: bool, d: &Decided) {
+        if let (Some(d1), Some(c)) = (d.distance, d.confidence) {
+            self.scores[unseen as usize].push((d1 as f64, 1.0 - c as f64));
+        }
+    }
+
+    fn separation(&self) -> Option<Separation> {
+        if self.rules.is_empty() {
+            return None;
+        }
+        let [k, u] = &self.scores;
+        let by = |f: fn(&(f64, f64)) -> f64| {
+            auroc(
+                &k.iter().map(f).collect::<Vec<_>>(),
+                &u.iter().map(f).collect::<Vec<_>>(),
+            )
+        };
+        Some(Separation {
+            distance_auroc: by(|s| s.0),
+            ratio_auroc: by(|s| s.1),
+            known: k.len(),
+            unseen: u.len(),
+        })
     }
 
     /// One query's final decision distance (None: undecided) against an
@@ -1297,6 +1373,7 @@ struct Score {
     first_decision_ms: Vec<f64>,
     switches: usize,
     open_set: Vec<OpenSetRow>,
+    separation: Option<Separation>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1488,6 +1565,7 @@ pub fn score_all(
             confusion: s.confusion,
             decisions: s.decisions,
             open_set: s.open_set,
+            separation: s.separation,
         });
     }
     let scoring_s = t.elapsed().as_secs_f64();
@@ -1891,6 +1969,15 @@ fn open_set_markdown(r: &StudyReport) -> String {
                 row.unseen_decided,
                 pct(ratio(row.unseen_flagged, row.unseen_decided)),
                 row.uncalibrated,
+            ));
+        }
+    }
+    s.push_str("\nWhatever the threshold: the area under the ROC curve of the known against the unseen decided presses (the chance that an unseen press scores higher than a known one; 0.5 no separation, 1 perfect), scored by the final decision's distance d1 (what the flag thresholds) and by the ratio test d1 / d2 (d2: the nearest other textile's distance).\n\n| method | decided presses (known / unseen) | AUROC by d1 | AUROC by d1 / d2 |\n|---|---:|---:|---:|\n");
+    for m in &r.methods {
+        if let Some(x) = &m.separation {
+            s.push_str(&format!(
+                "| {} | {} / {} | {:.3} | {:.3} |\n",
+                m.summary.name, x.known, x.unseen, x.distance_auroc, x.ratio_auroc
             ));
         }
     }
@@ -2322,6 +2409,7 @@ mod tests {
         cfg.runs = 0;
         let r = score_all(&cfg, &methods, &[], &processed).unwrap();
         assert!(r.methods[0].open_set.is_empty());
+        assert!(r.methods[0].separation.is_none());
         assert!(!markdown(&r).contains("open set"));
         cfg.unknown_quantiles = vec![0.5, 1.0];
         let r = score_all(&cfg, &methods, &[], &processed).unwrap();
@@ -2354,6 +2442,10 @@ mod tests {
         let t = m.open_set[2].median_distance_known;
         assert!((t - chord4).abs() < 1e-4, "{t}");
         assert_eq!(m.open_set[0].median_distance_unseen, 0.5);
+        // Every unseen press is farther than every known one, both ways.
+        let sep = m.separation.as_ref().unwrap();
+        assert_eq!((sep.known, sep.unseen), (3, 3));
+        assert_eq!((sep.distance_auroc, sep.ratio_auroc), (1.0, 1.0));
         assert_eq!(r.unknown_quantiles, vec![0.5, 1.0]);
         let md = markdown(&r);
         assert!(md.contains("open set"), "{md}");
@@ -2363,6 +2455,17 @@ mod tests {
             ),
             "{md}"
         );
+        assert!(md.contains("| 3 / 3 | 1.000 | 1.000 |"), "{md}");
+    }
+
+    #[test]
+    fn auroc_is_the_chance_a_positive_outscores_a_negative() {
+        assert_eq!(auroc(&[0.1, 0.2], &[0.3, 0.4]), 1.0);
+        assert_eq!(auroc(&[0.3, 0.4], &[0.1, 0.2]), 0.0);
+        // Ties count half: 0.2 beats 0.1, ties 0.2, loses to 0.3.
+        assert_eq!(auroc(&[0.1, 0.2, 0.3], &[0.2]), 0.5);
+        assert_eq!(auroc(&[0.1, 0.3], &[0.2, 0.4]), 0.75);
+        assert!(auroc(&[], &[0.1]).is_nan());
     }
 
     #[test]
