@@ -55,6 +55,9 @@ pub use telextiles_proto::peer::{Hello, MismatchReason, PROTOCOL_VERSION};
 pub mod close_code {
     /// Normal shutdown.
     pub const BYE: u32 = 0;
+    /// The reason sent with [`BYE`] when the daemon itself shuts down (not
+    /// just one session ending): its peers know it went away on purpose.
+    pub const SHUTDOWN_REASON: &[u8] = b"shutdown";
     /// Superseded by another connection to the same peer.
     pub const DUPLICATE: u32 = 1;
     /// Hello mismatch (protocol, encoder, index).
@@ -860,11 +863,11 @@ impl LinkHandle {
             .map(|(_, p)| p.conn)
             .collect();
         for c in conns {
-            c.close(close_code::BYE.into(), b"shutdown");
+            c.close(close_code::BYE.into(), close_code::SHUTDOWN_REASON);
         }
         self.shared
             .endpoint
-            .close(close_code::BYE.into(), b"shutdown");
+            .close(close_code::BYE.into(), close_code::SHUTDOWN_REASON);
         let _ =
             tokio::time::timeout(Duration::from_secs(1), self.shared.endpoint.wait_idle()).await;
     }

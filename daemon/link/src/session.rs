@@ -98,7 +98,27 @@ fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
         {
             End::quiet("replaced by another connection to the same peer")
         }
+        _ if peer_shut_down(e) => End::quiet(format!("the device at {addr} shut down")),
         _ => End::quiet(format!("connection to {addr} lost: {e}")),
+    }
+}
+
+/// Whether the peer closed the connection because its daemon shut down.
+fn peer_shut_down(e: &ConnectionError) -> bool {
+    matches!(e, ConnectionError::ApplicationClosed(c)
+        if u64::from(c.error_code) == close_code::BYE as u64
+            && &c.reason[..] == close_code::SHUTDOWN_REASON)
+}
+
+/// Whether a failed dial found nobody accepting: no answer, or an endpoint
+/// refusing new connections (one that is closing does).
+fn not_there(e: &ConnectionError) -> bool {
+    match e {
+        ConnectionError::TimedOut => true,
+        ConnectionError::ConnectionClosed(c) => {
+            c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED
+        }
+        _ => false,
     }
 }
 
@@ -307,6 +327,12 @@ async fn dial_loop_inner(
     let mut stop = shared.shutdown.subscribe();
     let mut backoff = shared.timing.backoff_min;
     let mut last_error: Option<String> = None;
+    // The last connection ended because the peer's daemon shut down: until
+    // it is reached again, finding nobody there (no answer, or an endpoint
+    // still closing that refuses) is expected (its PeerDown said why), so
+    // those failures are retried but not reported. Any other failure (a
+    // refused handshake: the peer came back unpaired) still is.
+    let mut peer_left = false;
     loop {
         if *stop.borrow() || shared.stopped.load(Ordering::SeqCst) {
             return;
@@ -393,10 +419,12 @@ async fn dial_loop_inner(
                             expect = Some(id);
                         }
                     }
+                    let ended = conn.clone();
                     let end = tokio::select! {
                         e = run_connection(shared.clone(), conn, true, entering) => e,
                         _ = stop.changed() => return,
                     };
+                    peer_left = ended.close_reason().is_some_and(|e| peer_shut_down(&e));
                     match end {
                         Ok(()) => {
                             last_error = None;
@@ -436,15 +464,17 @@ async fn dial_loop_inner(
                     break;
                 }
                 Err(e) => {
-                    let text = format!("cannot connect to {addr}: {e}");
-                    report_once(
-                        &shared,
-                        &mut last_error,
-                        expect,
-                        ErrorKind::Connection,
-                        text,
-                    )
-                    .await;
+                    if !(peer_left && not_there(&e)) {
+                        let text = format!("cannot connect to {addr}: {e}");
+                        report_once(
+                            &shared,
+                            &mut last_error,
+                            expect,
+                            ErrorKind::Connection,
+                            text,
+                        )
+                        .await;
+                    }
                 }
             }
         }

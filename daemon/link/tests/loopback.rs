@@ -368,12 +368,24 @@ async fn reconnects_after_the_peer_restarts() {
     .await;
     b.shutdown().await;
     drop((b, rb));
-    wait_for(&mut ra, 10, "PeerDown", |e| {
-        matches!(e, LinkEvent::PeerDown { .. }).then_some(())
+    let reason = wait_for(&mut ra, 10, "PeerDown", |e| match e {
+        LinkEvent::PeerDown { reason, .. } => Some(reason.clone()),
+        _ => None,
     })
     .await;
-    // B comes back on the same port after a while.
-    tokio::time::sleep(Duration::from_millis(700)).await;
+    assert!(reason.ends_with("shut down"), "{reason}");
+    // B comes back on the same port after a while. Meanwhile A keeps
+    // dialling it (three timed-out attempts at least) without reporting
+    // an error: B's going away was already told.
+    let away = Instant::now();
+    while away.elapsed() < Duration::from_millis(1600) {
+        if let Ok(Some(e)) = tokio::time::timeout(Duration::from_millis(100), ra.recv()).await {
+            assert!(
+                !matches!(e, LinkEvent::Error { .. }),
+                "an error while the peer was away: {e:?}"
+            );
+        }
+    }
     let mut cb = config("bob");
     cb.listen = b_addr;
     let t0 = Instant::now();
