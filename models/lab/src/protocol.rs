@@ -655,6 +655,14 @@ pub fn evaluate_with(
                 .sqrt(),
         )
     };
+    // Rank of a known textile at attribute distance `dist` from unseen
+    // `uc`: 1 + the known textiles nearer it in attributes.
+    let attr_rank = |uc: u32, dist: f64| {
+        (0..n_train_classes)
+            .filter(|&k| attr_dist(uc as usize, k).is_some_and(|x| x < dist))
+            .count()
+            + 1
+    };
     for &uc in &uclasses {
         let q = sel(&sets.unseen, &e_unseen, d, |m| m.class == uc);
         let nn = top_k(&known.0, &q.0, d, 1);
@@ -671,19 +679,13 @@ pub fn evaluate_with(
             .map(|(i, c)| (i, *c))
             .unwrap_or((0, 0));
         let ad = attr_dist(uc as usize, best);
-        let rank = ad.map(|dist| {
-            (0..n_train_classes)
-                .filter(|&k| attr_dist(uc as usize, k).is_some_and(|x| x < dist))
-                .count()
-                + 1
-        });
         unseen_rows.push(UnseenRow {
             textile: sets.train.classes[uc as usize].clone(),
             nearest: sets.train.classes[best].clone(),
             agreement: cnt as f64 / nn.len().max(1) as f64,
             similarity: sim / nn.len().max(1) as f64,
             attr_dist: ad,
-            attr_rank: rank,
+            attr_rank: ad.map(|dist| attr_rank(uc, dist)),
         });
     }
     // Per press, as the daemon decides one.
@@ -694,12 +696,7 @@ pub fn evaluate_with(
             textile: sets.train.classes[uc as usize].clone(),
             chosen: sets.train.classes[best].clone(),
             attr_dist: ad,
-            attr_rank: ad.map(|dist| {
-                (0..n_train_classes)
-                    .filter(|&k| attr_dist(uc as usize, k).is_some_and(|x| x < dist))
-                    .count()
-                    + 1
-            }),
+            attr_rank: ad.map(|dist| attr_rank(uc, dist)),
         });
     }
     let mut rd = (0.0, 0usize);

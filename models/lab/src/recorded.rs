@@ -1168,8 +1168,7 @@ fn score(
         });
         if open {
             if let Some((_, press_d)) = &indexes[1] {
-                open_set.add(false, by_exemplar.distance, press_d);
-                open_set.score(false, &by_exemplar);
+                open_set.add(false, &by_exemplar, press_d);
             }
             let other = without[truth as usize].get_or_insert_with(|| {
                 press_index(
@@ -1191,8 +1190,7 @@ fn score(
                 } else {
                     decide_press(index, e)
                 };
-                open_set.add(true, decided.distance, press_d);
-                open_set.score(true, &decided);
+                open_set.add(true, &decided, press_d);
             }
         }
         let right = |d: &Decided| d.textile.as_deref() == Some(textiles[truth as usize].as_str());
@@ -1288,13 +1286,6 @@ impl OpenSet {
         }
     }
 
-    /// One query's final decision, for [`Separation`].
-    fn score(&mut self, unseen: bool, d: &Decided) {
-        if let (Some(d1), Some(c)) = (d.distance, d.confidence) {
-            self.scores[unseen as usize].push((d1 as f64, 1.0 - c as f64));
-        }
-    }
-
     fn separation(&self) -> Option<Separation> {
         if self.rules.is_empty() {
             return None;
@@ -1314,9 +1305,13 @@ impl OpenSet {
         })
     }
 
-    /// One query's final decision distance (None: undecided) against an
-    /// index whose sorted calibration distances are `press_d`.
-    fn add(&mut self, unseen: bool, d1: Option<f32>, press_d: &[f32]) {
+    /// One query's final decision (its distance None: undecided) against
+    /// an index whose sorted calibration distances are `press_d`.
+    fn add(&mut self, unseen: bool, decided: &Decided, press_d: &[f32]) {
+        if let (Some(d1), Some(c)) = (decided.distance, decided.confidence) {
+            self.scores[unseen as usize].push((d1 as f64, 1.0 - c as f64));
+        }
+        let d1 = decided.distance;
         let fixed = DecideConfig::default().unknown_distance;
         for ((rule, row), used) in self.rules.iter().zip(&mut self.rows).zip(&mut self.used) {
             let t = match rule {
