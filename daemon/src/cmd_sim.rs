@@ -284,9 +284,10 @@ fn image_png() -> telextiles_sim::ImageFormat {
 
 fn list(catalogue: u32) -> Result<()> {
     let sim = Simulator::with_catalogue(catalogue)?;
+    let mut out = crate::out::stdout();
     for t in &sim.catalogue().textiles {
         writeln!(
-            crate::out::stdout(),
+            out,
             "{}\t{:?}\t{:?}\t{}{}",
             t.id,
             t.book,
@@ -303,13 +304,14 @@ fn list(catalogue: u32) -> Result<()> {
 
 fn stats_cmd(a: StatsArgs) -> Result<()> {
     use telextiles_sim::stats;
+    let mut out = crate::out::stdout();
     let sim = Simulator::with_options(a.catalogue, a.generator)?;
     let specs = stats::sample_specs(&sim, a.catalogue, a.generator, a.per_family, a.units);
     let mut rows = Vec::with_capacity(specs.len());
     for s in &specs {
         let r = stats::press_stats(&sim, s)?;
         if a.verbose {
-            writeln!(crate::out::stdout(),
+            writeln!(out,
                 "{} {:?} sensor {}: contact std {:.2} DN, peak/median {:.0}, noise lag-1 {:.2}, colour {:.2}",
                 r.textile, r.family, s.sensor, r.contact_std, r.peak_to_median, r.noise_lag1, r.noise_colour
             )?;
@@ -340,9 +342,9 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
     } else {
         "catalogue 1".to_string()
     };
-    writeln!(crate::out::stdout(), "| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | single-frame residual std (DN) / lag-1 | unit-to-unit background (DN) | frames/s/core |")?;
-    writeln!(crate::out::stdout(), "|---|---|---|---|---|---|---|---|")?;
-    writeln!(crate::out::stdout(),
+    writeln!(out, "| source | presses | contact std (DN), median / soft / terry+loop+tuft | peak-to-median, wovens+knits: median (max) over n plain-cloth presses | noise lag-1 / colour corr. | single-frame residual std (DN) / lag-1 | unit-to-unit background (DN) | frames/s/core |")?;
+    writeln!(out, "|---|---|---|---|---|---|---|---|")?;
+    writeln!(out,
         "| {label} | {} | {:.2} / {} / {} | {:.0} ({:.0}), n = {} | {:.2} / {:.2} | {:.2} / {:.2} | {:.1} (units 0..{}) | {} |",
         sum.presses,
         sum.contact_std_median,
@@ -364,7 +366,7 @@ fn stats_cmd(a: StatsArgs) -> Result<()> {
         stats::residual_noise(sim.real_background()),
         stats::residual_noise(sim.real_background_tvl()),
     );
-    writeln!(crate::out::stdout(),
+    writeln!(out,
         "| real no-contact frames: tacto, tvl | - | - | - | - | {:.2} / {:.2}, {:.2} / {:.2} | {real:.1} (tacto vs tvl) | - |",
         ta.0, ta.1, tb.0, tb.1
     )?;
