@@ -30,7 +30,19 @@ pub enum BaselineKind {
     /// The same under a window centred on the contact
     /// ([`crate::wspec::Window::Contact`]).
     WSpecCw,
+    /// The whitened spectrum (L2-normalised) followed by the whitened
+    /// multiscale marginal statistics ([`crate::mstats`]), standardised,
+    /// each weighted as this many values of the spectrum
+    /// (× [`MSTATS_UNIT`]).
+    WSpecM(u8),
+    /// The marginal statistics alone, standardised (not L2-normalised).
+    MStats,
 }
+
+/// The L2-normalised spectrum's mean per-value spread over the frames
+/// [`crate::mstats::CENTRE`] was measured on: a standardised statistic
+/// times this counts as much as one value of the spectrum.
+pub const MSTATS_UNIT: f64 = 0.02087;
 
 impl BaselineKind {
     /// Where a `wspec` kind's window sits (`None`: not a `wspec` kind).
@@ -72,6 +84,10 @@ impl Baseline {
             BaselineKind::Fft => "fft-radial",
             BaselineKind::WSpec => "wspec",
             BaselineKind::WSpecCw => "wspec-cw",
+            BaselineKind::WSpecM(w) => {
+                return format!("wspec-m{w}{}", if self.bgsub { " -bg" } else { "" })
+            }
+            BaselineKind::MStats => "mstats",
         };
         if self.bgsub {
             format!("{k} -bg")
@@ -94,6 +110,25 @@ impl Baseline {
                 assert_eq!(w, h, "wspec takes a square image");
                 let window = self.kind.wspec_window().expect("a wspec kind");
                 crate::wspec::of_image_with(img, w, bg, (w / 2).min(120) & !1, window)
+            }
+            BaselineKind::WSpecM(_) | BaselineKind::MStats => {
+                assert_eq!(w, h, "wspec-m takes a square image");
+                let n = (w / 2).min(120) & !1;
+                let x = crate::wspec::planar_of_image(img, w, bg, n);
+                let stats = crate::mstats::of_planar(&x, n);
+                if self.kind == BaselineKind::MStats {
+                    return crate::mstats::standardised(&stats, 1.0);
+                }
+                let mut f = crate::wspec::reference_with(&x, n, crate::wspec::Window::Centre);
+                l2(&mut f);
+                let BaselineKind::WSpecM(weight) = self.kind else {
+                    unreachable!()
+                };
+                f.extend(crate::mstats::standardised(
+                    &stats,
+                    weight as f64 * MSTATS_UNIT,
+                ));
+                f
             }
         };
         l2(&mut f);
@@ -436,6 +471,44 @@ mod tests {
             "turned {} vs other period {}",
             cos(&a, &turned),
             cos(&a, &other)
+        );
+    }
+
+    #[test]
+    fn wspec_m_is_the_normalised_spectrum_then_the_weighted_statistics() {
+        // A coloured, uneven difference on a 96-px image (n = 48).
+        let side = 96;
+        let img: Vec<u8> = (0..side * side * 3)
+            .map(|i| (128 + ((i * 37 + (i / 3) * (i / 3) % 11) % 60) as i32 - 30) as u8)
+            .collect();
+        let bg = vec![128u8; side * side * 3];
+        let x = crate::wspec::planar_of_image(&img, side, Some(&bg), 48);
+        let mut spec = crate::wspec::reference_with(&x, 48, crate::wspec::Window::Centre);
+        l2(&mut spec);
+        let stats = crate::mstats::of_planar(&x, 48);
+        for w in [0u8, 2, 5] {
+            let b = Baseline {
+                kind: BaselineKind::WSpecM(w),
+                bgsub: true,
+            };
+            assert_eq!(b.name(), format!("wspec-m{w} -bg"));
+            let f = b.features(&img, side, side, Some(&bg));
+            assert_eq!(f.len(), spec.len() + crate::mstats::DIM);
+            let mut want = spec.clone();
+            want.extend(crate::mstats::standardised(&stats, w as f64 * MSTATS_UNIT));
+            l2(&mut want);
+            for (a, e) in f.iter().zip(&want) {
+                assert!((a - e).abs() < 1e-6, "W = {w}");
+            }
+        }
+        // The statistics alone: standardised, not normalised.
+        let m = Baseline {
+            kind: BaselineKind::MStats,
+            bgsub: true,
+        };
+        assert_eq!(
+            m.features(&img, side, side, Some(&bg)),
+            crate::mstats::standardised(&stats, 1.0)
         );
     }
 }

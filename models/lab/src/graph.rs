@@ -499,6 +499,8 @@ impl DescriptorSpec {
             BaselineKind::Lbp => "lbp-riu2",
             BaselineKind::WSpec => "wspec",
             BaselineKind::WSpecCw => "wspec-cw",
+            BaselineKind::WSpecM(_) => "wspec-m",
+            BaselineKind::MStats => "mstats",
         };
         let bg = if self.subtract { "-bg" } else { "" };
         let r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
@@ -520,6 +522,8 @@ impl DescriptorSpec {
             BaselineKind::Pixels => 16 * 16 * 3,
             BaselineKind::Lbp => 30,
             BaselineKind::WSpec | BaselineKind::WSpecCw => crate::wspec::dim(self.input as usize),
+            BaselineKind::WSpecM(_) => crate::wspec::dim(self.input as usize) + crate::mstats::DIM,
+            BaselineKind::MStats => crate::mstats::DIM,
         }
     }
 }
@@ -786,6 +790,9 @@ fn build_descriptor(
             b.rename_last_output(OUTPUT_NAME);
         }
         BaselineKind::Lbp => anyhow::bail!("LBP has no ONNX graph"),
+        BaselineKind::WSpecM(_) | BaselineKind::MStats => {
+            anyhow::bail!("the marginal statistics have no ONNX graph yet")
+        }
     }
     let (dim, arch) = match head {
         Some(h) => (h.out, format!("{}{}", spec.arch(), h.suffix())),

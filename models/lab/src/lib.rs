@@ -13,6 +13,7 @@ pub mod graph;
 pub mod knn;
 pub mod methods;
 pub mod model;
+pub mod mstats;
 pub mod onnx;
 pub mod preprocess;
 pub mod protocol;

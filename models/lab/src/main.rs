@@ -71,6 +71,20 @@ enum Cmd {
     /// timing rules (min_ms, confirm_ms); committed decisions right against
     /// time after first contact, switches, and the written rule's pick.
     DeciderTiming(DeciderTimingArgs),
+    /// Centre and spread of the marginal statistics (`mstats`) and the
+    /// whitened spectrum's mean per-value spread, over the frames in contact
+    /// of recorded presses: the constants `wspec-m` standardises with.
+    MstatsScale(MstatsScaleArgs),
+}
+
+#[derive(Args)]
+struct MstatsScaleArgs {
+    /// Recorded presses (the press format, found recursively).
+    #[arg(long)]
+    presses: PathBuf,
+    /// Every how many frames in contact to take one.
+    #[arg(long, default_value_t = 4)]
+    every: usize,
 }
 
 #[derive(Args)]
@@ -287,6 +301,12 @@ struct BenchArgs {
     /// Leave the classical descriptors out.
     #[arg(long)]
     no_descriptors: bool,
+    /// Descriptors computed in Rust to measure as well, `KIND[-bg]@CROP`
+    /// (e.g. `wspec-bg@240`, `wspec-m3-bg@240`; kinds: pixels, lbp, fft,
+    /// wspec, wspec-cw, mstats, and wspec-mW: the spectrum and the
+    /// marginal statistics, each weighted as W spectral values).
+    #[arg(long)]
+    rust_descriptor: Vec<String>,
     /// ONNX Runtime thread counts to time the models with.
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     time_threads: Vec<usize>,
@@ -643,6 +663,7 @@ fn main() -> Result<()> {
         Cmd::Quantize(a) => quantize_cmd(a),
         Cmd::SimPresses(a) => sim_presses(a),
         Cmd::DeciderTiming(a) => decider_timing(a),
+        Cmd::MstatsScale(a) => mstats_scale(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
         Cmd::BenchLatency(a) => {
@@ -1025,6 +1046,9 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     } else {
         report::descriptor_methods()?
     };
+    for d in &a.rust_descriptor {
+        list.push(rust_descriptor(d)?);
+    }
     let mut models = Vec::new();
     for m in &a.model {
         let (name, path) = match m.split_once('=') {
@@ -1247,6 +1271,90 @@ fn sim_presses(a: SimPressesArgs) -> Result<()> {
     Ok(())
 }
 
+/// A Rust descriptor method from `KIND[-bg]@CROP`.
+fn rust_descriptor(d: &str) -> Result<telextiles_lab::methods::Method> {
+    use telextiles_lab::baselines::{Baseline, BaselineKind};
+    let (k, crop) = d
+        .split_once('@')
+        .with_context(|| format!("--rust-descriptor {d:?}: expected KIND[-bg]@CROP"))?;
+    let crop: u32 = crop
+        .parse()
+        .with_context(|| format!("--rust-descriptor {d:?}: the crop is not a number"))?;
+    let (k, bgsub) = match k.strip_suffix("-bg") {
+        Some(k) => (k, true),
+        None => (k, false),
+    };
+    let kind = match k {
+        "pixels" => BaselineKind::Pixels,
+        "lbp" => BaselineKind::Lbp,
+        "fft" => BaselineKind::Fft,
+        "wspec" => BaselineKind::WSpec,
+        "wspec-cw" => BaselineKind::WSpecCw,
+        "mstats" => BaselineKind::MStats,
+        k => match k.strip_prefix("wspec-m").map(str::parse::<u8>) {
+            Some(Ok(w)) => BaselineKind::WSpecM(w),
+            _ => bail!("--rust-descriptor {d:?}: unknown kind {k:?}"),
+        },
+    };
+    ensure!(
+        (16..=240).contains(&crop) && crop.is_multiple_of(2),
+        "--rust-descriptor {d:?}: the crop must be even, 16 to 240"
+    );
+    Ok(telextiles_lab::methods::Method::Rust {
+        base: Baseline { kind, bgsub },
+        crop,
+    })
+}
+
+fn mstats_scale(a: MstatsScaleArgs) -> Result<()> {
+    use telextiles_lab::{mstats, preprocess::centre_crop_resize, wspec};
+    let dirs = telextiles_sim::recording::find_presses(&a.presses)?;
+    ensure!(!dirs.is_empty(), "{}: no presses", a.presses.display());
+    let cfg = telextiles_sensing::contact::ContactConfig::default();
+    let (mut st, mut sp): (Vec<Vec<f64>>, Vec<Vec<f64>>) = (Vec::new(), Vec::new());
+    for d in &dirs {
+        let press = telextiles_sim::recording::read_press(d)?;
+        let Some(seg) = telextiles_sensing::front::segment(&press, &cfg) else {
+            continue;
+        };
+        let bytes: Vec<u8> = seg
+            .reference
+            .iter()
+            .map(|v| v.round().clamp(0.0, 255.0) as u8)
+            .collect();
+        let r = image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
+            .context("reference of the wrong size")?;
+        let rv = centre_crop_resize(&r, 240, 240)?;
+        for c in seg
+            .contact
+            .iter()
+            .filter(|c| !c.early)
+            .step_by(a.every.max(1))
+        {
+            let fv = centre_crop_resize(&press.frames[c.index], 240, 240)?;
+            let x = wspec::planar_of_image(fv.as_raw(), 240, Some(rv.as_raw()), 120);
+            st.push(mstats::of_planar(&x, 120));
+            let mut f = wspec::reference_with(&x, 120, wspec::Window::Centre);
+            telextiles_lab::baselines::l2(&mut f);
+            sp.push(f.iter().map(|&v| v as f64).collect());
+        }
+    }
+    ensure!(st.len() > 1, "fewer than two frames in contact");
+    let k = st.len() as f64;
+    let mean_sd = |rows: &[Vec<f64>], j: usize| {
+        let m = rows.iter().map(|r| r[j]).sum::<f64>() / k;
+        let v = rows.iter().map(|r| (r[j] - m).powi(2)).sum::<f64>() / (k - 1.0);
+        (m, v.sqrt())
+    };
+    let (c, s): (Vec<f64>, Vec<f64>) = (0..mstats::DIM).map(|j| mean_sd(&st, j)).unzip();
+    let spec_sd = (0..sp[0].len()).map(|j| mean_sd(&sp, j).1).sum::<f64>() / sp[0].len() as f64;
+    println!("frames: {} of {} presses", st.len(), dirs.len());
+    println!("CENTRE: {c:.4?}");
+    println!("SPREAD: {s:.4?}");
+    println!("spectrum (L2-normalised): mean per-value spread {spec_sd:.5}");
+    Ok(())
+}
+
 fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
     use telextiles_lab::baselines::BaselineKind;
     use telextiles_lab::graph::{descriptor_model, DescriptorSpec};
@@ -1283,6 +1391,44 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn rust_descriptors_are_named_kind_bg_at_crop() {
+        use telextiles_lab::baselines::{Baseline, BaselineKind};
+        use telextiles_lab::methods::Method;
+        let m = super::rust_descriptor("wspec-m2-bg@240").unwrap();
+        let Method::Rust { base, crop } = m else {
+            panic!("not a Rust method")
+        };
+        assert_eq!(
+            (base, crop),
+            (
+                Baseline {
+                    kind: BaselineKind::WSpecM(2),
+                    bgsub: true
+                },
+                240
+            )
+        );
+        let Method::Rust { base, crop } = super::rust_descriptor("lbp@64").unwrap() else {
+            panic!("not a Rust method")
+        };
+        assert_eq!(
+            (base.kind, base.bgsub, crop),
+            (BaselineKind::Lbp, false, 64)
+        );
+        for bad in [
+            "nope@240",
+            "wspec-bg",
+            "wspec@241",
+            "wspec@abc",
+            "wspec-m@240",
+            "wspec@8",
+        ] {
+            let e = super::rust_descriptor(bad).err().unwrap().to_string();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+    }
+
     #[test]
     fn the_command_line_is_well_formed() {
         use clap::CommandFactory;

@@ -384,6 +384,13 @@ pub fn of_image_with(
     n: usize,
     window: Window,
 ) -> Vec<f32> {
+    reference_with(&planar_of_image(img, side, bg, n), n, window)
+}
+
+/// The difference an image gives the descriptor: planar `[3][n][n]` f64
+/// values of the centre `2n` square averaged over 2x2 blocks when the image
+/// is that large, else of the centre `n` square, minus `bg` if given.
+pub fn planar_of_image(img: &[u8], side: usize, bg: Option<&[u8]>, n: usize) -> Vec<f64> {
     assert_eq!(img.len(), side * side * 3, "image size");
     let k = if side >= 2 * n { 2 } else { 1 };
     assert!(side >= k * n, "image smaller than the descriptor's window");
@@ -404,7 +411,7 @@ pub fn of_image_with(
             }
         }
     }
-    reference_with(&x, n, window)
+    x
 }
 
 #[cfg(test)]
