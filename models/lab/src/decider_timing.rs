@@ -68,6 +68,25 @@ pub const PAIRS: [(f32, f32); 10] = [
     (0.0, 16.0),
 ];
 
+/// Candidate switching rules `(switch_margin, switch_ms)`, scored at the
+/// shipped timing rules (`DecideConfig::default()`, the run not encoded);
+/// the first is the pair shipped before this
+/// study, the baseline of [`choose_switch`]. A challenger must be nearer
+/// than the current decision by the margin (the index's distance,
+/// Euclidean between unit vectors) for the time
+/// (at least two frames) before the decision changes.
+pub const SWITCH_RULES: [(f32, f32); 9] = [
+    (0.02, 117.0),
+    (0.02, 233.0),
+    (0.02, 500.0),
+    (0.04, 117.0),
+    (0.04, 233.0),
+    (0.04, 500.0),
+    (0.08, 117.0),
+    (0.08, 233.0),
+    (0.08, 500.0),
+];
+
 /// One candidate: the decider's timing rules, and whether the front end
 /// encodes the run of frames that starts a press (`FrontEnd::set_encode_run`;
 /// without it a press's embeddings begin on the frame the detector starts
@@ -78,18 +97,69 @@ pub struct Timing {
     pub confirm_ms: f32,
     /// The run that starts a press is encoded.
     pub run: bool,
+    /// How much nearer a challenger must be to replace the decision.
+    #[serde(default = "default_switch_margin")]
+    pub switch_margin: f32,
+    /// For how long (ms).
+    #[serde(default = "default_switch_ms")]
+    pub switch_ms: f32,
+}
+
+fn default_switch_margin() -> f32 {
+    SWITCH_RULES[0].0
+}
+
+fn default_switch_ms() -> f32 {
+    SWITCH_RULES[0].1
 }
 
 impl Timing {
-    /// `min_ms / confirm_ms`, and "+ run" when the run is encoded.
+    /// A timing pair with the baseline switching rule.
+    pub fn pair(min_ms: f32, confirm_ms: f32, run: bool) -> Timing {
+        Timing {
+            min_ms,
+            confirm_ms,
+            run,
+            switch_margin: default_switch_margin(),
+            switch_ms: default_switch_ms(),
+        }
+    }
+
+    /// `min_ms / confirm_ms`, "+ run" when the run is encoded, and the
+    /// switching rule when it is not the baseline's.
     pub fn label(&self) -> String {
+        let sw = if (self.switch_margin, self.switch_ms) == SWITCH_RULES[0] {
+            String::new()
+        } else {
+            format!(
+                ", switch {:.2} for {:.0} ms",
+                self.switch_margin, self.switch_ms
+            )
+        };
         format!(
-            "{:.0} / {:.0}{}",
+            "{:.0} / {:.0}{}{sw}",
             self.min_ms,
             self.confirm_ms,
             if self.run { " + run" } else { "" }
         )
     }
+
+    /// The switching rule alone, `margin / ms`.
+    pub fn switch_label(&self) -> String {
+        format!("{:.2} / {:.0} ms", self.switch_margin, self.switch_ms)
+    }
+}
+
+/// `timing` with each of [`SWITCH_RULES`], the baseline rule first.
+pub fn switch_candidates(timing: Timing) -> Vec<Timing> {
+    SWITCH_RULES
+        .iter()
+        .map(|&(switch_margin, switch_ms)| Timing {
+            switch_margin,
+            switch_ms,
+            ..timing
+        })
+        .collect()
 }
 
 /// Every candidate: each of [`PAIRS`] without the run encoded (the front
@@ -99,11 +169,9 @@ pub fn candidates() -> Vec<Timing> {
     [false, true]
         .into_iter()
         .flat_map(|run| {
-            PAIRS.iter().map(move |&(min_ms, confirm_ms)| Timing {
-                min_ms,
-                confirm_ms,
-                run,
-            })
+            PAIRS
+                .iter()
+                .map(move |&(min_ms, confirm_ms)| Timing::pair(min_ms, confirm_ms, run))
         })
         .collect()
 }
@@ -149,6 +217,10 @@ pub struct TimingScore {
     pub final_right: f64,
     /// Changes of decision after the first, per 100 presses.
     pub switches_per_100: f64,
+    /// Of those, changes away from the pressed textile (a right decision
+    /// replaced by a wrong one), per 100 presses.
+    #[serde(default)]
+    pub from_right_per_100: f64,
 }
 
 impl TimingScore {
@@ -161,11 +233,14 @@ impl TimingScore {
     }
 }
 
-/// The shipped decider configuration with other timing rules.
-pub fn config(min_ms: f32, confirm_ms: f32) -> DecideConfig {
+/// The shipped decider configuration with a candidate's timing and
+/// switching rules.
+pub fn config(t: &Timing) -> DecideConfig {
     DecideConfig {
-        min_ms,
-        confirm_ms,
+        min_ms: t.min_ms,
+        confirm_ms: t.confirm_ms,
+        switch_margin: t.switch_margin,
+        switch_ms: t.switch_ms,
         ..DecideConfig::default()
     }
 }
@@ -178,6 +253,8 @@ pub struct PressRun {
     pub first: Option<(f64, usize)>,
     pub last: Option<usize>,
     pub switches: u32,
+    /// Changes of decision away from the pressed textile.
+    pub from_right: u32,
 }
 
 /// Runs the daemon's decider over a press's embeddings: all of them when
@@ -198,6 +275,7 @@ pub fn run_press(
     let mut at = vec![None; times.len()];
     let mut first = None;
     let mut current = None;
+    let mut from_right = 0;
     let e = &p.emb;
     let from = if run { 0 } else { e.early.min(e.len()) };
     for k in from..e.len() {
@@ -213,7 +291,9 @@ pub fn run_press(
             }
         }
         if let Some(step) = d.on_embedding_weighted(index, us(t), e.row(k), w) {
-            current = step.decision.map(|x| x.entry);
+            let next = step.decision.map(|x| x.entry);
+            from_right += (current == Some(p.class) && next.is_some() && next != current) as u32;
+            current = next;
             if first.is_none() {
                 first = current.map(|c| (t, c));
             }
@@ -225,6 +305,7 @@ pub fn run_press(
         first,
         last: current,
         switches: end.map_or(0, |o| o.switches),
+        from_right,
     }
 }
 
@@ -245,13 +326,14 @@ pub fn score(
     candidates
         .iter()
         .map(|&timing| {
-            let cfg = config(timing.min_ms, timing.confirm_ms);
+            let cfg = config(&timing);
             let n = presses.len().max(1) as f64;
             let grid = grid();
             let times: Vec<f64> = TIMES_MS.iter().chain(&grid).copied().collect();
             let mut right = vec![0usize; times.len()];
             let mut decided = vec![0usize; times.len()];
             let (mut first_t, mut first_ok, mut fin, mut sw) = (Vec::new(), 0usize, 0usize, 0u64);
+            let mut away = 0u64;
             for p in presses {
                 let r = run_press(index, &cfg, p, timing.run, &times);
                 for (i, a) in r.at.iter().enumerate() {
@@ -264,6 +346,7 @@ pub fn score(
                 }
                 fin += (r.last == Some(p.class)) as usize;
                 sw += r.switches as u64;
+                away += r.from_right as u64;
             }
             // (time, share of the presses) for counts at `times`.
             let shares = |times: &[f64], counts: &[usize]| -> Vec<(f64, f64)> {
@@ -295,6 +378,7 @@ pub fn score(
                 },
                 final_right: fin as f64 / n,
                 switches_per_100: 100.0 * sw as f64 / n,
+                from_right_per_100: 100.0 * away as f64 / n,
             }
         })
         .collect()
@@ -350,6 +434,45 @@ pub fn choose(scores: &[TimingScore], pairs: &[Timing]) -> Result<usize> {
 pub const MAX_FIRST_LOSS: f64 = 0.02;
 /// Share of presses right at the end of the window the rule may lose.
 pub const MAX_FINAL_LOSS: f64 = 0.005;
+/// Share of the mean committed-right curve over the first
+/// [`MEAN_OVER_MS`] that a stricter switching rule may cost (it delays
+/// corrections of a wrong first decision).
+pub const MAX_MEAN_LOSS: f64 = 0.01;
+
+/// The switching rule (docs/benchmarks.md): among the candidates that, in
+/// every group, lose at most [`MAX_FINAL_LOSS`] of the presses right at the
+/// end of the window and at most [`MAX_MEAN_LOSS`] of the mean share right
+/// over the first [`MEAN_OVER_MS`] against the first candidate (the
+/// switching rule shipped before), the one with the fewest changes of
+/// decision per 100 presses in its worst group; ties go to the earlier
+/// candidate. Returns the index into `cands`.
+pub fn choose_switch(scores: &[TimingScore], cands: &[Timing]) -> Result<usize> {
+    ensure!(!cands.is_empty(), "no candidates");
+    let mut groups: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
+    groups.sort();
+    groups.dedup();
+    let get = |t: Timing, g: &str| -> Result<&TimingScore> {
+        scores
+            .iter()
+            .find(|s| s.timing == t && s.group == g)
+            .with_context(|| format!("no score for {} on {g}", t.label()))
+    };
+    let mut best: Option<(usize, f64)> = None;
+    for (i, &t) in cands.iter().enumerate() {
+        let mut ok = true;
+        let mut sw = 0.0f64;
+        for g in &groups {
+            let (s, base) = (get(t, g)?, get(cands[0], g)?);
+            ok &= s.final_right >= base.final_right - MAX_FINAL_LOSS - 1e-12
+                && s.mean_right >= base.mean_right - MAX_MEAN_LOSS - 1e-12;
+            sw = sw.max(s.switches_per_100);
+        }
+        if ok && best.is_none_or(|(_, b)| sw < b - 1e-12) {
+            best = Some((i, sw));
+        }
+    }
+    Ok(best.map_or(0, |b| b.0))
+}
 
 /// What to run.
 pub struct StudyConfig {
@@ -378,6 +501,15 @@ pub struct TimingReport {
     pub scores: Vec<TimingScore>,
     /// The candidate [`choose`] picks.
     pub chosen: Timing,
+    /// The switching rules scored at the shipped timing, the baseline
+    /// first.
+    #[serde(default)]
+    pub switch_candidates: Vec<Timing>,
+    #[serde(default)]
+    pub switch_scores: Vec<TimingScore>,
+    /// The one [`choose_switch`] picks.
+    #[serde(default)]
+    pub switch_chosen: Option<Timing>,
     /// Median ms from first contact to the contact detector's press
     /// start, per group.
     pub detect_ms_p50: Vec<(String, f64)>,
@@ -553,6 +685,16 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         detect.push((group.to_string(), crate::bench::median(&d)));
     }
     let chosen = cands[choose(&scores, &cands)?];
+    // The switching rules at the shipped timing (the front end as
+    // shipped: the run that starts a press not encoded).
+    let d = DecideConfig::default();
+    let sw_cands = switch_candidates(Timing::pair(d.min_ms, d.confirm_ms, false));
+    let mut sw_scores = Vec::new();
+    for (group, jig) in [("jig", true), ("hand-held", false)] {
+        let g: Vec<&PressTrace> = traces.iter().filter(|t| t.jig == jig).collect();
+        sw_scores.extend(score(&index, &g, group, &sw_cands));
+    }
+    let switch_chosen = sw_cands[choose_switch(&sw_scores, &sw_cands)?];
     Ok(TimingReport {
         machine: crate::report::machine(),
         date: crate::report::today(),
@@ -562,6 +704,9 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         candidates: cands,
         scores,
         chosen,
+        switch_candidates: sw_cands,
+        switch_scores: sw_scores,
+        switch_chosen: Some(switch_chosen),
         detect_ms_p50: detect,
         undetected,
         seconds: t0.elapsed().as_secs_f64(),
@@ -630,6 +775,33 @@ pub fn markdown(r: &TimingReport) -> String {
         r.candidates.first().map_or_else(String::new, Timing::label),
         r.chosen.label()
     ));
+    if let (Some(base), Some(chosen)) = (r.switch_candidates.first(), r.switch_chosen) {
+        s.push_str(&format!(
+            "\n## Switching rules at {}\n\nHow much nearer (the index's distance: Euclidean between unit vectors) a challenger must be than the committed decision, and for how long, before the decision changes. \"away from right\": changes that replace the pressed textile by another, per 100 presses.\n\n| switch margin / for | group | mean over 0-500 ms | right at 250 ms | right at 750 ms | switches / 100 | away from right / 100 |\n|---|---|---:|---:|---:|---:|---:|\n",
+            Timing { switch_margin: base.switch_margin, switch_ms: base.switch_ms, ..chosen }.label()
+        ));
+        for group in ["jig", "hand-held"] {
+            for x in r.switch_scores.iter().filter(|x| x.group == group) {
+                let mark = if x.timing == chosen { "**" } else { "" };
+                s.push_str(&format!(
+                    "| {mark}{}{mark} | {group} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                    x.timing.switch_label(),
+                    100.0 * x.mean_right,
+                    100.0 * x.right(250.0),
+                    100.0 * x.final_right,
+                    x.switches_per_100,
+                    x.from_right_per_100
+                ));
+            }
+        }
+        s.push_str(&format!(
+            "\nThe rule (at most {:.1} points fewer presses right at 750 ms and at most {:.1} points less mean share right over the first {MEAN_OVER_MS:.0} ms than with {} in every group; then the fewest switches per 100 presses in the worst group) picks **{}**.\n",
+            100.0 * MAX_FINAL_LOSS,
+            100.0 * MAX_MEAN_LOSS,
+            base.switch_label(),
+            chosen.switch_label()
+        ));
+    }
     s
 }
 
@@ -721,13 +893,19 @@ mod tests {
         let p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
         // Shipped pair: the first frame at 33 ms, bumping starts at 83 ms
         // (min 50), commits at 133 ms (confirm 50).
-        let r = run_press(&index(), &config(50.0, 50.0), &p, false, &[100.0, 150.0]);
+        let r = run_press(
+            &index(),
+            &config(&t(50.0, 50.0, false)),
+            &p,
+            false,
+            &[100.0, 150.0],
+        );
         assert_eq!(r.at, vec![None, Some(0)]);
-        let (t, c) = r.first.unwrap();
+        let (at, c) = r.first.unwrap();
         assert_eq!(c, 0);
-        assert!((t - 133.3).abs() < 0.1, "first decision at {t}");
+        assert!((at - 133.3).abs() < 0.1, "first decision at {at}");
         // No minimum and a short confirmation commit by 100 ms.
-        let r = run_press(&index(), &config(0.0, 17.0), &p, false, &[100.0]);
+        let r = run_press(&index(), &config(&t(0.0, 17.0, false)), &p, false, &[100.0]);
         assert_eq!(r.at, vec![Some(0)]);
         // bumping from the first frame (33 ms), confirmed 33 ms later.
         assert!((r.first.unwrap().0 - 66.7).abs() < 0.1);
@@ -764,11 +942,7 @@ mod tests {
     }
 
     fn t(min_ms: f32, confirm_ms: f32, run: bool) -> Timing {
-        Timing {
-            min_ms,
-            confirm_ms,
-            run,
-        }
+        Timing::pair(min_ms, confirm_ms, run)
     }
 
     #[test]
@@ -777,7 +951,7 @@ mod tests {
         // on; the press's start (the run's first frame) at 33 ms.
         let mut p = trace(0, 33.3, &[[1.0, 0.1]; 40]);
         p.emb.early = 2;
-        let cfg = config(0.0, 50.0);
+        let cfg = config(&t(0.0, 50.0, false));
         let with = run_press(&index(), &cfg, &p, true, &[100.0]);
         let without = run_press(&index(), &cfg, &p, false, &[100.0]);
         // With the run: bumping from 33 ms, committed 50 ms later. Without
@@ -814,6 +988,7 @@ mod tests {
             first_right: first,
             final_right: fin,
             switches_per_100: 0.0,
+            from_right_per_100: 0.0,
         }
     }
 
@@ -838,6 +1013,9 @@ mod tests {
             candidates: cands,
             scores,
             chosen,
+            switch_candidates: Vec::new(),
+            switch_scores: Vec::new(),
+            switch_chosen: None,
             detect_ms_p50: vec![("jig".into(), 33.3)],
             undetected: vec![("jig".into(), 0), ("hand-held".into(), 0)],
             seconds: 0.0,
@@ -890,5 +1068,83 @@ mod tests {
         assert_eq!(choose(&worse, &pairs).unwrap(), 3);
         // A missing score is an error, not a silent pick.
         assert!(choose(&scores[..7], &pairs).is_err());
+    }
+
+    /// A press whose first 12 frames are nearer A and the rest B: the
+    /// running mean crosses to B about 8 frames after the change and its
+    /// lead then grows to about 0.9 (the index's distance, Euclidean
+    /// between unit vectors).
+    fn drifting(class: usize) -> PressTrace {
+        let mut rows = vec![[1.0, 0.4]; 12];
+        rows.extend(vec![[0.0, 1.0]; 33]);
+        trace(class, 33.3, &rows)
+    }
+
+    #[test]
+    fn a_wider_margin_or_a_longer_wait_switches_less_and_away_from_right_is_counted() {
+        let p = drifting(0);
+        let cfg = |m: f32, ms: f32| {
+            config(&Timing {
+                switch_margin: m,
+                switch_ms: ms,
+                ..t(0.0, 50.0, false)
+            })
+        };
+        let base = run_press(&index(), &cfg(0.02, 117.0), &p, false, &[]);
+        // B never leads by 1.2; it leads by 0.02 for less than 500 ms
+        // before the window ends.
+        let wide = run_press(&index(), &cfg(1.2, 117.0), &p, false, &[]);
+        let long = run_press(&index(), &cfg(0.02, 500.0), &p, false, &[]);
+        assert_eq!((base.switches, wide.switches, long.switches), (1, 0, 0));
+        // The first decision is A (right); the switch leaves it.
+        assert_eq!(base.first.unwrap().1, 0);
+        assert_eq!((base.from_right, base.last), (1, Some(1)));
+        assert_eq!((wide.from_right, wide.last), (0, Some(0)));
+        let sc = score(&index(), &[&p], "jig", &[t(0.0, 50.0, false)]);
+        assert_eq!(sc[0].switches_per_100, 100.0 * base.switches as f64);
+        assert_eq!(sc[0].from_right_per_100, 100.0 * base.from_right as f64);
+    }
+
+    #[test]
+    fn the_switching_rule_takes_the_fewest_switches_within_the_final_and_mean_bounds() {
+        let cands = switch_candidates(t(0.0, 50.0, false));
+        assert_eq!(cands.len(), SWITCH_RULES.len());
+        assert_eq!(
+            (cands[0].switch_margin, cands[0].switch_ms),
+            (
+                DecideConfig::default().switch_margin,
+                DecideConfig::default().switch_ms
+            ),
+            "the baseline is the shipped rule"
+        );
+        assert_eq!(cands[4].label(), "0 / 50, switch 0.04 for 233 ms");
+        let with = |i: usize, g: &str, mean: f64, fin: f64, sw: f64| TimingScore {
+            switches_per_100: sw,
+            ..s(cands[i], g, mean, 0.5, fin)
+        };
+        let mut sc = Vec::new();
+        for g in ["jig", "hand-held"] {
+            sc.push(with(0, g, 0.50, 0.60, 20.0));
+            // Fewest switches, but loses 1.5 points of the mean on one group.
+            sc.push(with(1, g, if g == "jig" { 0.485 } else { 0.50 }, 0.60, 2.0));
+            // Loses 1 point at the end.
+            sc.push(with(2, g, 0.50, 0.59, 3.0));
+            // Within both bounds: 0.5 points less at the end, 1 less mean.
+            sc.push(with(3, g, 0.49, 0.595, 5.0));
+            for i in 4..cands.len() {
+                sc.push(with(i, g, 0.50, 0.60, 8.0));
+            }
+        }
+        assert_eq!(choose_switch(&sc, &cands).unwrap(), 3);
+        // A missing score is an error, not a silent pick.
+        sc.retain(|x| !(x.timing == cands[5] && x.group == "jig"));
+        assert!(choose_switch(&sc, &cands).is_err());
+        // Nothing better than the baseline: the baseline.
+        let flat: Vec<TimingScore> = ["jig", "hand-held"]
+            .iter()
+            .flat_map(|g| (0..cands.len()).map(move |i| (i, *g)))
+            .map(|(i, g)| with(i, g, 0.5, 0.6, 10.0))
+            .collect();
+        assert_eq!(choose_switch(&flat, &cands).unwrap(), 0);
     }
 }

@@ -29,11 +29,7 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
         assert!(*t > 0.0 && *t < 300.0, "{g}: {t}");
     }
     let get = |min_ms: f32, confirm_ms: f32, run: bool, g: &str| {
-        let t = Timing {
-            min_ms,
-            confirm_ms,
-            run,
-        };
+        let t = Timing::pair(min_ms, confirm_ms, run);
         r.scores
             .iter()
             .find(|s| s.timing == t && s.group == g)
@@ -62,7 +58,15 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
     }
     // Three textiles in the jig: the shipped model tells them apart.
     assert!(get(0.0, 50.0, true, "jig").final_right >= 2.0 / 3.0);
+    // The switching rules, scored at the shipped timing, the shipped one
+    // first.
+    let d = telextiles_sensing::decide::DecideConfig::default();
+    let sw = decider_timing::switch_candidates(Timing::pair(d.min_ms, d.confirm_ms, false));
+    assert_eq!(r.switch_candidates, sw);
+    assert_eq!(r.switch_scores.len(), 2 * sw.len());
+    assert!(sw.contains(&r.switch_chosen.unwrap()));
     let md = decider_timing::markdown(&r);
+    assert!(md.contains("## Switching rules at"), "{md}");
     assert!(
         md.contains("## jig (3 presses)") && md.contains("## hand-held (3 presses)"),
         "{md}"
