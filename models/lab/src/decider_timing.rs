@@ -384,6 +384,22 @@ pub fn score(
         .collect()
 }
 
+/// The groups of `scores`, sorted, each once.
+fn groups(scores: &[TimingScore]) -> Vec<&str> {
+    let mut g: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
+    g.sort();
+    g.dedup();
+    g
+}
+
+/// The score of candidate `t` on group `g`; an error when it is missing.
+fn score_of<'a>(scores: &'a [TimingScore], t: Timing, g: &str) -> Result<&'a TimingScore> {
+    scores
+        .iter()
+        .find(|s| s.timing == t && s.group == g)
+        .with_context(|| format!("no score for {} on {g}", t.label()))
+}
+
 /// The rule (docs/benchmarks.md): among the candidates whose first
 /// decisions, in every group, are right at most [`MAX_FIRST_LOSS`] less
 /// often than the first candidate's (50 / 50 without the run) and that
@@ -394,15 +410,8 @@ pub fn score(
 /// index into `pairs`.
 pub fn choose(scores: &[TimingScore], pairs: &[Timing]) -> Result<usize> {
     ensure!(!pairs.is_empty(), "no candidates");
-    let mut groups: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
-    groups.sort();
-    groups.dedup();
-    let get = |pair: Timing, g: &str| -> Result<&TimingScore> {
-        scores
-            .iter()
-            .find(|s| s.timing == pair && s.group == g)
-            .with_context(|| format!("no score for {} on {g}", pair.label()))
-    };
+    let groups = groups(scores);
+    let get = |pair: Timing, g: &str| score_of(scores, pair, g);
     let mut best: Option<(usize, f64, f64)> = None;
     for (i, &pair) in pairs.iter().enumerate() {
         let mut ok = true;
@@ -448,15 +457,8 @@ pub const MAX_MEAN_LOSS: f64 = 0.01;
 /// candidate. Returns the index into `cands`.
 pub fn choose_switch(scores: &[TimingScore], cands: &[Timing]) -> Result<usize> {
     ensure!(!cands.is_empty(), "no candidates");
-    let mut groups: Vec<&str> = scores.iter().map(|s| s.group.as_str()).collect();
-    groups.sort();
-    groups.dedup();
-    let get = |t: Timing, g: &str| -> Result<&TimingScore> {
-        scores
-            .iter()
-            .find(|s| s.timing == t && s.group == g)
-            .with_context(|| format!("no score for {} on {g}", t.label()))
-    };
+    let groups = groups(scores);
+    let get = |t: Timing, g: &str| score_of(scores, t, g);
     let mut best: Option<(usize, f64)> = None;
     for (i, &t) in cands.iter().enumerate() {
         let mut ok = true;
