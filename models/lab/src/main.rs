@@ -1307,51 +1307,14 @@ fn rust_descriptor(d: &str) -> Result<telextiles_lab::methods::Method> {
 }
 
 fn mstats_scale(a: MstatsScaleArgs) -> Result<()> {
-    use telextiles_lab::{mstats, preprocess::centre_crop_resize, wspec};
-    let dirs = telextiles_sim::recording::find_presses(&a.presses)?;
-    ensure!(!dirs.is_empty(), "{}: no presses", a.presses.display());
-    let cfg = telextiles_sensing::contact::ContactConfig::default();
-    let (mut st, mut sp): (Vec<Vec<f64>>, Vec<Vec<f64>>) = (Vec::new(), Vec::new());
-    for d in &dirs {
-        let press = telextiles_sim::recording::read_press(d)?;
-        let Some(seg) = telextiles_sensing::front::segment(&press, &cfg) else {
-            continue;
-        };
-        let bytes: Vec<u8> = seg
-            .reference
-            .iter()
-            .map(|v| v.round().clamp(0.0, 255.0) as u8)
-            .collect();
-        let r = image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
-            .context("reference of the wrong size")?;
-        let rv = centre_crop_resize(&r, 240, 240)?;
-        for c in seg
-            .contact
-            .iter()
-            .filter(|c| !c.early)
-            .step_by(a.every.max(1))
-        {
-            let fv = centre_crop_resize(&press.frames[c.index], 240, 240)?;
-            let x = wspec::planar_of_image(fv.as_raw(), 240, Some(rv.as_raw()), 120);
-            st.push(mstats::of_planar(&x, 120));
-            let mut f = wspec::reference_with(&x, 120, wspec::Window::Centre);
-            telextiles_lab::baselines::l2(&mut f);
-            sp.push(f.iter().map(|&v| v as f64).collect());
-        }
-    }
-    ensure!(st.len() > 1, "fewer than two frames in contact");
-    let k = st.len() as f64;
-    let mean_sd = |rows: &[Vec<f64>], j: usize| {
-        let m = rows.iter().map(|r| r[j]).sum::<f64>() / k;
-        let v = rows.iter().map(|r| (r[j] - m).powi(2)).sum::<f64>() / (k - 1.0);
-        (m, v.sqrt())
-    };
-    let (c, s): (Vec<f64>, Vec<f64>) = (0..mstats::DIM).map(|j| mean_sd(&st, j)).unzip();
-    let spec_sd = (0..sp[0].len()).map(|j| mean_sd(&sp, j).1).sum::<f64>() / sp[0].len() as f64;
-    println!("frames: {} of {} presses", st.len(), dirs.len());
-    println!("CENTRE: {c:.4?}");
-    println!("SPREAD: {s:.4?}");
-    println!("spectrum (L2-normalised): mean per-value spread {spec_sd:.5}");
+    let sc = telextiles_lab::mstats::scale_of_presses(&a.presses, a.every)?;
+    println!("frames: {} of {} presses", sc.frames, sc.presses);
+    println!("CENTRE: {:.4?}", sc.centre);
+    println!("SPREAD: {:.4?}", sc.spread);
+    println!(
+        "spectrum (L2-normalised): mean per-value spread {:.5}",
+        sc.spectrum_spread
+    );
     Ok(())
 }
 

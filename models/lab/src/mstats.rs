@@ -191,6 +191,88 @@ pub fn standardised(raw: &[f64], weight: f64) -> Vec<f32> {
         .collect()
 }
 
+/// What [`scale_of_presses`] measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scale {
+    /// Mean of each statistic.
+    pub centre: Vec<f64>,
+    /// Its standard deviation.
+    pub spread: Vec<f64>,
+    /// Mean standard deviation of the values of the L2-normalised
+    /// whitened spectrum over the same frames.
+    pub spectrum_spread: f64,
+    /// Frames measured, and presses they came from.
+    pub frames: usize,
+    pub presses: usize,
+}
+
+/// The constants of [`standardised`] and of the weight `wspec-mW` uses,
+/// measured on recorded presses under `dir` (the press format, found
+/// recursively): every `every`-th frame in contact of each, as the
+/// daemon's contact detector finds them with the recording's own
+/// reference, the 240-px crop at 120 px. Shows progress.
+pub fn scale_of_presses(dir: &std::path::Path, every: usize) -> anyhow::Result<Scale> {
+    use crate::preprocess::centre_crop_resize;
+    use anyhow::{ensure, Context};
+    let dirs = telextiles_sim::recording::find_presses(dir)?;
+    ensure!(!dirs.is_empty(), "{}: no presses", dir.display());
+    let cfg = telextiles_sensing::contact::ContactConfig::default();
+    let bar = telextiles_progress::Progress::new("measuring", dirs.len() as u64, "presses");
+    let (mut st, mut sp): (Vec<Vec<f64>>, Vec<Vec<f64>>) = (Vec::new(), Vec::new());
+    let mut presses = 0;
+    for d in &dirs {
+        let press = telextiles_sim::recording::read_press(d)?;
+        bar.inc(1);
+        let Some(seg) = telextiles_sensing::front::segment(&press, &cfg) else {
+            continue;
+        };
+        let bytes: Vec<u8> = seg
+            .reference
+            .iter()
+            .map(|v| v.round().clamp(0.0, 255.0) as u8)
+            .collect();
+        let r = image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
+            .context("reference of the wrong size")?;
+        let rv = centre_crop_resize(&r, 240, 240)?;
+        let before = st.len();
+        for c in seg
+            .contact
+            .iter()
+            .filter(|c| !c.early)
+            .step_by(every.max(1))
+        {
+            let fv = centre_crop_resize(&press.frames[c.index], 240, 240)?;
+            let x = crate::wspec::planar_of_image(fv.as_raw(), 240, Some(rv.as_raw()), 120);
+            st.push(of_planar(&x, 120));
+            let mut f = crate::wspec::reference_with(&x, 120, crate::wspec::Window::Centre);
+            crate::baselines::l2(&mut f);
+            sp.push(f.iter().map(|&v| v as f64).collect());
+        }
+        presses += (st.len() > before) as usize;
+    }
+    bar.finish();
+    ensure!(
+        st.len() > 1,
+        "{}: fewer than two frames in contact",
+        dir.display()
+    );
+    let k = st.len() as f64;
+    let mean_sd = |rows: &[Vec<f64>], j: usize| {
+        let m = rows.iter().map(|r| r[j]).sum::<f64>() / k;
+        let v = rows.iter().map(|r| (r[j] - m).powi(2)).sum::<f64>() / (k - 1.0);
+        (m, v.sqrt())
+    };
+    let (centre, spread): (Vec<f64>, Vec<f64>) = (0..DIM).map(|j| mean_sd(&st, j)).unzip();
+    let n = sp[0].len();
+    Ok(Scale {
+        centre,
+        spread,
+        spectrum_spread: (0..n).map(|j| mean_sd(&sp, j).1).sum::<f64>() / n as f64,
+        frames: st.len(),
+        presses,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -271,5 +353,37 @@ mod tests {
         let n = 64;
         let v = of_planar(&vec![0.0; 3 * n * n], n);
         assert!(v.iter().all(|x| x.is_finite()), "{v:?}");
+    }
+
+    #[test]
+    fn the_scale_is_measured_on_the_frames_in_contact_of_recorded_presses() {
+        let dir = tempfile::tempdir().unwrap();
+        let sim = telextiles_sim::Simulator::new().unwrap();
+        for (k, t) in ["T001", "T050"].iter().enumerate() {
+            let p = sim
+                .render_press(&telextiles_sim::PressSpec {
+                    frames: 60,
+                    ..telextiles_sim::PressSpec::new(*t, k as u64)
+                })
+                .unwrap();
+            telextiles_sim::recording::write_press(&dir.path().join(t).join("p"), &p).unwrap();
+        }
+        let all = scale_of_presses(dir.path(), 1).unwrap();
+        let some = scale_of_presses(dir.path(), 5).unwrap();
+        assert_eq!((all.presses, some.presses), (2, 2));
+        assert!(
+            all.frames > some.frames && some.frames >= 2,
+            "{all:?} {some:?}"
+        );
+        assert_eq!((all.centre.len(), all.spread.len()), (DIM, DIM));
+        assert!(
+            all.spread.iter().all(|s| s.is_finite() && *s > 0.0),
+            "{all:?}"
+        );
+        assert!(all.spectrum_spread > 0.0 && all.spectrum_spread < 1.0);
+        // A directory without presses is an error that names it.
+        let empty = tempfile::tempdir().unwrap();
+        let e = scale_of_presses(empty.path(), 1).unwrap_err().to_string();
+        assert!(e.contains(&empty.path().display().to_string()), "{e}");
     }
 }
