@@ -45,6 +45,20 @@ pub enum BaselineKind {
 pub const MSTATS_UNIT: f64 = 0.02087;
 
 impl BaselineKind {
+    /// A kind by its name: `pixels`, `lbp`, `fft`, `wspec`, `wspec-cw`,
+    /// `mstats`, or `wspec-mW` (W: the statistics' weight, 0–255).
+    pub fn parse(name: &str) -> Option<BaselineKind> {
+        Some(match name {
+            "pixels" => BaselineKind::Pixels,
+            "lbp" => BaselineKind::Lbp,
+            "fft" => BaselineKind::Fft,
+            "wspec" => BaselineKind::WSpec,
+            "wspec-cw" => BaselineKind::WSpecCw,
+            "mstats" => BaselineKind::MStats,
+            k => BaselineKind::WSpecM(k.strip_prefix("wspec-m")?.parse().ok()?),
+        })
+    }
+
     /// Where a `wspec` kind's window sits (`None`: not a `wspec` kind).
     pub fn wspec_window(self) -> Option<crate::wspec::Window> {
         match self {
@@ -107,25 +121,21 @@ impl Baseline {
             BaselineKind::Lbp => lbp(&grey(&rgb()), n),
             BaselineKind::Fft => fft_radial(&grey(&rgb()), n),
             BaselineKind::WSpec | BaselineKind::WSpecCw => {
-                assert_eq!(w, h, "wspec takes a square image");
+                let (x, n) = wspec_input(img, w, h, bg);
                 let window = self.kind.wspec_window().expect("a wspec kind");
-                crate::wspec::of_image_with(img, w, bg, (w / 2).min(120) & !1, window)
+                crate::wspec::reference_with(&x, n, window)
             }
-            BaselineKind::WSpecM(_) | BaselineKind::MStats => {
-                assert_eq!(w, h, "wspec-m takes a square image");
-                let n = (w / 2).min(120) & !1;
-                let x = crate::wspec::planar_of_image(img, w, bg, n);
-                let stats = crate::mstats::of_planar(&x, n);
-                if self.kind == BaselineKind::MStats {
-                    return crate::mstats::standardised(&stats, 1.0);
-                }
+            BaselineKind::MStats => {
+                // Standardised, not L2-normalised.
+                let (x, n) = wspec_input(img, w, h, bg);
+                return crate::mstats::standardised(&crate::mstats::of_planar(&x, n), 1.0);
+            }
+            BaselineKind::WSpecM(weight) => {
+                let (x, n) = wspec_input(img, w, h, bg);
                 let mut f = crate::wspec::reference_with(&x, n, crate::wspec::Window::Centre);
                 l2(&mut f);
-                let BaselineKind::WSpecM(weight) = self.kind else {
-                    unreachable!()
-                };
                 f.extend(crate::mstats::standardised(
-                    &stats,
+                    &crate::mstats::of_planar(&x, n),
                     weight as f64 * MSTATS_UNIT,
                 ));
                 f
@@ -134,6 +144,14 @@ impl Baseline {
         l2(&mut f);
         f
     }
+}
+
+/// The difference the `wspec` kinds and the marginal statistics take from
+/// a square image, and its side `n` (half the image's, at most 120, even).
+fn wspec_input(img: &[u8], w: usize, h: usize, bg: Option<&[u8]>) -> (Vec<f64>, usize) {
+    assert_eq!(w, h, "wspec takes a square image");
+    let n = (w / 2).min(120) & !1;
+    (crate::wspec::planar_of_image(img, w, bg, n), n)
 }
 
 /// Side of the square the descriptors use: `CROP`, or the largest power

@@ -1284,18 +1284,8 @@ fn rust_descriptor(d: &str) -> Result<telextiles_lab::methods::Method> {
         Some(k) => (k, true),
         None => (k, false),
     };
-    let kind = match k {
-        "pixels" => BaselineKind::Pixels,
-        "lbp" => BaselineKind::Lbp,
-        "fft" => BaselineKind::Fft,
-        "wspec" => BaselineKind::WSpec,
-        "wspec-cw" => BaselineKind::WSpecCw,
-        "mstats" => BaselineKind::MStats,
-        k => match k.strip_prefix("wspec-m").map(str::parse::<u8>) {
-            Some(Ok(w)) => BaselineKind::WSpecM(w),
-            _ => bail!("--rust-descriptor {d:?}: unknown kind {k:?}"),
-        },
-    };
+    let kind = BaselineKind::parse(k)
+        .with_context(|| format!("--rust-descriptor {d:?}: unknown kind {k:?}"))?;
     ensure!(
         (16..=240).contains(&crop) && crop.is_multiple_of(2),
         "--rust-descriptor {d:?}: the crop must be even, 16 to 240"
@@ -1321,12 +1311,17 @@ fn mstats_scale(a: MstatsScaleArgs) -> Result<()> {
 fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
     use telextiles_lab::baselines::BaselineKind;
     use telextiles_lab::graph::{descriptor_model, DescriptorSpec};
-    let kind = match a.kind.as_str() {
-        "fft" => BaselineKind::Fft,
-        "pixels" => BaselineKind::Pixels,
-        "wspec" => BaselineKind::WSpec,
-        "wspec-cw" => BaselineKind::WSpecCw,
-        k => bail!("--kind {k:?}: expected fft, wspec, wspec-cw or pixels"),
+    let kind = match BaselineKind::parse(&a.kind) {
+        Some(
+            k @ (BaselineKind::Fft
+            | BaselineKind::Pixels
+            | BaselineKind::WSpec
+            | BaselineKind::WSpecCw),
+        ) => k,
+        _ => bail!(
+            "--kind {:?}: expected fft, wspec, wspec-cw or pixels",
+            a.kind
+        ),
     };
     let spec = DescriptorSpec {
         kind,

@@ -213,7 +213,7 @@ pub struct Scale {
 /// reference, the 240-px crop at 120 px. Shows progress.
 pub fn scale_of_presses(dir: &std::path::Path, every: usize) -> anyhow::Result<Scale> {
     use crate::preprocess::centre_crop_resize;
-    use anyhow::{ensure, Context};
+    use anyhow::ensure;
     let dirs = telextiles_sim::recording::find_presses(dir)?;
     ensure!(!dirs.is_empty(), "{}: no presses", dir.display());
     let cfg = telextiles_sensing::contact::ContactConfig::default();
@@ -226,14 +226,7 @@ pub fn scale_of_presses(dir: &std::path::Path, every: usize) -> anyhow::Result<S
         let Some(seg) = telextiles_sensing::front::segment(&press, &cfg) else {
             continue;
         };
-        let bytes: Vec<u8> = seg
-            .reference
-            .iter()
-            .map(|v| v.round().clamp(0.0, 255.0) as u8)
-            .collect();
-        let r = image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
-            .context("reference of the wrong size")?;
-        let rv = centre_crop_resize(&r, 240, 240)?;
+        let rv = centre_crop_resize(&crate::recorded::reference_image(&seg.reference)?, 240, 240)?;
         let before = st.len();
         for c in seg
             .contact

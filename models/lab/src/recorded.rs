@@ -340,7 +340,7 @@ pub struct Processor {
 }
 
 /// Reference pixels (f32, 0..255) as an image.
-fn reference_image(px: &[f32]) -> Result<image::RgbImage> {
+pub(crate) fn reference_image(px: &[f32]) -> Result<image::RgbImage> {
     let bytes: Vec<u8> = px
         .iter()
         .map(|v| v.round().clamp(0.0, 255.0) as u8)
