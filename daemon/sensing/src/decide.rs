@@ -10,7 +10,9 @@
 //! row. After that the decision switches only when another textile is nearer
 //! than the current one by at least `switch_margin` for `switch_ms` (and at
 //! least two frames) in a row (hysteresis: no flip-flop between two close
-//! textiles). Durations, not frame counts, so a 25 fps sensor decides as
+//! textiles); each change within a press multiplies the time the next
+//! challenger must lead by `switch_backoff` (a decider that has changed its
+//! mind once needs more evidence to change it again). Durations, not frame counts, so a 25 fps sensor decides as
 //! soon as a 60 fps one; timestamps are the frames' own. A textile further
 //! than the unknown-textile distance from everything (the index's own,
 //! calibrated on its presses, or `unknown_distance`) is reported as its
@@ -323,8 +325,15 @@ pub struct DecideConfig {
     pub confirm_ms: f32,
     /// Distance lead a challenger needs over the current decision.
     pub switch_margin: f32,
-    /// Milliseconds the challenger must lead by `switch_margin`.
+    /// Milliseconds the challenger must lead by `switch_margin` for the
+    /// first change of decision in a press.
     pub switch_ms: f32,
+    /// Each change of decision within a press multiplies the time the next
+    /// challenger must lead by this factor: the `k`-th change after the
+    /// first decision waits `switch_ms * switch_backoff^(k-1)`. 1: every
+    /// change waits `switch_ms`. Values below 1 (and NaN) count as 1; infinity
+    /// allows one change per press.
+    pub switch_backoff: f32,
     /// Beyond this distance the nearest known textile is flagged unknown,
     /// unless the index has its own ([`TextileIndex::unknown_distance`],
     /// calibrated on the presses it was built from).
@@ -353,6 +362,7 @@ impl Default for DecideConfig {
             // 8 frames at 60 fps.
             switch_margin: 0.02,
             switch_ms: 117.0,
+            switch_backoff: 1.0,
             unknown_distance: 0.5,
             // Chosen on catalogue 1's held-out people, checked on
             // catalogue 2 (docs/benchmarks.md, "Deciding from the ramp").
@@ -585,7 +595,7 @@ impl Decider {
                     let d_cur = index.distance(cur.entry, &self.mean);
                     let leads = d_cur - nearest.best_dist >= self.cfg.switch_margin;
                     let (run, since) = self.bump(nearest.best, leads, t_us);
-                    if run >= 2 && ms(t_us, since) >= self.cfg.switch_ms {
+                    if run >= 2 && ms(t_us, since) >= self.switch_wait_ms() {
                         self.current = Some(self.make(index, nearest.best, t_us, &nearest));
                         self.challenger = None;
                         self.switches += 1;
@@ -604,6 +614,24 @@ impl Decider {
             nearest,
             decision: self.current,
             changed,
+        }
+    }
+
+    /// How long (ms) a challenger must lead for the next change of
+    /// decision: `switch_ms`, times `switch_backoff` per change made in
+    /// this press.
+    pub fn switch_wait_ms(&self) -> f32 {
+        // Below 1 (or NaN) counts as 1; infinite: never a second change.
+        let b = if self.cfg.switch_backoff >= 1.0 {
+            self.cfg.switch_backoff
+        } else {
+            1.0
+        };
+        let w = self.cfg.switch_ms * b.powi(self.switches.min(64) as i32);
+        if w.is_finite() {
+            w
+        } else {
+            f32::MAX
         }
     }
 

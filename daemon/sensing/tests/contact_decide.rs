@@ -356,6 +356,63 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     assert!(t > 40 && t <= 60, "switched at {t}");
 }
 
+/// A press on A for 20 frames, then C, then B: the frames (60 fps) of
+/// the changes of decision, and the decider after them.
+fn a_then_c_then_b(backoff: f32) -> (Vec<u64>, Decider) {
+    let idx = toy_index();
+    let mut d = Decider::new(
+        DecideConfig {
+            switch_backoff: backoff,
+            ..DecideConfig::default()
+        },
+        8,
+    );
+    d.press_start(0);
+    let e = |k: usize| {
+        let mut v = vec![0f32; 8];
+        v[k] = 1.0;
+        v
+    };
+    let mut changes = Vec::new();
+    for t in 1..=400u64 {
+        let v = match t {
+            ..=20 => e(0),
+            21..=120 => e(2),
+            _ => e(1),
+        };
+        if d.on_embedding(&idx, t * 16_667, &v).unwrap().changed {
+            changes.push(t);
+        }
+    }
+    (changes, d)
+}
+
+#[test]
+fn each_change_of_decision_makes_the_next_wait_longer_by_the_backoff() {
+    // Without backoff: decided A, then C, then B, each change after the
+    // challenger has led for switch_ms (117 ms, 8 frames).
+    let (plain, _) = a_then_c_then_b(1.0);
+    assert_eq!(plain.len(), 3, "{plain:?}");
+    // With backoff 4 the first change (to C) is as fast; the second (to B)
+    // waits 4 x 117 = 468 ms: 21 frames (351 ms) later.
+    let (four, mut d) = a_then_c_then_b(4.0);
+    assert_eq!(four.len(), 3, "{four:?}");
+    assert_eq!(four[..2], plain[..2]);
+    let later = four[2] - plain[2];
+    assert!((20..=22).contains(&later), "{plain:?} {four:?}");
+    // After two changes a third would wait 16 x 117 ms; a new press starts
+    // over at 117 ms.
+    assert_eq!(d.switch_wait_ms(), 16.0 * 117.0);
+    d.press_end(400 * 16_667);
+    d.press_start(500 * 16_667);
+    assert_eq!(d.switch_wait_ms(), 117.0);
+    // Infinite backoff: one change per press, then never again.
+    assert_eq!(a_then_c_then_b(f32::INFINITY).0, plain[..2]);
+    // Below 1 and NaN count as 1.
+    assert_eq!(a_then_c_then_b(0.5).0, plain);
+    assert_eq!(a_then_c_then_b(f32::NAN).0, plain);
+}
+
 #[test]
 fn far_textiles_get_the_nearest_known_flagged_unknown() {
     let idx = toy_index();

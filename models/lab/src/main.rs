@@ -71,6 +71,9 @@ enum Cmd {
     /// timing rules (min_ms, confirm_ms); committed decisions right against
     /// time after first contact, switches, and the written rule's pick.
     DeciderTiming(DeciderTimingArgs),
+    /// The switching rule across several `decider-timing` studies (e.g.
+    /// both catalogues): the written rule over every group of every study.
+    DeciderSwitch(DeciderSwitchArgs),
     /// Centre and spread of the marginal statistics (`mstats`) and the
     /// whitened spectrum's mean per-value spread, over the frames in contact
     /// of recorded presses: the constants `wspec-m` standardises with.
@@ -85,6 +88,17 @@ struct MstatsScaleArgs {
     /// Every how many frames in contact to take one.
     #[arg(long, default_value_t = 4)]
     every: usize,
+}
+
+#[derive(Args)]
+struct DeciderSwitchArgs {
+    /// A study's timing.json (`decider-timing --out DIR` writes
+    /// DIR/timing.json); give two or more.
+    #[arg(long, required = true, num_args = 1)]
+    timing: Vec<PathBuf>,
+    /// Where the markdown goes (printed too).
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -663,6 +677,7 @@ fn main() -> Result<()> {
         Cmd::Quantize(a) => quantize_cmd(a),
         Cmd::SimPresses(a) => sim_presses(a),
         Cmd::DeciderTiming(a) => decider_timing(a),
+        Cmd::DeciderSwitch(a) => decider_switch(a),
         Cmd::MstatsScale(a) => mstats_scale(a),
         Cmd::Export(a) => export(a),
         Cmd::Eval(a) => eval(a),
@@ -1170,6 +1185,26 @@ fn decider_timing(a: DeciderTimingArgs) -> Result<()> {
         "wrote timing.json, report.md and the charts in {}",
         a.out.display()
     );
+    Ok(())
+}
+
+fn decider_switch(a: DeciderSwitchArgs) -> Result<()> {
+    use telextiles_lab::decider_timing as dt;
+    let reports = a
+        .timing
+        .iter()
+        .map(|p| -> Result<dt::TimingReport> {
+            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+            serde_json::from_slice(&bytes)
+                .with_context(|| format!("{} is not a decider-timing study", p.display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let md = dt::markdown_across(&reports, &std::env::args().collect::<Vec<_>>().join(" "))?;
+    if let Some(out) = &a.out {
+        write_atomic(out, md.as_bytes())?;
+        eprintln!("wrote {}", out.display());
+    }
+    println!("{md}");
     Ok(())
 }
 
