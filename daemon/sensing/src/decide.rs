@@ -359,10 +359,13 @@ impl Default for DecideConfig {
             // before.
             min_ms: 0.0,
             confirm_ms: 50.0,
-            // 8 frames at 60 fps.
+            // 8 frames at 60 fps for the first change of a press, four
+            // times as long for each later one: the written rule over both
+            // catalogues (`telextiles-lab decider-switch`, docs/benchmarks.md
+            // "A switching rule that backs off"). 1 (no backoff) before.
             switch_margin: 0.02,
             switch_ms: 117.0,
-            switch_backoff: 1.0,
+            switch_backoff: 4.0,
             unknown_distance: 0.5,
             // Chosen on catalogue 1's held-out people, checked on
             // catalogue 2 (docs/benchmarks.md, "Deciding from the ramp").
