@@ -1385,6 +1385,59 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     #[test]
+    fn decider_switch_reproduces_the_committed_pick_which_is_the_shipped_rule() {
+        use std::path::Path;
+        use telextiles_lab::decider_timing as dt;
+        let docs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/bench-v2");
+        let studies = vec![
+            docs.join("decider-v1/timing.json"),
+            docs.join("decider-v2/timing.json"),
+        ];
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("switch.md");
+        super::decider_switch(super::DeciderSwitchArgs {
+            timing: studies.clone(),
+            out: Some(out.clone()),
+        })
+        .unwrap();
+        // The committed markdown, but for its first line (the command).
+        let body = |p: &Path| {
+            let s = std::fs::read_to_string(p).unwrap();
+            s.lines().skip(3).collect::<Vec<_>>().join("\n")
+        };
+        assert_eq!(body(&out), body(&docs.join("decider-switch.md")));
+        // The pick is what the daemon ships.
+        let reports: Vec<dt::TimingReport> = studies
+            .iter()
+            .map(|p| serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap())
+            .collect();
+        let (_, i) = dt::choose_switch_across(&reports).unwrap();
+        let pick = reports[0].switch_candidates[i];
+        let d = telextiles_sensing::decide::DecideConfig::default();
+        assert_eq!(
+            (pick.switch_margin, pick.switch_ms, pick.switch_backoff),
+            (d.switch_margin, d.switch_ms, d.switch_backoff)
+        );
+        // A file that is not a study, or is missing: an error naming it,
+        // and nothing written.
+        let bad = dir.path().join("bad.json");
+        std::fs::write(&bad, b"{}").unwrap();
+        for f in [bad, dir.path().join("missing.json")] {
+            let out = dir.path().join("not-written.md");
+            let e = super::decider_switch(super::DeciderSwitchArgs {
+                timing: vec![studies[0].clone(), f.clone()],
+                out: Some(out.clone()),
+            })
+            .unwrap_err();
+            assert!(
+                format!("{e:#}").contains(&*f.to_string_lossy()),
+                "{e:#}"
+            );
+            assert!(!out.exists());
+        }
+    }
+
+    #[test]
     fn rust_descriptors_are_named_kind_bg_at_crop() {
         use telextiles_lab::baselines::{Baseline, BaselineKind};
         use telextiles_lab::methods::Method;
