@@ -1429,10 +1429,7 @@ mod tests {
                 out: Some(out.clone()),
             })
             .unwrap_err();
-            assert!(
-                format!("{e:#}").contains(&*f.to_string_lossy()),
-                "{e:#}"
-            );
+            assert!(format!("{e:#}").contains(&*f.to_string_lossy()), "{e:#}");
             assert!(!out.exists());
         }
     }

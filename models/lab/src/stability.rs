@@ -22,6 +22,16 @@
 //! shifted since the reference was taken; background-subtracting methods
 //! keep subtracting the old reference) and unseen textiles (scored by the
 //! ground-truth attribute rank of the decided textile).
+//!
+//! Asked for by name, not in [`Factor::ALL`]: where on the cloth the
+//! query presses, against the spot and the swatch (region of the bolt,
+//! catalogue 2) of the textile's first index press. `spot`: the same
+//! swatch, the index press's spot moved by the level in mm along both
+//! axes (0: the very spot, pressed again). `swatch` (catalogue 2 only):
+//! a random spot on the index press's swatch (0) or on a swatch neither
+//! index press saw (1). Together they say how much of what a method
+//! misses is the cloth itself (another spot, another region with its own
+//! stretch, shear, relief and wear) rather than the press.
 
 use anyhow::{anyhow, Context, Result};
 use image::RgbImage;
@@ -58,10 +68,17 @@ pub enum Factor {
     StaleBackground,
     /// The 20 unseen textiles (no right answer: attribute rank).
     Unseen,
+    /// Distance (mm, along both axes) of the query's spot from the first
+    /// index press's, on its swatch.
+    Spot,
+    /// 0: a random spot on the first index press's swatch; 1: on a swatch
+    /// neither index press saw (catalogue 2).
+    Swatch,
 }
 
 impl Factor {
-    /// All factors in table order.
+    /// The default suite, in table order ([`Factor::Spot`] and
+    /// [`Factor::Swatch`] are asked for by name).
     pub const ALL: [Factor; 10] = [
         Factor::Rotation,
         Factor::Force,
@@ -89,8 +106,10 @@ impl Factor {
             "noise" => Factor::Noise,
             "stale" => Factor::StaleBackground,
             "unseen" => Factor::Unseen,
+            "spot" => Factor::Spot,
+            "swatch" => Factor::Swatch,
             _ => anyhow::bail!(
-                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, sensors, noise, stale, unseen)"
+                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, sensors, noise, stale, unseen, spot, swatch)"
             ),
         })
     }
@@ -108,6 +127,8 @@ impl Factor {
             Factor::Noise => "extra camera noise (DN, σ)",
             Factor::StaleBackground => "background shift since reference (px)",
             Factor::Unseen => "unseen textiles",
+            Factor::Spot => "spot moved on the index press's swatch (mm, both axes)",
+            Factor::Swatch => "swatch (0: the index press's, 1: another)",
         }
     }
 
@@ -140,6 +161,9 @@ impl Factor {
             (Factor::StaleBackground, false) => vec![0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0],
             (Factor::StaleBackground, true) => vec![0.0, 4.0],
             (Factor::Unseen, _) => vec![0.0],
+            (Factor::Spot, false) => vec![0.0, 1.0, 2.0, 4.0, 8.0],
+            (Factor::Spot, true) => vec![0.0, 8.0],
+            (Factor::Swatch, _) => vec![0.0, 1.0],
         };
         v
     }
@@ -417,14 +441,75 @@ fn base_spec(textile: &str, seed: u64) -> PressSpec {
     }
 }
 
+/// The first seed from `from` whose press of `base` (its seed replaced)
+/// sees swatch `want` (`want` true) or none of `avoid` (`want` false).
+fn seed_on_swatch(base: &PressSpec, from: u64, swatches: &[u32], same: bool) -> Result<u64> {
+    (from..from + 10_000)
+        .find(|&seed| {
+            let k = telextiles_sim::swatch_of(&PressSpec {
+                seed,
+                ..base.clone()
+            });
+            swatches.contains(&k) == same
+        })
+        .with_context(|| format!("{}: no seed found for swatch {swatches:?}", base.textile))
+}
+
+/// The query spec of [`Factor::Spot`] or [`Factor::Swatch`] at `value` for
+/// textile `t`, from the first (and second) index press.
+fn cloth_spec(
+    sim: &Simulator,
+    factor: Factor,
+    value: f64,
+    t: &str,
+    seed: u64,
+) -> Result<PressSpec> {
+    let first = base_spec(t, INDEX_SEED);
+    let s0 = telextiles_sim::swatch_of(&first);
+    let s1 = telextiles_sim::swatch_of(&base_spec(t, INDEX_SEED + 1));
+    let b = base_spec(t, seed);
+    Ok(match factor {
+        Factor::Spot => {
+            let o = sim
+                .press_meta(&first)
+                .map_err(|e| anyhow!("simulator: {e}"))?
+                .params
+                .context("simulated press without params")?
+                .offset_mm;
+            // Towards the centre, so the spot stays within the bolt's
+            // +-8 mm.
+            let d = value as f32;
+            let away = |x: f32| if x > 0.0 { x - d } else { x + d };
+            PressSpec {
+                seed: seed_on_swatch(&b, seed, &[s0], true)?,
+                offset_mm: Some([away(o[0]), away(o[1])]),
+                ..b
+            }
+        }
+        Factor::Swatch => {
+            let seed = if value == 0.0 {
+                seed_on_swatch(&b, seed, &[s0], true)?
+            } else {
+                seed_on_swatch(&b, seed, &[s0, s1], false)?
+            };
+            PressSpec { seed, ..b }
+        }
+        _ => b,
+    })
+}
+
+/// Seed of the first index press of each textile (the second is the next).
+const INDEX_SEED: u64 = 7000;
+
 /// Query plans of one level.
 fn level_plans(
+    sim: &Simulator,
     factor: Factor,
     value: f64,
     textiles: &[String],
     unseen: &[String],
     frames: usize,
-) -> Vec<Plan> {
+) -> Result<Vec<Plan>> {
     let plan = |spec: PressSpec, class: usize, post: Post| Plan {
         spec,
         class: class as u32,
@@ -445,7 +530,7 @@ fn level_plans(
     list.into_iter()
         .map(|(class, t)| {
             let b = base_spec(t, seed);
-            match factor {
+            Ok(match factor {
                 Factor::Rotation => plan(
                     PressSpec {
                         rotation_deg: Some(value as f32),
@@ -494,7 +579,10 @@ fn level_plans(
                 Factor::Noise => plan(b, class, Post::Noise(value as f32)),
                 Factor::StaleBackground => plan(b, class, Post::Shift(value as i32)),
                 Factor::Unseen => plan(b, class, Post::None),
-            }
+                Factor::Spot | Factor::Swatch => {
+                    plan(cloth_spec(sim, factor, value, t, seed)?, class, Post::None)
+                }
+            })
         })
         .collect()
 }
@@ -577,6 +665,10 @@ pub fn run_suite(
     cfg: &SuiteConfig,
     ort_threads: usize,
 ) -> Result<StabilityReport> {
+    anyhow::ensure!(
+        !cfg.factors.contains(&Factor::Swatch) || sim.catalogue().version >= 2,
+        "the swatch factor needs catalogue 2 (catalogue 1 has no swatches)"
+    );
     let mut textiles: Vec<String> = sim.catalogue().training().map(|t| t.id.clone()).collect();
     if let Some(n) = cfg.textiles {
         textiles.truncate(n);
@@ -615,7 +707,7 @@ pub fn run_suite(
         .enumerate()
         .flat_map(|(c, t)| {
             (0..2).map(move |k| Plan {
-                spec: base_spec(t, 7000 + k),
+                spec: base_spec(t, INDEX_SEED + k),
                 class: c as u32,
                 consecutive: None,
                 from_contact: false,
@@ -634,7 +726,7 @@ pub fn run_suite(
                     (0..2).map(move |k| Plan {
                         spec: PressSpec {
                             sensor,
-                            ..base_spec(t, 7000 + k)
+                            ..base_spec(t, INDEX_SEED + k)
                         },
                         class: c as u32,
                         consecutive: None,
@@ -688,7 +780,7 @@ pub fn run_suite(
         let mut curves: Vec<Vec<LevelScore>> = vec![Vec::new(); methods.len()];
         for value in factor.levels(cfg.quick) {
             let t = std::time::Instant::now();
-            let plans = level_plans(factor, value, &textiles, &unseen, cfg.frames);
+            let plans = level_plans(sim, factor, value, &textiles, &unseen, cfg.frames)?;
             let set = render(sim, &classes, &plans, 6, cfg.threads)?;
             render_s += t.elapsed().as_secs_f64();
             let t = std::time::Instant::now();
@@ -744,6 +836,7 @@ pub fn failure_point(curve: &FactorCurve, threshold: f64) -> String {
         Factor::Force => " N",
         Factor::Noise => " DN",
         Factor::StaleBackground => " px",
+        Factor::Spot => " mm",
         _ => "",
     };
     match f {
@@ -1261,8 +1354,51 @@ mod tests {
     }
 
     #[test]
+    fn cloth_queries_press_the_index_swatch_at_a_moved_spot_or_another_swatch() {
+        let sim = Simulator::with_options(2, 1).unwrap();
+        let params = |spec: &PressSpec| sim.press_meta(spec).unwrap().params.unwrap();
+        for t in ["T001", "T050", "T119"] {
+            let first = params(&base_spec(t, INDEX_SEED));
+            let second = params(&base_spec(t, INDEX_SEED + 1));
+            for mm in [0.0, 4.0, 8.0] {
+                let q = cloth_spec(&sim, Factor::Spot, mm, t, 8000).unwrap();
+                let p = params(&q);
+                assert_eq!(p.swatch, first.swatch, "{t} {mm}");
+                assert_ne!(q.seed, INDEX_SEED, "a fresh press, not the index's");
+                for a in 0..2 {
+                    let d = (p.offset_mm[a] - first.offset_mm[a]).abs();
+                    assert!((d - mm as f32).abs() < 1e-4, "{t} {mm}: {p:?}");
+                    assert!(p.offset_mm[a].abs() <= 8.0);
+                }
+                // The same press at every distance: only the spot moves.
+                let q0 = cloth_spec(&sim, Factor::Spot, 0.0, t, 8000).unwrap();
+                assert_eq!(q.seed, q0.seed);
+            }
+            let same = params(&cloth_spec(&sim, Factor::Swatch, 0.0, t, 8000).unwrap());
+            let other = params(&cloth_spec(&sim, Factor::Swatch, 1.0, t, 8000).unwrap());
+            assert_eq!(same.swatch, first.swatch);
+            assert!(other.swatch != first.swatch && other.swatch != second.swatch);
+        }
+        // Catalogue 1 has no swatches: the factor is refused, by name.
+        let v1 = Simulator::with_options(1, 1).unwrap();
+        let cfg = SuiteConfig {
+            textiles: Some(2),
+            factors: vec![Factor::Swatch],
+            quick: true,
+            ..SuiteConfig::default()
+        };
+        let e = run_suite(&v1, &[], &cfg, 1).unwrap_err();
+        assert!(format!("{e}").contains("catalogue 2"), "{e}");
+        assert_eq!(Factor::parse("spot").unwrap(), Factor::Spot);
+        assert_eq!(Factor::parse("swatch").unwrap(), Factor::Swatch);
+    }
+
+    #[test]
     fn levels_start_from_the_nominal_conditions() {
-        for f in Factor::ALL {
+        for f in Factor::ALL
+            .into_iter()
+            .chain([Factor::Spot, Factor::Swatch])
+        {
             let full = f.levels(false);
             let quick = f.levels(true);
             assert!(!quick.is_empty() && quick.len() <= full.len());
