@@ -308,6 +308,14 @@ fn build(a: BuildArgs) -> Result<()> {
     builder.keep_exemplars = keep_exemplars(&a);
     builder.metric_shrinkage = learn_metric(&a).then_some(a.metric_shrinkage);
     builder.unknown_quantile = calibrate_unknown(&a).then_some(a.unknown_quantile);
+    // Fabrics with few presses: an index press covers only the few
+    // millimetres of cloth it touched (docs/benchmarks.md, "Where on the
+    // cloth").
+    let thin: Vec<String> = by_textile
+        .iter()
+        .filter(|(_, (_, means))| means.len() < RECOMMENDED_PRESSES)
+        .map(|(id, (_, means))| format!("{id} ({})", means.len()))
+        .collect();
     for (id, (embs, means)) in by_textile {
         builder.add(record(
             &cat,
@@ -334,6 +342,14 @@ fn build(a: BuildArgs) -> Result<()> {
         unknown_summary(&index),
         &index.fingerprint()[..16]
     )?;
+    if a.presses.is_some() && !thin.is_empty() {
+        eprintln!(
+            "note: {} of {} fabrics have fewer than {RECOMMENDED_PRESSES} presses with contact: {}. A press tells the index only about the few millimetres of cloth it touched; press each fabric {RECOMMENDED_PRESSES} to 5 times, at different places (docs/recording.md)",
+            thin.len(),
+            index.entries.len(),
+            thin.join(", ")
+        );
+    }
     if learn_metric(&a) && index.metric.is_none() {
         eprintln!(
             "note: no fabric has two presses with contact, so the index keeps plain cosine distance"
@@ -375,6 +391,11 @@ fn textile_name(press_dir: &std::path::Path, id: &str) -> Option<String> {
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).ok()?).ok()?;
     (v["id"] == id).then(|| v["name"].as_str().map(str::to_string))?
 }
+
+/// Presses per fabric below which `index build --presses` says the fabric
+/// is thinly covered (docs/recording.md asks for 3 to 5, at different
+/// places).
+const RECOMMENDED_PRESSES: usize = 3;
 
 /// Whether the index learns a distance from the presses (see `--metric`).
 fn learn_metric(a: &BuildArgs) -> bool {

@@ -161,6 +161,33 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
         out.contains("2 textiles from 6 presses"),
         "index build: {out}"
     );
+    // Three presses of each: no note about thin fabrics. An index of the
+    // one-press query set names both fabrics, and is still written.
+    let thin = |args: &[&str]| {
+        let o = run(d, args);
+        assert!(o.status.success(), "{o:?}");
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let build = |presses: &str, out: &str| {
+        thin(&[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            presses,
+            "-o",
+            out,
+        ])
+    };
+    let err = build("recordings", "again.tlxi");
+    assert!(!err.contains("fewer than 3 presses"), "{err}");
+    let err = build("queries", "thin.tlxi");
+    assert!(
+        err.contains("2 of 2 fabrics have fewer than 3 presses with contact: T030 (1), T080 (1)"),
+        "{err}"
+    );
+    assert!(d.join("thin.tlxi").exists());
 
     // Classify the queries: each decided as the textile it is.
     let out = ok(
