@@ -113,6 +113,19 @@ struct Header {
 const MAGIC: &[u8; 8] = b"TXLIMG1\n";
 
 impl ImageSet {
+    /// The same set's description and items, with no pixels yet.
+    pub fn clone_meta(&self) -> ImageSet {
+        ImageSet {
+            kind: self.kind,
+            side: self.side,
+            crop: self.crop,
+            classes: self.classes.clone(),
+            items: self.items.clone(),
+            pixels: Vec::new(),
+            source: self.source.clone(),
+        }
+    }
+
     /// Bytes of one image.
     pub fn image(&self, i: usize) -> &[u8] {
         let n = self.side * self.side * 3;

@@ -340,6 +340,11 @@ struct BenchArgs {
     /// Consecutive hold frames per stability query press.
     #[arg(long, default_value_t = 8)]
     stability_frames: usize,
+    /// The stability suite's index also holds its frames with the cloth
+    /// stretched by 1 ± A along each axis, both and opposed (eight
+    /// copies; 0: as rendered).
+    #[arg(long, default_value_t = 0.0)]
+    index_stretch: f32,
     /// Frames from first contact for the time-to-decision curve (0: skip).
     #[arg(long, default_value_t = 30)]
     decision_frames: usize,
@@ -1138,6 +1143,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
                 frames: a.stability_frames,
                 threads: a.data.threads,
                 quick: a.quick,
+                index_stretch: a.index_stretch,
                 ..SuiteConfig::default()
             };
             if !a.factors.is_empty() {

@@ -182,6 +182,12 @@ pub struct SuiteConfig {
     pub quick: bool,
     /// Factors to run.
     pub factors: Vec<Factor>,
+    /// The index also holds its frames with the cloth stretched by
+    /// `(1 ± a, 1)`, `(1, 1 ± a)`, `(1 ± a, 1 ± a)` and `(1 ± a, 1 ∓ a)`
+    /// ([`stretched`]): what a swatch's own few-percent stretch does to a
+    /// press. 0: the index as rendered.
+    #[serde(default)]
+    pub index_stretch: f32,
 }
 
 impl Default for SuiteConfig {
@@ -192,6 +198,7 @@ impl Default for SuiteConfig {
             threads: 2,
             quick: false,
             factors: Factor::ALL.to_vec(),
+            index_stretch: 0.0,
         }
     }
 }
@@ -362,6 +369,72 @@ pub fn render(
         set.pixels.extend(p);
     }
     Ok(set)
+}
+
+/// The eight `(x, y)` stretches of [`SuiteConfig::index_stretch`] `a`:
+/// each axis alone, both alike and both opposed, by `1 ± a`.
+pub fn stretches(a: f32) -> Vec<(f32, f32)> {
+    let (lo, hi) = (1.0 - a, 1.0 + a);
+    vec![
+        (lo, 1.0),
+        (hi, 1.0),
+        (1.0, lo),
+        (1.0, hi),
+        (lo, lo),
+        (hi, hi),
+        (lo, hi),
+        (hi, lo),
+    ]
+}
+
+/// `set` with each image's difference from its sensor's reference (in
+/// `refs`) stretched by `sx`, `sy` about the image's centre (bilinear; the
+/// edge repeated where the source falls outside) and the reference added
+/// back: the same presses on cloth stretched as a swatch of the bolt
+/// stretches it (`sx` > 1: the cloth's features lie farther apart).
+pub fn stretched(set: &ImageSet, refs: &ImageSet, sx: f32, sy: f32) -> Result<ImageSet> {
+    anyhow::ensure!(
+        sx > 0.0 && sy > 0.0 && sx.is_finite() && sy.is_finite(),
+        "stretch must be positive and finite"
+    );
+    anyhow::ensure!(refs.side == set.side, "references of another size");
+    let n = set.side;
+    let c = (n as f32 - 1.0) / 2.0;
+    let mut out = ImageSet {
+        pixels: Vec::with_capacity(set.pixels.len()),
+        ..set.clone_meta()
+    };
+    // Source coordinate and weights of each output column / row.
+    let axis = |s: f32| -> Vec<(usize, usize, f32)> {
+        (0..n)
+            .map(|x| {
+                let u = (c + (x as f32 - c) / s).clamp(0.0, (n - 1) as f32);
+                let i = u.floor() as usize;
+                (i, (i + 1).min(n - 1), u - i as f32)
+            })
+            .collect()
+    };
+    let (ax, ay) = (axis(sx), axis(sy));
+    for (i, m) in set.items.iter().enumerate() {
+        let img = set.image(i);
+        let bg = background_of(refs, m.sensor)
+            .with_context(|| format!("no reference of sensor {}", m.sensor))?;
+        let d = |x: usize, y: usize, ch: usize| {
+            let k = (y * n + x) * 3 + ch;
+            img[k] as f32 - bg[k] as f32
+        };
+        for (y, &(y0, y1, fy)) in ay.iter().enumerate() {
+            for (x, &(x0, x1, fx)) in ax.iter().enumerate() {
+                for ch in 0..3 {
+                    let top = d(x0, y0, ch) * (1.0 - fx) + d(x1, y0, ch) * fx;
+                    let bot = d(x0, y1, ch) * (1.0 - fx) + d(x1, y1, ch) * fx;
+                    let v = bg[(y * n + x) * 3 + ch] as f32 + top * (1.0 - fy) + bot * fy;
+                    out.pixels.push(v.round().clamp(0.0, 255.0) as u8);
+                }
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// No-contact references of the given sensors as a [`BASE_SIDE`] set.
@@ -715,7 +788,7 @@ pub fn run_suite(
             })
         })
         .collect();
-    let index_set = render(sim, &classes, &index_plans, 6, cfg.threads)?;
+    let mut index_set = render(sim, &classes, &index_plans, 6, cfg.threads)?;
     // The pooled index of `SensorPool`: the same presses on units 0..=3.
     let pooled_set = if cfg.factors.contains(&Factor::SensorPool) {
         let plans: Vec<Plan> = textiles
@@ -742,6 +815,16 @@ pub fn run_suite(
     };
     let sensors: Vec<u32> = (0..8).collect();
     let refs = references(sim, &sensors)?;
+    if cfg.index_stretch != 0.0 {
+        let mut all = index_set.clone_meta();
+        all.pixels = index_set.pixels.clone();
+        for (sx, sy) in stretches(cfg.index_stretch) {
+            let s = stretched(&index_set, &refs, sx, sy)?;
+            all.items.extend(s.items);
+            all.pixels.extend(s.pixels);
+        }
+        index_set = all;
+    }
     render_s += t0.elapsed().as_secs_f64();
     let mut embedders: Vec<Embedder> = methods
         .iter()
@@ -1391,6 +1474,73 @@ mod tests {
         assert!(format!("{e}").contains("catalogue 2"), "{e}");
         assert_eq!(Factor::parse("spot").unwrap(), Factor::Spot);
         assert_eq!(Factor::parse("swatch").unwrap(), Factor::Swatch);
+    }
+
+    #[test]
+    fn a_stretch_moves_the_cloth_and_keeps_the_reference() {
+        let n = 240;
+        let set_of = |px: Vec<u8>, sensor: u32| ImageSet {
+            kind: ImageKind::Input,
+            side: n,
+            crop: n as u32,
+            classes: vec!["A".into()],
+            items: vec![FrameMeta {
+                class: 0,
+                press: 0,
+                person: 0,
+                sensor,
+                jig: true,
+                frame: 0,
+            }],
+            pixels: px,
+            source: String::new(),
+        };
+        // A reference with structure, and a frame with one bright square
+        // 40 px right of the centre.
+        let bg: Vec<u8> = (0..n * n * 3).map(|i| (i % 97) as u8 + 40).collect();
+        let mut img = bg.clone();
+        for y in 118..122 {
+            for x in 158..162 {
+                for ch in 0..3 {
+                    img[(y * n + x) * 3 + ch] += 60;
+                }
+            }
+        }
+        let refs = set_of(bg.clone(), 3);
+        let set = set_of(img.clone(), 3);
+        // Stretch 1: the same image.
+        assert_eq!(stretched(&set, &refs, 1.0, 1.0).unwrap().pixels, img);
+        // Stretch 1.1 along x: the square's centre moves from 40 to 44 px
+        // right of the centre, not along y; the reference stays where
+        // there is no difference.
+        let s = stretched(&set, &refs, 1.1, 1.0).unwrap();
+        let diff =
+            |p: &[u8], x: usize, y: usize| p[(y * n + x) * 3] as i32 - bg[(y * n + x) * 3] as i32;
+        let mass = |p: &[u8]| {
+            let (mut sx, mut sy, mut m) = (0.0, 0.0, 0.0);
+            for y in 0..n {
+                for x in 0..n {
+                    let d = diff(p, x, y).max(0) as f64;
+                    sx += d * x as f64;
+                    sy += d * y as f64;
+                    m += d;
+                }
+            }
+            (sx / m, sy / m)
+        };
+        let (x0, y0) = mass(&img);
+        let (x1, y1) = mass(&s.pixels);
+        let c = (n as f64 - 1.0) / 2.0;
+        assert!(((x1 - c) - 1.1 * (x0 - c)).abs() < 0.5, "{x0} -> {x1}");
+        assert!((y1 - y0).abs() < 0.1, "{y0} -> {y1}");
+        assert_eq!(diff(&s.pixels, 20, 20), 0);
+        // Eight copies, none the identity; a bad stretch or a missing
+        // reference is an error.
+        let st = stretches(0.05);
+        assert_eq!(st.len(), 8);
+        assert!(!st.contains(&(1.0, 1.0)));
+        assert!(stretched(&set, &refs, 0.0, 1.0).is_err());
+        assert!(stretched(&set, &set_of(bg, 4), 1.1, 1.0).is_err());
     }
 
     #[test]
