@@ -12,11 +12,12 @@
 //! least two frames) in a row (hysteresis: no flip-flop between two close
 //! textiles); each change within a press multiplies the time the next
 //! challenger must lead by `switch_backoff` (a decider that has changed its
-//! mind once needs more evidence to change it again). Durations, not frame counts, so a 25 fps sensor decides as
-//! soon as a 60 fps one; timestamps are the frames' own. A textile further
-//! than the unknown-textile distance from everything (the index's own,
-//! calibrated on its presses, or `unknown_distance`) is reported as its
-//! nearest known textile with `unknown = true`.
+//! mind once needs more evidence to change it again). Durations, not frame
+//! counts, so a 25 fps sensor decides as soon as a 60 fps one; timestamps
+//! are the frames' own. A textile further than the unknown-textile distance
+//! from everything (the index's own, calibrated on its presses, or
+//! `unknown_distance`) is reported as its nearest known textile with
+//! `unknown = true`.
 //!
 //! Confidence is `(d2 - d1) / d2` in 0..=1, where `d1` is the distance to
 //! the decided textile and `d2` to the nearest other one: 0 for a tie, 1 for
