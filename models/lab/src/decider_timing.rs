@@ -147,7 +147,12 @@ impl Timing {
         let sw = if (self.switch_margin, self.switch_ms, self.switch_backoff) == SWITCH_RULES[0] {
             String::new()
         } else {
-            format!(", switch {}", self.switch_label().replace(" / ", " for "))
+            format!(
+                ", switch {:.2} for {:.0} ms{}",
+                self.switch_margin,
+                self.switch_ms,
+                self.backoff_suffix()
+            )
         };
         format!(
             "{:.0} / {:.0}{}{sw}",
@@ -160,12 +165,21 @@ impl Timing {
     /// The switching rule alone, `margin / ms`, and `, x backoff` when
     /// there is one.
     pub fn switch_label(&self) -> String {
-        let b = if self.switch_backoff == 1.0 {
+        format!(
+            "{:.2} / {:.0} ms{}",
+            self.switch_margin,
+            self.switch_ms,
+            self.backoff_suffix()
+        )
+    }
+
+    /// `, x B per change` for a backoff, nothing without one.
+    fn backoff_suffix(&self) -> String {
+        if self.switch_backoff == 1.0 {
             String::new()
         } else {
             format!(", x {} per change", self.switch_backoff)
-        };
-        format!("{:.2} / {:.0} ms{b}", self.switch_margin, self.switch_ms)
+        }
     }
 }
 
@@ -935,6 +949,13 @@ pub fn chart(r: &TimingReport, group: &str, svg: &std::path::Path) -> Result<()>
         0.0..WINDOW_MS,
         &series,
     )
+}
+
+/// Reads a study's `timing.json` (as [`write`] writes it).
+pub fn read(path: &std::path::Path) -> Result<TimingReport> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_slice(&bytes)
+        .with_context(|| format!("{} is not a decider-timing study", path.display()))
 }
 
 /// Writes `timing.json`, `report.md` and the charts into `out`.

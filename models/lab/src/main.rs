@@ -1199,11 +1199,7 @@ fn decider_switch(a: DeciderSwitchArgs) -> Result<()> {
     let reports = a
         .timing
         .iter()
-        .map(|p| -> Result<dt::TimingReport> {
-            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
-            serde_json::from_slice(&bytes)
-                .with_context(|| format!("{} is not a decider-timing study", p.display()))
-        })
+        .map(|p| dt::read(p))
         .collect::<Result<Vec<_>>>()?;
     let md = dt::markdown_across(&reports, &std::env::args().collect::<Vec<_>>().join(" "))?;
     if let Some(out) = &a.out {
@@ -1413,10 +1409,7 @@ mod tests {
         };
         assert_eq!(body(&out), body(&docs.join("decider-switch.md")));
         // The pick is what the daemon ships.
-        let reports: Vec<dt::TimingReport> = studies
-            .iter()
-            .map(|p| serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap())
-            .collect();
+        let reports: Vec<dt::TimingReport> = studies.iter().map(|p| dt::read(p).unwrap()).collect();
         let (_, i) = dt::choose_switch_across(&reports).unwrap();
         let pick = reports[0].switch_candidates[i];
         let d = telextiles_sensing::decide::DecideConfig::default();

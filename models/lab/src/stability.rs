@@ -185,7 +185,8 @@ pub struct SuiteConfig {
     /// The index also holds its frames with the cloth stretched by
     /// `(1 ± a, 1)`, `(1, 1 ± a)`, `(1 ± a, 1 ± a)` and `(1 ± a, 1 ∓ a)`
     /// ([`stretched`]): what a swatch's own few-percent stretch does to a
-    /// press. 0: the index as rendered.
+    /// press. 0: the index as rendered. (The pooled index of
+    /// [`Factor::SensorPool`] is not stretched.)
     #[serde(default)]
     pub index_stretch: f32,
 }
@@ -515,7 +516,7 @@ fn base_spec(textile: &str, seed: u64) -> PressSpec {
 }
 
 /// The first seed from `from` whose press of `base` (its seed replaced)
-/// sees swatch `want` (`want` true) or none of `avoid` (`want` false).
+/// sees one of `swatches` (`same` true) or none of them (`same` false).
 fn seed_on_swatch(base: &PressSpec, from: u64, swatches: &[u32], same: bool) -> Result<u64> {
     (from..from + 10_000)
         .find(|&seed| {
@@ -816,14 +817,14 @@ pub fn run_suite(
     let sensors: Vec<u32> = (0..8).collect();
     let refs = references(sim, &sensors)?;
     if cfg.index_stretch != 0.0 {
-        let mut all = index_set.clone_meta();
-        all.pixels = index_set.pixels.clone();
-        for (sx, sy) in stretches(cfg.index_stretch) {
-            let s = stretched(&index_set, &refs, sx, sy)?;
-            all.items.extend(s.items);
-            all.pixels.extend(s.pixels);
+        let copies = stretches(cfg.index_stretch)
+            .into_iter()
+            .map(|(sx, sy)| stretched(&index_set, &refs, sx, sy))
+            .collect::<Result<Vec<_>>>()?;
+        for s in copies {
+            index_set.items.extend(s.items);
+            index_set.pixels.extend(s.pixels);
         }
-        index_set = all;
     }
     render_s += t0.elapsed().as_secs_f64();
     let mut embedders: Vec<Embedder> = methods
