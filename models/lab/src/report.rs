@@ -401,6 +401,7 @@ pub fn write(report: &BenchReport, out: &Path) -> Result<()> {
             &out.join("stability-accuracy.svg"),
             &out.join("stability-flips.svg"),
         )?;
+        stability::coverage_chart(s, &names, &out.join("coverage.svg"))?;
     }
     if !report.usertest.is_empty() {
         usertest_chart(report, &names, &out.join("usertest.svg"))?;
@@ -622,7 +623,11 @@ pub fn markdown(r: &BenchReport) -> String {
             else {
                 continue;
             };
-            s.push_str(&format!("### {}\n\n| method |", f.label()));
+            s.push_str(&format!("### {}\n\n", f.label()));
+            if f.is_coverage() {
+                s.push_str("Top-1 per press against the nearest index frame / flip rate / against the nearest textile centroid (the index `index build --sim` makes) / against the nearest of each textile's centroid and its presses' means (the index `index build --presses` makes). The same query presses at every level; the index holds the first n presses of every textile, each at a random spot and swatch.\n\n");
+            }
+            s.push_str("| method |");
             for l in &first.levels {
                 s.push_str(&format!(" {} |", l.value));
             }
@@ -636,10 +641,17 @@ pub fn markdown(r: &BenchReport) -> String {
                     s.push_str(&format!("| {} |", m.name));
                     for l in &c.levels {
                         s.push_str(&format!(
-                            " {:.0} / {:.0} |",
+                            " {:.0} / {:.0}",
                             100.0 * l.press_top1,
                             100.0 * l.flip_rate
                         ));
+                        for c in [l.press_top1_centroid, l.press_top1_exemplars]
+                            .into_iter()
+                            .flatten()
+                        {
+                            s.push_str(&format!(" / {:.0}", 100.0 * c));
+                        }
+                        s.push_str(" |");
                     }
                     s.push('\n');
                 }

@@ -32,6 +32,15 @@
 //! index press saw (1). Together they say how much of what a method
 //! misses is the cloth itself (another spot, another region with its own
 //! stretch, shear, relief and wear) rather than the press.
+//!
+//! Also asked for by name: how many index presses per textile a fabric
+//! needs (`coverage`, jig queries; `coverage-hand`, hand-held queries by a
+//! person no model was trained on). The level is the number of index
+//! presses per textile (1 to 16, each at a random spot and swatch; the
+//! suite's two are the first two); the same query presses (three per
+//! textile) are decided at every level against the nearest index frame,
+//! the nearest textile centroid (`index build --sim`) and the nearest of
+//! centroid and press means (`index build --presses`).
 
 use anyhow::{anyhow, Context, Result};
 use image::RgbImage;
@@ -74,7 +83,18 @@ pub enum Factor {
     /// 0: a random spot on the first index press's swatch; 1: on a swatch
     /// neither index press saw (catalogue 2).
     Swatch,
+    /// Index presses per textile (the level; the suite's index is the first
+    /// two of them), each at a fresh random spot and swatch; the queries
+    /// are the nominal jig presses.
+    Coverage,
+    /// The same indexes; the queries are hand-held presses by person
+    /// [`COVERAGE_HAND_PERSON`], whom no trained model saw.
+    CoverageHand,
 }
+
+/// The hand-held person of [`Factor::CoverageHand`]: the protocol's first
+/// held-out person.
+pub const COVERAGE_HAND_PERSON: u32 = 8;
 
 impl Factor {
     /// The default suite, in table order ([`Factor::Spot`] and
@@ -108,8 +128,10 @@ impl Factor {
             "unseen" => Factor::Unseen,
             "spot" => Factor::Spot,
             "swatch" => Factor::Swatch,
+            "coverage" => Factor::Coverage,
+            "coverage-hand" => Factor::CoverageHand,
             _ => anyhow::bail!(
-                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, sensors, noise, stale, unseen, spot, swatch)"
+                "unknown factor {s:?} (rotation, force, tilt, handheld, led, sensor, sensors, noise, stale, unseen, spot, swatch, coverage, coverage-hand)"
             ),
         })
     }
@@ -129,6 +151,8 @@ impl Factor {
             Factor::Unseen => "unseen textiles",
             Factor::Spot => "spot moved on the index press's swatch (mm, both axes)",
             Factor::Swatch => "swatch (0: the index press's, 1: another)",
+            Factor::Coverage => "index presses per textile (jig queries)",
+            Factor::CoverageHand => "index presses per textile (hand-held queries)",
         }
     }
 
@@ -137,8 +161,15 @@ impl Factor {
         match self {
             Factor::Force => 4.0,
             Factor::LedDrift => 1.0,
+            Factor::Coverage | Factor::CoverageHand => INDEX_PRESSES as f64,
             _ => 0.0,
         }
+    }
+
+    /// Whether the level is the index's size rather than a condition of
+    /// the queries.
+    pub fn is_coverage(&self) -> bool {
+        matches!(self, Factor::Coverage | Factor::CoverageHand)
     }
 
     /// Levels of the full suite, or of the quick one (CI).
@@ -164,6 +195,8 @@ impl Factor {
             (Factor::Spot, false) => vec![0.0, 1.0, 2.0, 4.0, 8.0],
             (Factor::Spot, true) => vec![0.0, 8.0],
             (Factor::Swatch, _) => vec![0.0, 1.0],
+            (Factor::Coverage | Factor::CoverageHand, false) => vec![1.0, 2.0, 4.0, 8.0, 16.0],
+            (Factor::Coverage | Factor::CoverageHand, true) => vec![1.0, 2.0, 4.0],
         };
         v
     }
@@ -479,6 +512,16 @@ pub struct LevelScore {
     /// Unseen only: median attribute rank (1 = the closest known textile) of
     /// the press decisions.
     pub attr_rank_median: Option<f64>,
+    /// The coverage factors only: top-1 of the same press means against
+    /// each textile's centroid (the normalised mean of its index frames,
+    /// as `index build` keeps it) instead of the nearest index frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub press_top1_centroid: Option<f64>,
+    /// The coverage factors only: against each textile's centroid and its
+    /// presses' means (the index `index build --presses` keeps; a textile's
+    /// distance is the nearest of them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub press_top1_exemplars: Option<f64>,
     pub presses: usize,
 }
 
@@ -572,8 +615,36 @@ fn cloth_spec(
     })
 }
 
-/// Seed of the first index press of each textile (the second is the next).
+/// Seed of the first index press of each textile (the k-th is
+/// `INDEX_SEED + k`).
 const INDEX_SEED: u64 = 7000;
+
+/// Index presses per textile of the suite (the coverage factors vary it).
+pub const INDEX_PRESSES: usize = 2;
+
+/// The index presses `first..end` of every textile (jig, person 0, unit 0,
+/// 0°, 4 N; seeds from [`INDEX_SEED`]), and the number of each plan's
+/// press within its textile (`first..end`).
+fn index_plans(textiles: &[String], first: usize, end: usize) -> (Vec<Plan>, Vec<usize>) {
+    textiles
+        .iter()
+        .enumerate()
+        .flat_map(|(c, t)| {
+            (first..end).map(move |k| {
+                (
+                    Plan {
+                        spec: base_spec(t, INDEX_SEED + k as u64),
+                        class: c as u32,
+                        consecutive: None,
+                        from_contact: false,
+                        post: Post::None,
+                    },
+                    k,
+                )
+            })
+        })
+        .unzip()
+}
 
 /// Query plans of one level.
 fn level_plans(
@@ -584,6 +655,33 @@ fn level_plans(
     unseen: &[String],
     frames: usize,
 ) -> Result<Vec<Plan>> {
+    level_plans_seeded(sim, factor, value, textiles, unseen, frames, QUERY_SEED)
+}
+
+/// Seed of the query presses (of every textile, at every level).
+const QUERY_SEED: u64 = 8000;
+
+/// Query presses per textile of the coverage factors (one in the quick
+/// suite, whose first query press is every other factor's): the levels
+/// differ by a few points, so they need more presses than one per textile.
+fn coverage_queries(quick: bool) -> u64 {
+    if quick {
+        1
+    } else {
+        3
+    }
+}
+
+/// [`level_plans`] with the query presses' seed.
+fn level_plans_seeded(
+    sim: &Simulator,
+    factor: Factor,
+    value: f64,
+    textiles: &[String],
+    unseen: &[String],
+    frames: usize,
+    seed: u64,
+) -> Result<Vec<Plan>> {
     let plan = |spec: PressSpec, class: usize, post: Post| Plan {
         spec,
         class: class as u32,
@@ -591,7 +689,6 @@ fn level_plans(
         from_contact: false,
         post,
     };
-    let seed = 8000;
     let list: Vec<(usize, &String)> = if factor == Factor::Unseen {
         unseen
             .iter()
@@ -656,6 +753,19 @@ fn level_plans(
                 Factor::Spot | Factor::Swatch => {
                     plan(cloth_spec(sim, factor, value, t, seed)?, class, Post::None)
                 }
+                Factor::Coverage => plan(b, class, Post::None),
+                Factor::CoverageHand => plan(
+                    PressSpec {
+                        person: COVERAGE_HAND_PERSON,
+                        jig: false,
+                        rotation_deg: Some(0.0),
+                        force: None,
+                        release: Some(false),
+                        ..PressSpec::new(t.as_str(), seed)
+                    },
+                    class,
+                    Post::None,
+                ),
             })
         })
         .collect()
@@ -679,6 +789,7 @@ fn score_level(
     index: &[f32],
     labels: &[u32],
     unseen_rank: Option<&dyn Fn(u32, u32) -> usize>,
+    presses_of_rows: Option<&[usize]>,
 ) -> LevelScore {
     let mut presses: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
     for (i, m) in set.items.iter().enumerate() {
@@ -699,6 +810,22 @@ fn score_level(
         }
     }
     let per_press = decide(index, labels, &q, dim);
+    let share = |index: &[f32], labels: &[u32]| {
+        let got = decide(index, labels, &q, dim);
+        let right = classes.iter().zip(&got).filter(|(t, g)| t == g).count();
+        right as f64 / classes.len().max(1) as f64
+    };
+    let (press_top1_centroid, press_top1_exemplars) = match presses_of_rows {
+        Some(ks) => {
+            let (mut c, mut cl) = crate::methods::centroids(index, labels, dim);
+            let by_centroid = share(&c, &cl);
+            let (x, xl) = press_exemplars(index, labels, ks, dim);
+            c.extend(x);
+            cl.extend(xl);
+            (Some(by_centroid), Some(share(&c, &cl)))
+        }
+        None => (None, None),
+    };
     let ok = |truth: u32, got: u32| match unseen_rank {
         Some(rank) => rank(truth, got) <= 10,
         None => truth == got,
@@ -728,8 +855,54 @@ fn score_level(
         frame_top1: frame_ok as f64 / set.len().max(1) as f64,
         flip_rate: flips as f64 / pairs.max(1) as f64,
         attr_rank_median,
+        press_top1_centroid,
+        press_top1_exemplars,
         presses: classes.len(),
     }
+}
+
+/// The rows (and their labels) of an index's first `k` presses of every
+/// textile (`ks`: each row's press number within its textile).
+fn first_presses(
+    rows: &[f32],
+    labels: &[u32],
+    ks: &[usize],
+    dim: usize,
+    k: usize,
+) -> (Vec<f32>, Vec<u32>) {
+    let mut index = Vec::new();
+    let mut out = Vec::new();
+    for ((row, &l), &pk) in rows.chunks_exact(dim.max(1)).zip(labels).zip(ks) {
+        if pk < k {
+            index.extend_from_slice(row);
+            out.push(l);
+        }
+    }
+    (index, out)
+}
+
+/// The normalised mean of each index press's rows (a press: its label and
+/// its number `ks` within the textile), and the press's label: the
+/// exemplars `index build --presses` keeps.
+fn press_exemplars(
+    index: &[f32],
+    labels: &[u32],
+    ks: &[usize],
+    dim: usize,
+) -> (Vec<f32>, Vec<u32>) {
+    let mut by: std::collections::BTreeMap<(u32, usize), Vec<usize>> = Default::default();
+    for (row, (&l, &k)) in labels.iter().zip(ks).enumerate() {
+        by.entry((l, k)).or_default().push(row);
+    }
+    let mut out = Vec::new();
+    let mut out_labels = Vec::new();
+    for ((l, _), rows) in by {
+        let mut m = mean_rows(index, dim, &rows);
+        normalize_rows(&mut m, dim);
+        out.extend(m);
+        out_labels.push(l);
+    }
+    (out, out_labels)
 }
 
 /// Runs the suite for every method.
@@ -776,20 +949,22 @@ pub fn run_suite(
     let mut render_s = 0.0;
     let mut embed_s = 0.0;
     // The index: two reference presses per textile, 6 frames each.
-    let index_plans: Vec<Plan> = textiles
+    let (plans, mut press_k) = index_plans(&textiles, 0, INDEX_PRESSES);
+    let mut index_set = render(sim, &classes, &plans, 6, cfg.threads)?;
+    // The coverage factors' larger indexes: the same presses and more.
+    let coverage_max = cfg
+        .factors
         .iter()
-        .enumerate()
-        .flat_map(|(c, t)| {
-            (0..2).map(move |k| Plan {
-                spec: base_spec(t, INDEX_SEED + k),
-                class: c as u32,
-                consecutive: None,
-                from_contact: false,
-                post: Post::None,
-            })
-        })
-        .collect();
-    let mut index_set = render(sim, &classes, &index_plans, 6, cfg.threads)?;
+        .filter(|f| f.is_coverage())
+        .flat_map(|f| f.levels(cfg.quick))
+        .fold(0.0f64, f64::max) as usize;
+    let (more_plans, more_k) = index_plans(&textiles, INDEX_PRESSES, coverage_max);
+    let more_set = if more_plans.is_empty() {
+        None
+    } else {
+        Some(render(sim, &classes, &more_plans, 6, cfg.threads)?)
+    };
+    press_k.extend(more_k);
     // The pooled index of `SensorPool`: the same presses on units 0..=3.
     let pooled_set = if cfg.factors.contains(&Factor::SensorPool) {
         let plans: Vec<Plan> = textiles
@@ -833,6 +1008,7 @@ pub fn run_suite(
         .collect::<Result<_>>()?;
     // Per method: its index embeddings (in its view).
     let mut indexes = Vec::new();
+    let index_meta: Vec<u32> = index_set.items.iter().map(|m| m.press).collect();
     let t1 = std::time::Instant::now();
     for (m, e) in methods.iter().zip(embedders.iter_mut()) {
         let (crop, input) = m.view();
@@ -848,11 +1024,37 @@ pub fn run_suite(
             }
             None => None,
         };
-        indexes.push((emb, labels, dim, r, pooled));
+        // Every index press's rows, and the number of its press within
+        // its textile (the stretched copies keep their press's number).
+        let coverage = match &more_set {
+            _ if coverage_max == 0 => None,
+            Some(more) => {
+                let v = view_set(more, crop, input)?;
+                let (more_emb, _) = e.embed(&v, |s| background_of(&r, s))?;
+                let mut rows = emb.clone();
+                rows.extend(more_emb);
+                let mut cl = labels.clone();
+                cl.extend(v.items.iter().map(|m| m.class));
+                let base = plans.len() as u32;
+                let ks: Vec<usize> = index_meta
+                    .iter()
+                    .map(|p| press_k[*p as usize])
+                    .chain(v.items.iter().map(|m| press_k[(base + m.press) as usize]))
+                    .collect();
+                Some((rows, cl, ks))
+            }
+            None => Some((
+                emb.clone(),
+                labels.clone(),
+                index_meta.iter().map(|p| press_k[*p as usize]).collect(),
+            )),
+        };
+        indexes.push((emb, labels, dim, r, pooled, coverage));
     }
     embed_s += t1.elapsed().as_secs_f64();
     drop(index_set);
     drop(pooled_set);
+    drop(more_set);
     let mut out: Vec<MethodStability> = methods
         .iter()
         .map(|m| MethodStability {
@@ -862,6 +1064,53 @@ pub fn run_suite(
         .collect();
     for &factor in &cfg.factors {
         let mut curves: Vec<Vec<LevelScore>> = vec![Vec::new(); methods.len()];
+        if factor.is_coverage() {
+            // The same queries against ever larger indexes: rendered and
+            // embedded once.
+            let t = std::time::Instant::now();
+            let mut plans = Vec::new();
+            for j in 0..coverage_queries(cfg.quick) {
+                let seed = QUERY_SEED + 100 * j;
+                plans.extend(level_plans_seeded(
+                    sim, factor, 0.0, &textiles, &unseen, cfg.frames, seed,
+                )?);
+            }
+            let set = render(sim, &classes, &plans, 6, cfg.threads)?;
+            render_s += t.elapsed().as_secs_f64();
+            let t = std::time::Instant::now();
+            for (mi, (m, e)) in methods.iter().zip(embedders.iter_mut()).enumerate() {
+                let (crop, input) = m.view();
+                let v = view_set(&set, crop, input)?;
+                let (_, _, dim, refs, _, coverage) = &indexes[mi];
+                let (rows, labels, ks) = coverage.as_ref().context("no coverage index")?;
+                let (qe, _) = e.embed(&v, |s| background_of(refs, s))?;
+                for value in factor.levels(cfg.quick) {
+                    let k = value as usize;
+                    let (index, labels) = first_presses(rows, labels, ks, *dim, k);
+                    let kept: Vec<usize> = ks.iter().copied().filter(|&p| p < k).collect();
+                    curves[mi].push(score_level(
+                        value,
+                        &v,
+                        &qe,
+                        *dim,
+                        &index,
+                        &labels,
+                        None,
+                        Some(&kept),
+                    ));
+                }
+            }
+            embed_s += t.elapsed().as_secs_f64();
+            eprintln!(
+                "stability {factor:?}: {} presses, {:.0} s so far",
+                plans.len(),
+                t0.elapsed().as_secs_f64()
+            );
+            for (o, c) in out.iter_mut().zip(curves) {
+                o.curves.push(FactorCurve { factor, levels: c });
+            }
+            continue;
+        }
         for value in factor.levels(cfg.quick) {
             let t = std::time::Instant::now();
             let plans = level_plans(sim, factor, value, &textiles, &unseen, cfg.frames)?;
@@ -871,7 +1120,7 @@ pub fn run_suite(
             for (mi, (m, e)) in methods.iter().zip(embedders.iter_mut()).enumerate() {
                 let (crop, input) = m.view();
                 let v = view_set(&set, crop, input)?;
-                let (index, labels, dim, refs, pooled) = &indexes[mi];
+                let (index, labels, dim, refs, pooled, _) = &indexes[mi];
                 let (index, labels) = match (factor, pooled) {
                     (Factor::SensorPool, Some((pi, pl))) => (pi, pl),
                     _ => (index, labels),
@@ -886,6 +1135,7 @@ pub fn run_suite(
                     index,
                     labels,
                     (factor == Factor::Unseen).then_some(r),
+                    None,
                 ));
             }
             embed_s += t.elapsed().as_secs_f64();
@@ -908,6 +1158,117 @@ pub fn run_suite(
     })
 }
 
+/// One figure of a level (None where the level does not have it).
+type LevelFigure = fn(&LevelScore) -> Option<f64>;
+
+/// The coverage factors' chart: top-1 per press against index presses per
+/// textile (log scale), one panel per factor (jig, hand-held queries), one
+/// colour per method, one line style per index (nearest frame: solid;
+/// textile centroids, `index build --sim`: dotted; centroids and press
+/// means, `index build --presses`: dashed). Nothing is written when the
+/// report has no coverage factor.
+pub fn coverage_chart(
+    report: &StabilityReport,
+    names: &[String],
+    svg: &std::path::Path,
+) -> Result<bool> {
+    use plotters::prelude::*;
+    let e = |x: Box<dyn std::error::Error + '_>| anyhow!("chart: {x}");
+    let factors: Vec<Factor> = report
+        .config
+        .factors
+        .iter()
+        .copied()
+        .filter(Factor::is_coverage)
+        .collect();
+    if factors.is_empty() {
+        return Ok(false);
+    }
+    let methods: Vec<&MethodStability> = report
+        .methods
+        .iter()
+        .filter(|m| names.contains(&m.name))
+        .collect();
+    let root = SVGBackend::new(svg, (1200, 520)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(Box::new(x)))?;
+    let panels = root.split_evenly((1, factors.len()));
+    for (pi, (panel, f)) in panels.iter().zip(&factors).enumerate() {
+        let hi = f.levels(report.config.quick).last().copied().unwrap_or(2.0);
+        let mut c = ChartBuilder::on(panel)
+            .caption(
+                format!("Top-1 per press: {}", f.label()),
+                ("sans-serif", 16),
+            )
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(45)
+            .build_cartesian_2d((0.9f64..hi * 1.1).log_scale(), 0.0..100.0)
+            .map_err(|x| e(Box::new(x)))?;
+        c.configure_mesh()
+            .x_desc("index presses per textile")
+            .y_desc("top-1 per press, %")
+            .x_labels(6)
+            .y_labels(6)
+            .draw()
+            .map_err(|x| e(Box::new(x)))?;
+        c.draw_series(LineSeries::new(
+            [(0.9, 90.0), (hi * 1.1, 90.0)],
+            RED.mix(0.5).stroke_width(1),
+        ))
+        .map_err(|x| e(Box::new(x)))?;
+        for (mi, m) in methods.iter().enumerate() {
+            let Some(curve) = m.curves.iter().find(|c| c.factor == *f) else {
+                continue;
+            };
+            let color = Palette99::pick(mi).to_rgba();
+            let kinds: [(&str, LevelFigure); 3] = [
+                ("nearest frame", |l| Some(l.press_top1)),
+                ("centroids (--sim)", |l| l.press_top1_centroid),
+                ("centroids + presses (--presses)", |l| {
+                    l.press_top1_exemplars
+                }),
+            ];
+            for (ki, (kind, get)) in kinds.into_iter().enumerate() {
+                let pts: Vec<(f64, f64)> = curve
+                    .levels
+                    .iter()
+                    .filter_map(|l| get(l).map(|v| (l.value, 100.0 * v)))
+                    .collect();
+                c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                    .map_err(|x| e(Box::new(x)))?;
+                let label = format!("{}, {kind}", m.name);
+                let s = match ki {
+                    0 => c.draw_series(LineSeries::new(pts, color.stroke_width(2))),
+                    1 => c.draw_series(DashedLineSeries::new(pts, 2, 4, color.stroke_width(2))),
+                    _ => c.draw_series(DashedLineSeries::new(pts, 8, 4, color.stroke_width(2))),
+                }
+                .map_err(|x| e(Box::new(x)))?;
+                if pi == 0 {
+                    // The legend draws the line's own pattern: three
+                    // segments of `len` px, 6 px apart.
+                    let len = [6, 2, 5][ki];
+                    s.label(label).legend(move |(x, y)| {
+                        let style = color.stroke_width(2);
+                        let seg = |a: i32| PathElement::new(vec![(a, 0), (a + len, 0)], style);
+                        EmptyElement::at((x, y)) + seg(0) + seg(6) + seg(12)
+                    });
+                }
+            }
+        }
+        if pi == 0 {
+            c.configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 11))
+                .position(SeriesLabelPosition::LowerRight)
+                .draw()
+                .map_err(|x| e(Box::new(x)))?;
+        }
+    }
+    root.present().map_err(|x| e(Box::new(x)))?;
+    Ok(true)
+}
+
 /// Where a method's press accuracy first drops below `threshold` as the
 /// factor moves away from its nominal level (both directions for force
 /// and LED gain; rotation by the absolute angle). Text for the table.
@@ -924,6 +1285,20 @@ pub fn failure_point(curve: &FactorCurve, threshold: f64) -> String {
         _ => "",
     };
     match f {
+        Factor::Coverage | Factor::CoverageHand => {
+            let best = lv
+                .iter()
+                .max_by(|a, b| a.press_top1.total_cmp(&b.press_top1));
+            match (lv.iter().find(|s| !fails(s)), best) {
+                (Some(s), _) => format!("reaches it at {} presses", s.value),
+                (None, Some(b)) => format!(
+                    "never (best {:.0}% at {} presses)",
+                    100.0 * b.press_top1,
+                    b.value
+                ),
+                (None, None) => "-".into(),
+            }
+        }
         Factor::Unseen => {
             let s = &lv[0];
             format!(
@@ -1362,6 +1737,8 @@ mod tests {
                     frame_top1: acc,
                     flip_rate: 0.0,
                     attr_rank_median: None,
+                    press_top1_centroid: None,
+                    press_top1_exemplars: None,
                     presses: 10,
                 })
                 .collect(),
@@ -1435,6 +1812,136 @@ mod tests {
         let want = f.get_pixel(x, y)[0] as i32 - bg.get_pixel(x, y)[0] as i32
             + bg.get_pixel(x - 4, y - 4)[0] as i32;
         assert_eq!(s.get_pixel(x, y)[0] as i32, want.clamp(0, 255));
+    }
+
+    #[test]
+    fn coverage_indexes_grow_by_presses_and_the_first_two_are_the_suites_index() {
+        // The plans: presses `first..end` of every textile, fresh seeds
+        // from INDEX_SEED, the suite's conditions.
+        let ts: Vec<String> = vec!["T001".into(), "T002".into()];
+        let (plans, ks) = index_plans(&ts, 2, 5);
+        assert_eq!(ks, vec![2, 3, 4, 2, 3, 4]);
+        let seeds: Vec<u64> = plans.iter().map(|p| p.spec.seed).collect();
+        assert_eq!(seeds, vec![7002, 7003, 7004, 7002, 7003, 7004]);
+        assert_eq!(plans[3].class, 1);
+        assert_eq!(plans[0].spec.textile, "T001");
+        assert!(plans.iter().all(|p| p.spec.jig && p.spec.person == 0));
+        // Sixteen presses of a catalogue-2 textile land on most of its 8
+        // swatches: the index covers more of the bolt as it grows.
+        let (sixteen, _) = index_plans(&ts[..1], 0, 16);
+        let swatches: std::collections::BTreeSet<u32> = sixteen
+            .iter()
+            .map(|p| telextiles_sim::swatch_of(&p.spec))
+            .collect();
+        assert!(swatches.len() >= 5, "{swatches:?}");
+        // An index's first k presses: only their rows, in order.
+        let rows = [1.0, 0.0, 2.0, 0.0, 3.0, 0.0, 4.0, 0.0];
+        let (index, labels) = first_presses(&rows, &[0, 0, 1, 1], &[0, 1, 0, 1], 2, 1);
+        assert_eq!(index, vec![1.0, 0.0, 3.0, 0.0]);
+        assert_eq!(labels, vec![0, 1]);
+        assert_eq!(
+            first_presses(&rows, &[0, 0, 1, 1], &[0, 1, 0, 1], 2, 2)
+                .1
+                .len(),
+            4
+        );
+        // Exemplars: one normalised mean per press (label, number).
+        let rows = [1.0, 0.0, 0.0, 1.0, 0.0, 2.0, 3.0, 0.0];
+        let (x, xl) = press_exemplars(&rows, &[0, 0, 0, 1], &[0, 0, 1, 0], 2);
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        assert_eq!(xl, vec![0, 0, 1]);
+        for (a, b) in x.iter().zip([h, h, 0.0, 1.0, 1.0, 0.0]) {
+            assert!((a - b).abs() < 1e-6, "{x:?}");
+        }
+
+        // The suite: at two presses the coverage index is the suite's own,
+        // so its jig queries score exactly as the nominal rotation.
+        let sim = Simulator::with_options(2, 1).unwrap();
+        let spec = crate::graph::DescriptorSpec {
+            kind: crate::baselines::BaselineKind::Fft,
+            crop: 64,
+            input: 64,
+            subtract: true,
+            min_bin: 1,
+        };
+        let m = Method::onnx(spec.arch(), crate::graph::descriptor_model(&spec).unwrap()).unwrap();
+        let cfg = SuiteConfig {
+            textiles: Some(3),
+            frames: 3,
+            threads: 2,
+            quick: true,
+            factors: vec![Factor::Rotation, Factor::Coverage, Factor::CoverageHand],
+            ..SuiteConfig::default()
+        };
+        let r = run_suite(&sim, &[m], &cfg, 1).unwrap();
+        let curves = &r.methods[0].curves;
+        let rot0 = &curves[0].levels[0];
+        assert_eq!((curves[0].factor, rot0.value), (Factor::Rotation, 0.0));
+        assert!(rot0.press_top1_centroid.is_none());
+        for c in &curves[1..] {
+            let values: Vec<f64> = c.levels.iter().map(|l| l.value).collect();
+            assert_eq!(values, vec![1.0, 2.0, 4.0], "{:?}", c.factor);
+            for l in &c.levels {
+                assert_eq!(l.presses, 3);
+                let cen = l.press_top1_centroid.expect("centroid figure");
+                let ex = l.press_top1_exemplars.expect("exemplar figure");
+                for x in [cen, ex, l.press_top1] {
+                    assert!((0.0..=1.0).contains(&x), "{l:?}");
+                }
+            }
+        }
+        let two = &curves[1].levels[1];
+        assert_eq!(
+            (two.press_top1, two.frame_top1, two.flip_rate),
+            (rot0.press_top1, rot0.frame_top1, rot0.flip_rate)
+        );
+        assert!(failure_point(&curves[1], 0.9).contains("presses"));
+        // Its chart: one line per method and index kind, in both panels.
+        let dir = tempfile::tempdir().unwrap();
+        let svg = dir.path().join("coverage.svg");
+        let names = vec![r.methods[0].name.clone()];
+        assert!(coverage_chart(&r, &names, &svg).unwrap());
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.starts_with("<svg"));
+        for kind in [
+            "nearest frame",
+            "centroids (--sim)",
+            "(--presses)",
+            "hand-held",
+        ] {
+            assert!(text.contains(kind), "{kind}");
+        }
+        let none = StabilityReport {
+            config: SuiteConfig {
+                factors: vec![Factor::Rotation],
+                ..cfg.clone()
+            },
+            ..r.clone()
+        };
+        assert!(!coverage_chart(&none, &names, &dir.path().join("no.svg")).unwrap());
+        assert!(!dir.path().join("no.svg").exists());
+        assert_eq!(Factor::parse("coverage").unwrap(), Factor::Coverage);
+        assert_eq!(
+            Factor::parse("coverage-hand").unwrap(),
+            Factor::CoverageHand
+        );
+        assert_eq!(Factor::Coverage.nominal(), INDEX_PRESSES as f64);
+        // The full suite asks three query presses of every textile.
+        let full: Vec<u64> = (0..coverage_queries(false))
+            .map(|j| {
+                let p = level_plans_seeded(
+                    &sim,
+                    Factor::Coverage,
+                    0.0,
+                    &ts,
+                    &[],
+                    8,
+                    QUERY_SEED + 100 * j,
+                );
+                p.unwrap()[1].spec.seed
+            })
+            .collect();
+        assert_eq!(full, vec![8000, 8100, 8200]);
     }
 
     #[test]
