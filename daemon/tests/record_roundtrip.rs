@@ -161,8 +161,7 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
         out.contains("2 textiles from 6 presses"),
         "index build: {out}"
     );
-    // Three presses of each: no note about thin fabrics. An index of the
-    // one-press query set names both fabrics, and is still written.
+    // The note on thinly covered fabrics (fewer than 8 presses).
     let thin = |args: &[&str]| {
         let o = run(d, args);
         assert!(o.status.success(), "{o:?}");
@@ -180,13 +179,38 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
             out,
         ])
     };
+    // Eight presses of each (copies of the three recorded: a directory
+    // reached twice through links is one press): no note. Three of each:
+    // both fabrics are named. The one-press query set: both, and the index
+    // is still written.
+    for t in ["T030", "T080"] {
+        for k in 0..8 {
+            let from = d
+                .join("recordings")
+                .join(t)
+                .join(format!("000{}", k % 3 + 1));
+            let to = d.join("eight").join(t).join(format!("{k:04}"));
+            std::fs::create_dir_all(&to).expect("mkdir");
+            for f in std::fs::read_dir(&from).expect("press dir") {
+                let f = f.expect("entry").path();
+                assert!(f.is_file(), "{}", f.display());
+                std::fs::copy(&f, to.join(f.file_name().expect("name"))).expect("copy");
+            }
+        }
+    }
+    let err = build("eight", "eight.tlxi");
+    assert!(!err.contains("fewer than 8 presses"), "{err}");
     let err = build("recordings", "again.tlxi");
-    assert!(!err.contains("fewer than 3 presses"), "{err}");
-    let err = build("queries", "thin.tlxi");
     assert!(
-        err.contains("2 of 2 fabrics have fewer than 3 presses with contact: T030 (1), T080 (1)"),
+        err.contains("2 of 2 fabrics have fewer than 8 presses with contact: T030 (3), T080 (3)"),
         "{err}"
     );
+    let err = build("queries", "thin.tlxi");
+    assert!(
+        err.contains("2 of 2 fabrics have fewer than 8 presses with contact: T030 (1), T080 (1)"),
+        "{err}"
+    );
+    assert!(err.contains("press each fabric 8 times or more"), "{err}");
     assert!(d.join("thin.tlxi").exists());
 
     // Classify the queries: each decided as the textile it is.
