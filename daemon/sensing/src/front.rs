@@ -292,6 +292,113 @@ pub fn recording_reference(press: &Press) -> Option<Vec<f32>> {
     mean_pixels(&press.frames[..k.min(press.frames.len())])
 }
 
+/// No-contact references given from outside the recordings, for those
+/// that carry none (PyTouch data, old captures, recordings whose every
+/// frame is in contact): one for every sensor, and one per sensor serial
+/// (`--reference [SERIAL=]PNG` on the command line). A recording's own
+/// reference always wins; a serial's reference wins over the one for
+/// every sensor.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct References {
+    any: Option<Vec<f32>>,
+    by_serial: std::collections::BTreeMap<String, Vec<f32>>,
+}
+
+/// A `--reference` that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    /// The value or its image cannot be used.
+    #[error("--reference {arg}: {reason}")]
+    Bad {
+        /// The command-line value.
+        arg: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A second reference for the same sensor (or for every sensor).
+    #[error("--reference {arg}: a reference for {what} was already given")]
+    Twice {
+        /// The command-line value.
+        arg: String,
+        /// "every sensor" or "sensor <serial>".
+        what: String,
+    },
+}
+
+impl References {
+    /// No references: recordings without their own capture one from their
+    /// first steady frames.
+    pub fn none() -> References {
+        References::default()
+    }
+
+    /// From command-line values `[SERIAL=]PNG`: an existing file is a
+    /// path, even with `=` in its name; else the part before the first `=`
+    /// is a sensor serial. Each PNG must be an 8-bit RGB frame of the
+    /// sensor (240x320 portrait), taken with nothing touching the gel.
+    pub fn from_args<S: AsRef<str>>(args: &[S]) -> Result<References, ReferenceError> {
+        let mut out = References::default();
+        for arg in args {
+            let arg = arg.as_ref();
+            let bad = |reason: String| ReferenceError::Bad {
+                arg: arg.to_string(),
+                reason,
+            };
+            let (serial, path) = match arg.split_once('=') {
+                Some((s, p)) if !std::path::Path::new(arg).exists() => {
+                    if s.is_empty() || p.is_empty() {
+                        return Err(bad("expected [SERIAL=]PNG".into()));
+                    }
+                    (Some(s.to_string()), p)
+                }
+                _ => (None, arg),
+            };
+            let image = telextiles_sim::recording::read_frame(std::path::Path::new(path))
+                .map_err(|e| bad(e.to_string()))?;
+            let px = pixels_of(&image);
+            let what = serial
+                .as_ref()
+                .map_or("every sensor".to_string(), |s| format!("sensor {s}"));
+            let slot = match serial {
+                Some(s) => out.by_serial.entry(s).or_default(),
+                None => out.any.get_or_insert_with(Vec::new),
+            };
+            if !slot.is_empty() {
+                return Err(ReferenceError::Twice {
+                    arg: arg.to_string(),
+                    what,
+                });
+            }
+            *slot = px;
+        }
+        Ok(out)
+    }
+
+    /// Whether no reference was given.
+    pub fn is_empty(&self) -> bool {
+        self.any.is_none() && self.by_serial.is_empty()
+    }
+
+    /// The given reference for a recording from the sensor with this
+    /// serial, if any.
+    pub fn given(&self, serial: Option<&str>) -> Option<&[f32]> {
+        serial
+            .and_then(|s| self.by_serial.get(s))
+            .or(self.any.as_ref())
+            .map(Vec::as_slice)
+    }
+
+    /// The reference to replay a recording with: its own
+    /// ([`recording_reference`]), else the one given for its sensor, else
+    /// None (the front end captures one from its first steady frames).
+    pub fn for_press(&self, press: &Press) -> Option<Vec<f32>> {
+        recording_reference(press).or_else(|| {
+            self.given(press.meta.sensor_serial.as_deref())
+                .map(<[f32]>::to_vec)
+        })
+    }
+}
+
 /// Full-resolution RGB values of an image, as [`FrontEnd::new`] takes a
 /// reference.
 pub fn pixels_of(image: &image::RgbImage) -> Vec<f32> {
@@ -332,7 +439,17 @@ pub struct Segment {
 /// its first steady frames). None when no reference could be formed or no
 /// frame was in contact.
 pub fn segment(press: &Press, cfg: &ContactConfig) -> Option<Segment> {
-    let reference = recording_reference(press);
+    segment_with(press, cfg, recording_reference(press))
+}
+
+/// [`segment`] with the reference to replay the recording with
+/// ([`References::for_press`]; None: captured from its first steady
+/// frames).
+pub fn segment_with(
+    press: &Press,
+    cfg: &ContactConfig,
+    reference: Option<Vec<f32>>,
+) -> Option<Segment> {
     let mut det = match &reference {
         Some(px) => ContactDetector::with_reference_pixels(cfg.clone(), px),
         None => ContactDetector::new(cfg.clone()),

@@ -449,3 +449,101 @@ fn a_weak_press_that_is_partly_a_brightness_shift_is_still_a_press() {
     assert_eq!(starts(&ev), 0, "{ev:?}");
     assert_eq!(rejected(&ev), 1, "{ev:?}");
 }
+
+/// A recording whose every frame is in contact (a PyTouch sequence cut to
+/// the press) carries no reference and has no quiet frames to capture one
+/// from: given the sensor's no-contact frame (`--reference`), it is
+/// replayed as the whole recording was.
+#[test]
+fn a_given_reference_replays_a_recording_that_has_none() {
+    use telextiles_sensing::front::{segment, segment_with, References};
+    let sim = common::sim();
+    let press = sim.render_press(&PressSpec::new("T030", 1)).unwrap();
+    let whole = segment(&press, &ContactConfig::default()).expect("the whole recording");
+    let own = recording_reference(&press).unwrap();
+    // Cut to the frames in contact, without the quiet frames in front.
+    let first = whole.contact.iter().find(|c| !c.early).unwrap().index;
+    let mut cut = press.clone();
+    cut.frames.drain(..first);
+    cut.meta.timestamps_us.drain(..first);
+    cut.meta.reference_frames = None;
+    cut.meta.source = "pytouch".into();
+    cut.meta.sensor_serial = Some("D20001".into());
+    let contact = |s: &Option<telextiles_sensing::front::Segment>| {
+        s.as_ref()
+            .map_or(0, |s| s.contact.iter().filter(|c| !c.early).count())
+    };
+    // Without a reference the first frames, in contact, become one: most
+    // of the press is lost.
+    let alone = segment(&cut, &ContactConfig::default());
+    let n = contact(&Some(whole.clone()));
+    assert!(contact(&alone) < n / 2, "{} of {n}", contact(&alone));
+
+    // The sensor's no-contact frame, as a user has it: a PNG.
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("bg.png");
+    let mut img = RgbImage::new(240, 320);
+    for (v, o) in img.as_mut().iter_mut().zip(&own) {
+        *v = o.round() as u8;
+    }
+    img.save(&png).unwrap();
+    let arg = png.to_str().unwrap().to_string();
+    let refs = References::from_args(std::slice::from_ref(&arg)).unwrap();
+    let given = refs.for_press(&cut).expect("the given reference");
+    let replayed = segment_with(&cut, &ContactConfig::default(), Some(given)).unwrap();
+    let m = contact(&Some(replayed.clone()));
+    assert!(m + 3 >= n && m <= n, "{m} of {n}");
+    // A recording's own reference wins over a given one.
+    let other = References::from_args(&[format!("D20001={arg}")]).unwrap();
+    assert_eq!(other.for_press(&press), Some(own.clone()));
+    // A serial's reference applies to its sensor only, and wins over the
+    // one for every sensor.
+    let mut black = RgbImage::new(240, 320);
+    black.as_mut().fill(0);
+    let png2 = dir.path().join("black.png");
+    black.save(&png2).unwrap();
+    let both =
+        References::from_args(&[png2.to_str().unwrap().to_string(), format!("D20001={arg}")])
+            .unwrap();
+    assert_eq!(both.given(Some("D20001")), other.given(Some("D20001")));
+    assert!(both
+        .given(Some("D20002"))
+        .unwrap()
+        .iter()
+        .all(|&v| v == 0.0));
+    assert!(other.given(Some("D20002")).is_none());
+    assert!(References::none().for_press(&cut).is_none());
+    assert!(References::none().is_empty() && !both.is_empty());
+
+    // Bad references: each refused with what is wrong.
+    let small = dir.path().join("small.png");
+    RgbImage::new(320, 240).save(&small).unwrap();
+    let gray = dir.path().join("gray.png");
+    image::GrayImage::new(240, 320).save(&gray).unwrap();
+    for (args, msg) in [
+        (
+            vec![small.to_str().unwrap().to_string()],
+            "320x240, expected 240x320",
+        ),
+        (
+            vec![gray.to_str().unwrap().to_string()],
+            "expected 8-bit RGB",
+        ),
+        (
+            vec!["/nonexistent/bg.png".to_string()],
+            "/nonexistent/bg.png",
+        ),
+        (vec![format!("={arg}")], "expected [SERIAL=]PNG"),
+        (
+            vec![arg.clone(), arg.clone()],
+            "every sensor was already given",
+        ),
+        (
+            vec![format!("D1={arg}"), format!("D1={arg}")],
+            "sensor D1 was already given",
+        ),
+    ] {
+        let e = References::from_args(&args).unwrap_err().to_string();
+        assert!(e.contains(msg), "{args:?}: {e}");
+    }
+}

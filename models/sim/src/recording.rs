@@ -370,37 +370,100 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
 /// Read a PyTouch layout: one `Press` per `<class>/<serial>` directory, with
 /// the class as textile id, the serial as sensor serial, 60 fps timestamps.
 pub fn read_pytouch(root: &Path) -> Result<Vec<Press>, RecordingError> {
-    let serials: Vec<String> = {
-        let mut s: Vec<String> = pytouch_index(root)?.into_iter().map(|e| e.serial).collect();
-        s.sort();
-        s.dedup();
-        s
-    };
-    pytouch_index(root)?
-        .into_iter()
-        .map(|e| {
-            let frames = e
-                .files
-                .iter()
-                .map(|f| read_frame(f))
-                .collect::<Result<Vec<_>, _>>()?;
-            let n = frames.len() as u64;
-            Ok(Press {
-                meta: PressMeta {
-                    textile: e.class,
-                    person: 0,
-                    sensor: serials.iter().position(|s| *s == e.serial).unwrap_or(0) as u32,
-                    jig: false,
-                    fps: crate::FPS,
-                    timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
-                    seed: None,
-                    source: "pytouch".into(),
-                    sensor_serial: Some(e.serial),
-                    params: None,
-                    reference_frames: None,
-                },
-                frames,
-            })
-        })
+    find_recordings_pytouch(root)?
+        .iter()
+        .map(Recording::load)
         .collect()
+}
+
+/// A recording on disk, not loaded yet: a press directory, or one
+/// `<class>/<serial>` sequence of a PyTouch-style dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Recording {
+    /// A press directory (with press.json).
+    Press(PathBuf),
+    /// A PyTouch sequence, and the number of its serial among the
+    /// dataset's serials in sorted order (its sensor unit).
+    Pytouch { entry: PytouchEntry, unit: u32 },
+}
+
+impl Recording {
+    /// Its directory.
+    pub fn path(&self) -> PathBuf {
+        match self {
+            Recording::Press(p) => p.clone(),
+            Recording::Pytouch { entry, .. } => entry
+                .files
+                .first()
+                .and_then(|f| f.parent())
+                .map(Path::to_path_buf)
+                .unwrap_or_default(),
+        }
+    }
+
+    /// Load its frames. A PyTouch sequence has no timestamps (60 fps is
+    /// assumed) and no no-contact reference.
+    pub fn load(&self) -> Result<Press, RecordingError> {
+        match self {
+            Recording::Press(p) => read_press(p),
+            Recording::Pytouch { entry, unit } => {
+                let frames = entry
+                    .files
+                    .iter()
+                    .map(|f| read_frame(f))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let n = frames.len() as u64;
+                Ok(Press {
+                    meta: PressMeta {
+                        textile: entry.class.clone(),
+                        person: 0,
+                        sensor: *unit,
+                        jig: false,
+                        fps: crate::FPS,
+                        timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
+                        seed: None,
+                        source: "pytouch".into(),
+                        sensor_serial: Some(entry.serial.clone()),
+                        params: None,
+                        reference_frames: None,
+                    },
+                    frames,
+                })
+            }
+        }
+    }
+}
+
+/// The recordings under `root`: every press directory at any depth
+/// ([`find_presses`]), in sorted path order; where there is none, the
+/// PyTouch layout `root/<class>/<serial>/*.png`.
+pub fn find_recordings(root: &Path) -> Result<Vec<Recording>, RecordingError> {
+    if !root.is_dir() {
+        return Err(invalid(root, "not a directory"));
+    }
+    let mut dirs = find_presses(root)?;
+    if !dirs.is_empty() {
+        dirs.sort();
+        return Ok(dirs.into_iter().map(Recording::Press).collect());
+    }
+    find_recordings_pytouch(root).map_err(|_| {
+        invalid(
+            root,
+            "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png) either",
+        )
+    })
+}
+
+fn find_recordings_pytouch(root: &Path) -> Result<Vec<Recording>, RecordingError> {
+    let entries = pytouch_index(root)?;
+    let mut serials: Vec<String> = entries.iter().map(|e| e.serial.clone()).collect();
+    serials.sort();
+    serials.dedup();
+    Ok(entries
+        .into_iter()
+        .map(|entry| {
+            let unit = serials.iter().position(|s| *s == entry.serial).unwrap_or(0) as u32;
+            Recording::Pytouch { entry, unit }
+        })
+        .collect())
 }
