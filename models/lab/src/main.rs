@@ -478,6 +478,13 @@ struct SplitArgs {
     /// threshold, two frames sooner.
     #[arg(long)]
     encode_run: bool,
+    /// The sensor's no-contact frame (a 240x320 RGB PNG taken with nothing
+    /// touching the gel), for recordings that carry no reference and whose
+    /// first frames are already in contact (PyTouch sequences cut to the
+    /// press): `PNG` for every sensor, `SERIAL=PNG` for one (repeat it).
+    /// A recording's own reference always wins.
+    #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
+    references: Vec<String>,
     /// The decider's indexes learn a distance from their presses, with
     /// this shrinkage (within-fabric whitening, as `telextilesd index
     /// build --presses` does by default; without a value 0.5). Without
@@ -1021,6 +1028,7 @@ fn eval(mut a: EvalArgs) -> Result<()> {
         cfg.encode_run = a.recorded.encode_run;
         cfg.metric = a.recorded.index_metric;
         cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
+        cfg.references = telextiles_sensing::front::References::from_args(&a.recorded.references)?;
         cfg.threads = 1;
         cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
@@ -1092,6 +1100,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         cfg.encode_run = a.recorded.encode_run;
         cfg.metric = a.recorded.index_metric;
         cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
+        cfg.references = telextiles_sensing::front::References::from_args(&a.recorded.references)?;
         cfg.threads = 1;
         cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();

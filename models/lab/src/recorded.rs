@@ -55,9 +55,9 @@ use telextiles_sensing::contact::{ContactConfig, ContactEvent};
 use telextiles_sensing::decide::{DecideConfig, Decider, PressMean, TextileIndex};
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::frame::Frame;
-use telextiles_sensing::front::{self, FrontEnd};
-use telextiles_sim::recording::{self, PytouchEntry};
-use telextiles_sim::{Press, PressMeta};
+use telextiles_sensing::front::{self, FrontEnd, References};
+use telextiles_sim::recording;
+use telextiles_sim::Press;
 
 use crate::baselines::Baseline;
 use crate::data::{ImageKind, ImageSet};
@@ -134,111 +134,39 @@ pub struct RecordingRef {
     pub textile: String,
     /// Layout.
     pub layout: Layout,
-    /// PyTouch: the frame files; PyTouch serial.
-    pytouch: Option<(PytouchEntry, u32)>,
-}
-
-fn press_dirs(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
-    if dir.join(recording::META_FILE).is_file() {
-        out.push(dir.to_path_buf());
-        return Ok(());
-    }
-    let rd = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
-    for e in rd {
-        let e = e.with_context(|| format!("cannot read {}", dir.display()))?;
-        let name = e.file_name().to_string_lossy().into_owned();
-        // Half-written presses (`<dir>.tmp-<pid>-<n>`) and hidden entries.
-        if name.starts_with('.') || name.contains(".tmp-") {
-            continue;
-        }
-        if e.file_type()?.is_dir() {
-            press_dirs(&e.path(), out)?;
-        }
-    }
-    Ok(())
+    /// Where its frames are (shared with the daemon).
+    recording: recording::Recording,
 }
 
 /// The recordings under `dir`, in sorted path order: press directories
-/// found recursively, else the PyTouch layout.
+/// found recursively (symbolic links followed, as the daemon's
+/// `classify` and `index build` read them), else the PyTouch layout
+/// (`telextiles_sim::recording::find_recordings`).
 pub fn list_recordings(dir: &Path) -> Result<Vec<RecordingRef>> {
     ensure!(dir.is_dir(), "{} is not a directory", dir.display());
-    let mut dirs = Vec::new();
-    press_dirs(dir, &mut dirs)?;
-    dirs.sort();
-    if !dirs.is_empty() {
-        return dirs
-            .into_iter()
-            .map(|p| {
-                let meta = recording::read_meta(&p)?;
-                Ok(RecordingRef {
-                    path: p,
-                    textile: meta.textile,
-                    layout: Layout::Press,
-                    pytouch: None,
-                })
-            })
-            .collect();
-    }
-    let entries = recording::pytouch_index(dir).with_context(|| {
-        format!(
-            "{}: no press.json found below it, and not a PyTouch layout either",
-            dir.display()
-        )
-    })?;
-    let mut serials: Vec<String> = entries.iter().map(|e| e.serial.clone()).collect();
-    serials.sort();
-    serials.dedup();
-    Ok(entries
+    recording::find_recordings(dir)?
         .into_iter()
-        .map(|e| {
-            let unit = serials.iter().position(|s| *s == e.serial).unwrap_or(0) as u32;
-            RecordingRef {
-                path: e
-                    .files
-                    .first()
-                    .and_then(|f| f.parent())
-                    .map(Path::to_path_buf)
-                    .unwrap_or_default(),
-                textile: e.class.clone(),
-                layout: Layout::Pytouch,
-                pytouch: Some((e, unit)),
-            }
+        .map(|r| {
+            let (textile, layout) = match &r {
+                recording::Recording::Press(p) => (recording::read_meta(p)?.textile, Layout::Press),
+                recording::Recording::Pytouch { entry, .. } => {
+                    (entry.class.clone(), Layout::Pytouch)
+                }
+            };
+            Ok(RecordingRef {
+                path: r.path(),
+                textile,
+                layout,
+                recording: r,
+            })
         })
-        .collect())
+        .collect()
 }
 
 impl RecordingRef {
     /// Load the recording's frames.
     pub fn load(&self) -> Result<Press> {
-        match &self.pytouch {
-            None => Ok(recording::read_press(&self.path)?),
-            Some((e, unit)) => {
-                // As `telextiles_sim::recording::read_pytouch` reads one
-                // entry (that reader loads the whole tree at once).
-                let frames = e
-                    .files
-                    .iter()
-                    .map(|f| recording::read_frame(f))
-                    .collect::<Result<Vec<_>, _>>()?;
-                let n = frames.len() as u64;
-                Ok(Press {
-                    meta: PressMeta {
-                        textile: e.class.clone(),
-                        person: 0,
-                        sensor: *unit,
-                        jig: false,
-                        fps: telextiles_sim::FPS,
-                        timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
-                        seed: None,
-                        source: "pytouch".into(),
-                        sensor_serial: Some(e.serial.clone()),
-                        params: None,
-                        reference_frames: None,
-                    },
-                    frames,
-                })
-            }
-        }
+        Ok(self.recording.load()?)
     }
 }
 
@@ -297,8 +225,12 @@ pub struct Processed {
     /// Frames in contact (the contact detector's view).
     pub contact_frames: usize,
     /// The recording carries its own reference (`reference_frames`); else
-    /// one was captured from its first steady frames.
+    /// one was given (`given_reference`) or captured from its first steady
+    /// frames.
     pub own_reference: bool,
+    /// It carries none, and the one given for its sensor replayed it
+    /// (`--reference`).
+    pub given_reference: bool,
     /// Why it cannot be used (no reference, no contact); then `methods` is
     /// empty.
     pub skipped: Option<String>,
@@ -335,6 +267,8 @@ pub struct Processor {
     /// The run that starts a press is encoded too (the front end's
     /// `set_encode_run`; off by default, as in the daemon).
     encode_run: bool,
+    /// References for recordings without their own.
+    references: References,
     /// Model files for [`Encoder::open`].
     _dir: tempfile::TempDir,
 }
@@ -379,8 +313,15 @@ impl Processor {
             runners,
             contact,
             encode_run: false,
+            references: References::none(),
             _dir: dir,
         })
+    }
+
+    /// The references given for recordings that carry none
+    /// ([`References::for_press`]; a recording's own always wins).
+    pub fn set_references(&mut self, references: References) {
+        self.references = references;
     }
 
     /// Encode the run of frames that starts a press too, with every method
@@ -415,14 +356,17 @@ impl Processor {
             fps: fps_of(&meta.timestamps_us),
             contact_frames: 0,
             own_reference: meta.reference_frames.is_some_and(|k| k > 0),
+            given_reference: false,
             skipped: None,
             methods: Vec::new(),
         };
-        let Some(mut seg) = front::segment(&press, &self.contact) else {
-            out.skipped = Some(if out.own_reference {
+        let reference = self.references.for_press(&press);
+        out.given_reference = !out.own_reference && reference.is_some();
+        let Some(mut seg) = front::segment_with(&press, &self.contact, reference.clone()) else {
+            out.skipped = Some(if out.own_reference || out.given_reference {
                 "no frame in contact".into()
             } else {
-                "no quiet frames before contact (reference_frames), and no no-contact reference could be captured from its first frames".into()
+                "no quiet frames before contact (reference_frames), and no no-contact reference could be captured from its first frames (give the sensor's no-contact frame with --reference)".into()
             });
             return Ok(out);
         };
@@ -435,7 +379,6 @@ impl Processor {
         }
         out.contact_frames = seg.contact.len();
         let start = seg.contact[0].press_start_us;
-        let reference = front::recording_reference(&press);
         let ref_img = reference_image(&seg.reference)?;
         let mut views: std::collections::HashMap<u32, (image::RgbImage, Vec<image::RgbImage>)> =
             Default::default();
@@ -554,6 +497,10 @@ pub struct StudyConfig {
     /// distance calibrated on each index's presses at each of these
     /// quantiles; empty (the default): not measured.
     pub unknown_quantiles: Vec<f32>,
+    /// No-contact references for recordings that carry none
+    /// (`--reference [SERIAL=]PNG`); empty: such recordings capture one
+    /// from their first steady frames, as `classify` does.
+    pub references: References,
 }
 
 impl StudyConfig {
@@ -575,6 +522,7 @@ impl StudyConfig {
             encode_run: false,
             metric: None,
             unknown_quantiles: Vec::new(),
+            references: References::none(),
         }
     }
 }
@@ -589,6 +537,8 @@ pub struct RecordingRow {
     pub fps: f64,
     pub contact_frames: usize,
     pub own_reference: bool,
+    /// Replayed with the reference given for its sensor (`--reference`).
+    pub given_reference: bool,
     /// "index", "query" (index-presses split) or "both" (leave one out);
     /// "skipped" when unusable.
     pub role: String,
@@ -798,6 +748,7 @@ pub fn embed_all(
     let work = || -> Result<()> {
         let mut proc = Processor::new(methods, cfg.threads, cfg.contact.clone())?;
         proc.set_encode_run(cfg.encode_run);
+        proc.set_references(cfg.references.clone());
         loop {
             let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let Some(r) = refs.get(i) else {
@@ -1604,6 +1555,7 @@ pub fn score_all(
             fps: p.fps,
             contact_frames: p.contact_frames,
             own_reference: p.own_reference,
+            given_reference: p.given_reference,
             role: match r {
                 Role::Index => "index",
                 Role::Query => "query",
@@ -1756,6 +1708,13 @@ pub fn markdown(r: &StudyReport) -> String {
             ""
         },
     ));
+    let given = r.recordings.iter().filter(|x| x.given_reference).count();
+    if given > 0 {
+        s.push_str(&format!(
+            "{given} of {} recordings carry no reference and were replayed with the no-contact frame given for their sensor (`--reference`).\n\n",
+            r.recordings.len()
+        ));
+    }
     s.push_str(&match r.index_metric {
         Some(a) => format!("The decider's indexes learn a distance from their presses (`--index-metric {a}`: within-fabric whitening, shrinkage {a}, as `telextilesd index build --presses` does by default).\n\n"),
         None => "The decider's indexes use cosine distance (no `--index-metric`; `telextilesd index build --presses --no-metric`).\n\n".into(),
@@ -2193,6 +2152,7 @@ mod tests {
             fps: 60.0,
             contact_frames: 0,
             own_reference: true,
+            given_reference: false,
             skipped: skipped.then(|| "no frame in contact".into()),
             methods: Vec::new(),
         }

@@ -397,6 +397,126 @@ fn presses_in_the_pytouch_layout() {
     assert_eq!(m.confusion.iter().flatten().sum::<usize>(), 2);
 }
 
+/// PyTouch sequences cut to the press: every frame in contact, no
+/// reference and no quiet frames to capture one from. Given each sensor's
+/// no-contact frame (`--reference SERIAL=PNG`), every recording is
+/// replayed against it and decided; without, the study says why it cannot.
+#[test]
+fn presses_in_the_pytouch_layout_without_quiet_frames_need_a_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("pytouch");
+    let sim = Simulator::new().unwrap();
+    let serials = ["D20001", "D20002", "D20003"];
+    let units = [0u32, 4, 5];
+    let mut in_contact = 0;
+    for (ci, class) in ["T001", "T090"].iter().enumerate() {
+        for (k, serial) in serials.iter().enumerate() {
+            let p = sim
+                .render_press(&PressSpec {
+                    sensor: units[k],
+                    frames: 60,
+                    release: Some(false),
+                    ..PressSpec::new(*class, 10 * ci as u64 + k as u64)
+                })
+                .unwrap();
+            let from = p.meta.params.as_ref().unwrap().hold_frame as usize;
+            let d = root.join(class).join(serial);
+            std::fs::create_dir_all(&d).unwrap();
+            for (i, f) in p.frames[from..].iter().enumerate() {
+                f.save(d.join(telextiles_sim::recording::frame_name(i)))
+                    .unwrap();
+            }
+            in_contact += p.frames.len() - from;
+        }
+    }
+    // Each sensor's no-contact frame, as its owner has it.
+    let mut refs = Vec::new();
+    for (serial, unit) in serials.iter().zip(units) {
+        let png = dir.path().join(format!("{serial}.png"));
+        sim.background(unit).save(&png).unwrap();
+        refs.push(format!("{serial}={}", png.display()));
+    }
+    let lab = env!("CARGO_BIN_EXE_telextiles-lab");
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../encoder.onnx");
+    let source = format!("presses:{}", root.display());
+    let bench = |extra: &[String], out: &Path| {
+        let mut args: Vec<String> = [
+            "bench",
+            "--source",
+            &source,
+            "--index-presses",
+            "2",
+            "--no-descriptors",
+            "--model",
+            &format!("shipped={}", shipped.display()),
+            "--runs",
+            "0",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        for r in extra {
+            args.push("--reference".into());
+            args.push(r.clone());
+        }
+        std::process::Command::new(lab)
+            .args(&args)
+            .output()
+            .unwrap()
+    };
+    let json = |out: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap()
+    };
+    let with = dir.path().join("with");
+    let o = bench(&refs, &with);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = json(&with);
+    let recs = r["recordings"].as_array().unwrap();
+    assert_eq!(recs.len(), 6);
+    let mut used = 0;
+    for x in recs {
+        assert_eq!(x["own_reference"], false, "{x}");
+        assert_eq!(x["given_reference"], true, "{x}");
+        assert!(x["skipped"].is_null(), "{x}");
+        used += x["contact_frames"].as_u64().unwrap() as usize;
+    }
+    // Nearly every frame is seen in contact (the detector starts a press
+    // on its third frame over the threshold).
+    assert!(
+        used + 6 * 3 >= in_contact && used <= in_contact,
+        "{used} of {in_contact}"
+    );
+    let md = std::fs::read_to_string(with.join("report.md")).unwrap();
+    assert!(md.contains("6 of 6 recordings carry no reference"), "{md}");
+    // Without the references no recording has a reference to be replayed
+    // against: each is skipped with the way out, and the study has no
+    // usable recording.
+    let without = dir.path().join("without");
+    let o = bench(&[], &without);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    let hint = "could be captured from its first frames (give the sensor's no-contact frame with --reference)";
+    assert_eq!(stderr.matches(hint).count(), 6, "{stderr}");
+    assert!(stderr.contains("0 usable recordings"), "{stderr}");
+    // A reference that is not a sensor frame is refused before any work.
+    let o = bench(
+        &[format!(
+            "D20001={}",
+            dir.path().join("missing.png").display()
+        )],
+        &dir.path().join("bad"),
+    );
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("--reference D20001=") && stderr.contains("missing.png"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("bad").exists());
+}
+
 #[test]
 fn presses_front_end_embeddings_match_the_lab_embedder() {
     // The recorded study runs ONNX models through the daemon's front end;
