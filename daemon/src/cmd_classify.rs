@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
-use telextiles_sensing::front::recording_reference;
+use telextiles_sensing::front::{recording_reference, References};
 use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
@@ -19,9 +19,21 @@ use telextiles_sim::PressSpec;
 /// Options of `telextilesd classify`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Recorded press directory (or a tree of them); may be repeated.
+    /// Recorded press directory (or a tree of them, or a PyTouch-style
+    /// dataset `<class>/<serial>/*.png`); may be repeated.
     #[arg(long, required_unless_present = "sim")]
     pub press: Vec<PathBuf>,
+    /// The sensor's no-contact frame (a 240x320 RGB PNG taken with nothing
+    /// touching the gel), for recordings that carry no reference (PyTouch
+    /// data) and whose first frames are already in contact: `PNG` for
+    /// every sensor, `SERIAL=PNG` for one (repeat it). A recording's own
+    /// reference always wins.
+    #[arg(
+        long = "reference",
+        value_name = "[SERIAL=]PNG",
+        conflicts_with = "sim"
+    )]
+    pub references: Vec<String>,
     /// Simulate presses of this textile id instead (e.g. T030).
     #[arg(long, conflicts_with = "press")]
     pub sim: Option<String>,
@@ -198,28 +210,29 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         err?;
         return Ok(());
     }
-    let mut dirs = Vec::new();
+    let references = References::from_args(&args.references)?;
+    let mut recordings = Vec::new();
     for p in &args.press {
-        dirs.extend(telextiles_sim::recording::find_presses(p)?);
-    }
-    if dirs.is_empty() {
-        bail!(
-            "no recorded presses (directories with press.json) under {:?}",
-            args.press
-        );
+        recordings.extend(telextiles_sim::recording::find_recordings(p)?);
     }
     // One pipeline, reset for every recording with the recording's own
-    // reference: nothing carries over from one recording to the next.
+    // reference (else the one given for its sensor): nothing carries over
+    // from one recording to the next.
     let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None)
         .map_err(anyhow::Error::msg)?;
-    let progress = telextiles_progress::Progress::new("classify", dirs.len() as u64, "presses");
-    for dir in dirs {
-        let press = telextiles_sim::recording::read_press(&dir)
-            .with_context(|| format!("cannot replay {}", dir.display()))?;
-        pipeline.reset(recording_reference(&press).as_deref());
-        let name = dir.display().to_string();
+    let progress =
+        telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
+    for rec in recordings {
+        let name = rec.path().display().to_string();
+        let press = rec
+            .load()
+            .with_context(|| format!("cannot replay {name}"))?;
+        let reference = references.for_press(&press);
+        let hint = no_contact_hint(&press, reference.is_some());
+        pipeline.reset(reference.as_deref());
         let mut src = RecordedSource::from_press(press, pace, name.clone());
         let mut err = Ok(());
+        let before = n;
         run_source(&mut pipeline, &mut src, None, |r| {
             n += 1;
             if err.is_ok() {
@@ -228,10 +241,24 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         })
         .map_err(anyhow::Error::msg)?;
         err?;
+        if n == before {
+            progress.println(&format!("warning: {name}: no press detected{hint}"));
+        }
         progress.inc(1);
     }
     progress.finish();
     Ok(())
+}
+
+/// What to add to "no contact detected" for a recording: the way out when
+/// it carries no reference and none was given for its sensor (its first
+/// frames, maybe in contact, became the reference).
+pub fn no_contact_hint(press: &telextiles_sim::Press, given: bool) -> &'static str {
+    if recording_reference(press).is_none() && !given {
+        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"
+    } else {
+        ""
+    }
 }
 
 #[cfg(test)]
@@ -287,6 +314,7 @@ mod tests {
     fn args(model: PathBuf, index: PathBuf) -> Args {
         Args {
             press: Vec::new(),
+            references: Vec::new(),
             sim: None,
             seed: 2,
             person: 0,

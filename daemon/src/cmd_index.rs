@@ -9,7 +9,7 @@ use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
 use telextiles_sensing::contact::ContactConfig;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
-use telextiles_sensing::front::{recording_reference, FrontEnd};
+use telextiles_sensing::front::{recording_reference, FrontEnd, References};
 use telextiles_sim::catalogue::{Book, Catalogue};
 use telextiles_sim::dataset::Protocol;
 use telextiles_sim::{Press, Simulator};
@@ -33,9 +33,18 @@ pub struct BuildArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Directory of recorded presses (each a folder with press.json and
-    /// frames), searched recursively; presses are grouped by textile id.
+    /// frames), searched recursively, or a PyTouch-style dataset
+    /// (`<class>/<serial>/*.png`, one recording per sequence); presses are
+    /// grouped by textile id (the class).
     #[arg(long, conflicts_with = "sim")]
     pub presses: Option<PathBuf>,
+    /// The sensor's no-contact frame (a 240x320 RGB PNG taken with nothing
+    /// touching the gel), for recordings that carry no reference (PyTouch
+    /// data) and whose first frames are already in contact: `PNG` for
+    /// every sensor, `SERIAL=PNG` for one (repeat it). A recording's own
+    /// reference always wins.
+    #[arg(long = "reference", value_name = "[SERIAL=]PNG", requires = "presses")]
+    pub references: Vec<String>,
     /// Use simulated presses of the built-in catalogue instead.
     #[arg(long)]
     pub sim: bool,
@@ -144,7 +153,18 @@ pub fn press_embeddings(
     press: &Press,
     stride: usize,
 ) -> Result<Vec<Vec<f32>>> {
-    front.reset(recording_reference(press).as_deref());
+    embeddings_with(front, press, recording_reference(press).as_deref(), stride)
+}
+
+/// [`press_embeddings`] with the reference to replay the press with
+/// (`References::for_press`; None: captured from its first steady frames).
+fn embeddings_with(
+    front: &mut FrontEnd,
+    press: &Press,
+    reference: Option<&[f32]>,
+    stride: usize,
+) -> Result<Vec<Vec<f32>>> {
+    front.reset(reference);
     let mut out = Vec::new();
     let mut k = 0usize;
     for (i, (image, &t)) in press
@@ -250,24 +270,22 @@ fn build(a: BuildArgs) -> Result<()> {
     };
     let mut presses = 0usize;
     if let Some(root) = &a.presses {
-        let dirs = telextiles_sim::recording::find_presses(root)?;
-        if dirs.is_empty() {
-            bail!(
-                "no presses (folders with press.json) under {}",
-                root.display()
-            );
-        }
-        let progress = Progress::new("index build", dirs.len() as u64, "presses");
-        for d in dirs {
-            let press = telextiles_sim::recording::read_press(&d)?;
+        let references = References::from_args(&a.references)?;
+        let recordings = telextiles_sim::recording::find_recordings(root)?;
+        let progress = Progress::new("index build", recordings.len() as u64, "presses");
+        for rec in recordings {
+            let d = rec.path();
+            let press = rec.load()?;
             if let Some(name) = textile_name(&d, &press.meta.textile) {
                 names.insert(press.meta.textile.clone(), name);
             }
-            let embs = press_embeddings(&mut front, &press, a.stride)?;
+            let reference = references.for_press(&press);
+            let embs = embeddings_with(&mut front, &press, reference.as_deref(), a.stride)?;
             if embs.is_empty() {
                 progress.println(&format!(
-                    "warning: {}: no contact detected, press skipped",
-                    d.display()
+                    "warning: {}: no contact detected, press skipped{}",
+                    d.display(),
+                    crate::cmd_classify::no_contact_hint(&press, reference.is_some())
                 ));
             }
             add(&press.meta.textile, embs);
@@ -275,6 +293,12 @@ fn build(a: BuildArgs) -> Result<()> {
             progress.inc(1);
         }
         progress.finish();
+        if by_textile.is_empty() {
+            bail!(
+                "no press under {} was seen in contact: nothing to index (see the warnings above)",
+                root.display()
+            );
+        }
     } else if a.sim {
         let sim = Simulator::with_options(a.catalogue, 1)?;
         let protocol = sim_protocol(

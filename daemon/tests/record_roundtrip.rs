@@ -424,3 +424,145 @@ fn record_ctrl_c_leaves_only_complete_presses() {
     }
     assert!(n >= 2, "{n} presses");
 }
+
+/// A PyTouch-style dataset (`<class>/<serial>/*.png`) whose sequences are
+/// cut to the press: no reference, no quiet frames. `index build` and
+/// `classify` read it; given each sensor's no-contact frame
+/// (`--reference SERIAL=PNG`) they decide it as the press-format round
+/// trip does, and without it they say what is missing.
+#[test]
+fn pytouch_data_cut_to_the_press_needs_and_takes_a_reference() {
+    use telextiles_sim::{PressSpec, Simulator};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let model = model();
+    let model = model.to_str().expect("utf-8 path");
+    let sim = Simulator::new().expect("simulator");
+    let serials = ["D20001", "D20002"];
+    let units = [0u32, 1];
+    let write = |set: &str, t: &str, seed: u64, k: usize| {
+        let p = sim
+            .render_press(&PressSpec {
+                sensor: units[k],
+                release: Some(false),
+                ..PressSpec::new(t, seed)
+            })
+            .expect("press");
+        let from = p.meta.params.as_ref().expect("params").hold_frame as usize;
+        let dir = d.join(set).join(t).join(serials[k]);
+        std::fs::create_dir_all(&dir).expect("mkdir");
+        for (i, f) in p.frames[from..].iter().enumerate() {
+            f.save(dir.join(telextiles_sim::recording::frame_name(i)))
+                .expect("png");
+        }
+    };
+    for t in ["T030", "T080"] {
+        for k in 0..2 {
+            write("index", t, 10 + k as u64, k);
+        }
+        write("queries", t, 100, 1);
+    }
+    let mut refs = Vec::new();
+    for (serial, unit) in serials.iter().zip(units) {
+        let png = d.join(format!("{serial}.png"));
+        sim.background(unit).save(&png).expect("png");
+        refs.push("--reference".to_string());
+        refs.push(format!("{serial}={}", png.display()));
+    }
+    let with_refs = |args: &[&str]| -> Vec<String> {
+        args.iter()
+            .map(|s| s.to_string())
+            .chain(refs.iter().cloned())
+            .collect()
+    };
+    fn strs(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
+
+    // Without a reference: every sequence is skipped, and the warning says
+    // what to give; with nothing in contact there is no index.
+    let build = [
+        "index",
+        "build",
+        "--model",
+        model,
+        "--presses",
+        "index",
+        "-o",
+        "p.tlxi",
+    ];
+    let o = run(d, &build);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert_eq!(
+        err.matches("give the sensor's no-contact frame with --reference")
+            .count(),
+        4,
+        "{err}"
+    );
+    assert!(
+        err.contains("no press under index was seen in contact: nothing to index"),
+        "{err}"
+    );
+    assert!(!d.join("p.tlxi").exists());
+
+    // With them: two fabrics from four sequences, and the queries decided.
+    let out = ok(d, &strs(&with_refs(&build)));
+    assert!(out.contains("2 textiles from 4 presses"), "{out}");
+    let classify = with_refs(&[
+        "classify", "--model", model, "--index", "p.tlxi", "--press", "queries", "--json",
+    ]);
+    let out = ok(d, &strs(&classify));
+    let reports: Vec<serde_json::Value> = out
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).expect("json line"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{out}");
+    for r in &reports {
+        let source = r["source"].as_str().expect("source");
+        let truth = if source.contains("T030") {
+            "T030"
+        } else {
+            "T080"
+        };
+        assert_eq!(r["textile"], truth, "{r}");
+    }
+    // classify without them: no press detected, and why.
+    let o = run(
+        d,
+        &[
+            "classify", "--model", model, "--index", "p.tlxi", "--press", "queries",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert_eq!(
+        err.matches("no press detected (the recording carries no no-contact reference")
+            .count(),
+        2,
+        "{err}"
+    );
+    // A reference that is not a frame of the sensor is refused up front.
+    std::fs::write(d.join("bad.png"), b"not a png").expect("write");
+    let o = run(
+        d,
+        &[
+            "classify",
+            "--model",
+            model,
+            "--index",
+            "p.tlxi",
+            "--press",
+            "queries",
+            "--reference",
+            "bad.png",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("--reference bad.png") && err.contains("corrupt PNG"),
+        "{err}"
+    );
+}
