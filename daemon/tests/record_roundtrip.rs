@@ -38,6 +38,27 @@ fn meta(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&text).expect("json")
 }
 
+/// The press reports of `classify --json` on one query press of T030 and
+/// one of T080: two, each decided as the fabric its path names.
+fn each_press_right(out: &str) -> Vec<serde_json::Value> {
+    let reports: Vec<serde_json::Value> = out
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).expect("json line"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{out}");
+    for r in &reports {
+        let source = r["source"].as_str().expect("source");
+        let truth = if source.contains("T030") {
+            "T030"
+        } else {
+            "T080"
+        };
+        assert_eq!(r["textile"], truth, "{r}");
+    }
+    reports
+}
+
 #[test]
 fn record_index_classify_round_trip_as_a_user_runs_it() {
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -220,20 +241,7 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
             "classify", "--model", model, "--index", "my.tlxi", "--press", "queries", "--json",
         ],
     );
-    let reports: Vec<serde_json::Value> = out
-        .lines()
-        .filter(|l| l.starts_with('{'))
-        .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect();
-    assert_eq!(reports.len(), 2, "{out}");
-    for r in &reports {
-        let source = r["source"].as_str().expect("source");
-        let truth = if source.contains("T030") {
-            "T030"
-        } else {
-            "T080"
-        };
-        assert_eq!(r["textile"], truth, "{r}");
+    for r in &each_press_right(&out) {
         assert_eq!(r["unknown"], false, "{r}");
     }
     eprintln!("round trip took {:.1} s", t0.elapsed().as_secs_f64());
@@ -513,21 +521,7 @@ fn pytouch_data_cut_to_the_press_needs_and_takes_a_reference() {
         "classify", "--model", model, "--index", "p.tlxi", "--press", "queries", "--json",
     ]);
     let out = ok(d, &strs(&classify));
-    let reports: Vec<serde_json::Value> = out
-        .lines()
-        .filter(|l| l.starts_with('{'))
-        .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect();
-    assert_eq!(reports.len(), 2, "{out}");
-    for r in &reports {
-        let source = r["source"].as_str().expect("source");
-        let truth = if source.contains("T030") {
-            "T030"
-        } else {
-            "T080"
-        };
-        assert_eq!(r["textile"], truth, "{r}");
-    }
+    each_press_right(&out);
     // classify without them: no press detected, and why.
     let o = run(
         d,
