@@ -916,6 +916,10 @@ pub fn run_suite(
         !cfg.factors.contains(&Factor::Swatch) || sim.catalogue().version >= 2,
         "the swatch factor needs catalogue 2 (catalogue 1 has no swatches)"
     );
+    anyhow::ensure!(
+        cfg.index_stretch == 0.0 || !cfg.factors.iter().any(Factor::is_coverage),
+        "--index-stretch and the coverage factors exclude each other (the coverage indexes' further presses are not stretched)"
+    );
     let mut textiles: Vec<String> = sim.catalogue().training().map(|t| t.id.clone()).collect();
     if let Some(n) = cfg.textiles {
         textiles.truncate(n);
@@ -1980,6 +1984,14 @@ mod tests {
         };
         let e = run_suite(&v1, &[], &cfg, 1).unwrap_err();
         assert!(format!("{e}").contains("catalogue 2"), "{e}");
+        // A stretched index and the coverage indexes do not mix.
+        let cfg = SuiteConfig {
+            factors: vec![Factor::Coverage],
+            index_stretch: 0.05,
+            ..cfg
+        };
+        let e = run_suite(&v1, &[], &cfg, 1).unwrap_err();
+        assert!(format!("{e}").contains("exclude each other"), "{e}");
         assert_eq!(Factor::parse("spot").unwrap(), Factor::Spot);
         assert_eq!(Factor::parse("swatch").unwrap(), Factor::Swatch);
     }
