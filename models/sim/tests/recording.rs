@@ -1,7 +1,7 @@
 //! The on-disk press format: bit-exact round trip, PyTouch layout, and clear
 //! errors naming the file on bad input.
 use rand::{Rng, SeedableRng};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use telextiles_sim::recording::{self, read_press, read_pytouch, write_press, RecordingError};
 use telextiles_sim::{Press, PressSpec, RgbImage, Simulator};
 
@@ -169,6 +169,50 @@ fn pytouch_layout_reads_and_names_bad_files() {
     let empty = tempfile::tempdir().unwrap();
     assert!(read_pytouch(empty.path()).is_err());
     assert!(recording::pytouch_index(&root.join("missing")).is_err());
+
+    // The one walk every reader uses: the sequences as recordings, each
+    // with its serial's unit (serials in sorted order) and directory;
+    // press directories, where there are any, instead.
+    std::fs::copy(
+        root.join("wool/D20001/frame_0.png"),
+        root.join("wool/D20001/frame_1.png"),
+    )
+    .unwrap();
+    let recs = recording::find_recordings(root).unwrap();
+    let units: Vec<(PathBuf, u32)> = recs
+        .iter()
+        .map(|r| match r {
+            recording::Recording::Pytouch { unit, .. } => (r.path(), *unit),
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    assert_eq!(
+        units,
+        vec![
+            (root.join("cotton/D20001"), 0),
+            (root.join("cotton/D20002"), 1),
+            (root.join("wool/D20001"), 0),
+        ]
+    );
+    let loaded = recs[1].load().unwrap();
+    assert_eq!(loaded.meta.sensor, 1);
+    assert_eq!(loaded.meta.reference_frames, None);
+    assert_eq!(loaded.meta.source, "pytouch");
+    write_press(&root.join("pressed/0001"), &p).unwrap();
+    let recs = recording::find_recordings(root).unwrap();
+    assert_eq!(
+        recs,
+        vec![recording::Recording::Press(root.join("pressed/0001"))]
+    );
+    assert_eq!(recs[0].load().unwrap(), p);
+    for (bad, msg) in [
+        (empty.path().to_path_buf(), "not a PyTouch layout"),
+        (root.join("missing"), "not a directory"),
+        (root.join("cotton/D20001/frame_0.png"), "not a directory"),
+    ] {
+        let e = recording::find_recordings(&bad).unwrap_err().to_string();
+        assert!(e.contains(msg), "{}: {e}", bad.display());
+    }
 }
 
 /// `find_presses`: recursive, sorted, follows symlinked directories (a
