@@ -335,6 +335,13 @@ fn build(a: BuildArgs) -> Result<()> {
     // Fabrics with few presses: an index press covers only the few
     // millimetres of cloth it touched (docs/benchmarks.md, "Where on the
     // cloth").
+    // Presses of fabrics pressed twice or more: what the unknown distance
+    // is calibrated on.
+    let pressed_twice: usize = by_textile
+        .values()
+        .map(|(_, means)| means.len())
+        .filter(|&n| n >= 2)
+        .sum();
     let thin: Vec<String> = by_textile
         .iter()
         .filter(|(_, (_, means))| means.len() < RECOMMENDED_PRESSES)
@@ -380,10 +387,16 @@ fn build(a: BuildArgs) -> Result<()> {
         );
     }
     if calibrate_unknown(&a) && index.unknown.is_none() {
-        eprintln!(
-            "note: fewer than {} presses of fabrics pressed twice or more, so the index keeps the decider's fixed unknown-textile distance",
-            telextiles_index::build::MIN_CALIBRATION_PRESSES
-        );
+        if pressed_twice < telextiles_index::build::MIN_CALIBRATION_PRESSES {
+            eprintln!(
+                "note: fewer than {} presses of fabrics pressed twice or more, so the index keeps the decider's fixed unknown-textile distance",
+                telextiles_index::build::MIN_CALIBRATION_PRESSES
+            );
+        } else {
+            eprintln!(
+                "note: the calibration quantile of the presses' distances is 0 (presses identical to another press of their fabric: copies of one recording?), which says nothing about how far a new press may be, so the index keeps the decider's fixed unknown-textile distance"
+            );
+        }
     }
     // Unseen textiles (not in the index) as the roller has to cover them:
     // one jig press of each by each simulated person, mean embedding.

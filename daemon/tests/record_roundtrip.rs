@@ -221,6 +221,13 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
     }
     let err = build("eight", "eight.tlxi");
     assert!(!err.contains("fewer than 8 presses"), "{err}");
+    // Copies of one press cannot calibrate the unknown distance, and the
+    // note says why.
+    assert!(
+        err.contains("presses identical to another press of their fabric")
+            && !err.contains("fewer than 4"),
+        "{err}"
+    );
     let err = build("recordings", "again.tlxi");
     assert!(
         err.contains("2 of 2 fabrics have fewer than 8 presses with contact: T030 (3), T080 (3)"),
