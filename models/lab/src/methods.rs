@@ -434,7 +434,7 @@ pub fn evaluate(
     // The daemon's index: one centroid per textile.
     let (cindex, clabels) = centroids(&index, &labels, dim);
     let press_top1_centroid = {
-        let (q, ql) = press_means(&qe, dim, &presses);
+        let (q, ql) = press_means(&qe, dim, &presses, |k| k.2);
         top1(&cindex, &clabels, &q, &ql, dim)
     };
     let centroid = (cindex.as_slice(), clabels.as_slice());
@@ -545,7 +545,7 @@ fn group_score(
                 .push(i);
         }
     }
-    let (q, ql) = press_means(qe, dim, &presses);
+    let (q, ql) = press_means(qe, dim, &presses, |k| k.2);
     GroupScore {
         name: name.to_string(),
         presses: presses.len(),
@@ -580,17 +580,19 @@ pub fn centroids(index: &[f32], labels: &[u32], dim: usize) -> (Vec<f32>, Vec<u3
 }
 
 /// The normalised mean embedding of each press (`presses`: its frames'
-/// rows in `qe`), and the press's class.
-fn press_means(
+/// rows in `qe`, by a key that names the press), and the press's class
+/// (`class_of` its key).
+pub(crate) fn press_means<K: Ord>(
     qe: &[f32],
     dim: usize,
-    presses: &std::collections::BTreeMap<(u32, u32, u32), Vec<usize>>,
+    presses: &std::collections::BTreeMap<K, Vec<usize>>,
+    class_of: impl Fn(&K) -> u32,
 ) -> (Vec<f32>, Vec<u32>) {
     let mut q = Vec::new();
     let mut ql = Vec::new();
-    for (&(_, _, class), frames) in presses {
+    for (key, frames) in presses {
         q.extend(mean_rows(qe, dim, frames));
-        ql.push(class);
+        ql.push(class_of(key));
     }
     normalize_rows(&mut q, dim);
     (q, ql)

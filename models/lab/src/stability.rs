@@ -861,24 +861,27 @@ fn score_level(
     }
 }
 
-/// The rows (and their labels) of an index's first `k` presses of every
-/// textile (`ks`: each row's press number within its textile).
+/// The rows (their labels and press numbers) of an index's first `k`
+/// presses of every textile (`ks`: each row's press number within its
+/// textile).
 fn first_presses(
     rows: &[f32],
     labels: &[u32],
     ks: &[usize],
     dim: usize,
     k: usize,
-) -> (Vec<f32>, Vec<u32>) {
+) -> (Vec<f32>, Vec<u32>, Vec<usize>) {
     let mut index = Vec::new();
     let mut out = Vec::new();
+    let mut out_ks = Vec::new();
     for ((row, &l), &pk) in rows.chunks_exact(dim.max(1)).zip(labels).zip(ks) {
         if pk < k {
             index.extend_from_slice(row);
             out.push(l);
+            out_ks.push(pk);
         }
     }
-    (index, out)
+    (index, out, out_ks)
 }
 
 /// The normalised mean of each index press's rows (a press: its label and
@@ -894,15 +897,7 @@ fn press_exemplars(
     for (row, (&l, &k)) in labels.iter().zip(ks).enumerate() {
         by.entry((l, k)).or_default().push(row);
     }
-    let mut out = Vec::new();
-    let mut out_labels = Vec::new();
-    for ((l, _), rows) in by {
-        let mut m = mean_rows(index, dim, &rows);
-        normalize_rows(&mut m, dim);
-        out.extend(m);
-        out_labels.push(l);
-    }
-    (out, out_labels)
+    crate::methods::press_means(index, dim, &by, |&(l, _)| l)
 }
 
 /// Runs the suite for every method.
@@ -1028,30 +1023,26 @@ pub fn run_suite(
             }
             None => None,
         };
-        // Every index press's rows, and the number of its press within
-        // its textile (the stretched copies keep their press's number).
-        let coverage = match &more_set {
-            _ if coverage_max == 0 => None,
-            Some(more) => {
+        // The coverage factors: every index press's rows, and the number
+        // of its press within its textile.
+        let coverage = if coverage_max == 0 {
+            None
+        } else {
+            let mut rows = emb.clone();
+            let mut cl = labels.clone();
+            let mut ks: Vec<usize> = index_meta.iter().map(|p| press_k[*p as usize]).collect();
+            if let Some(more) = &more_set {
                 let v = view_set(more, crop, input)?;
                 let (more_emb, _) = e.embed(&v, |s| background_of(&r, s))?;
-                let mut rows = emb.clone();
                 rows.extend(more_emb);
-                let mut cl = labels.clone();
                 cl.extend(v.items.iter().map(|m| m.class));
-                let base = plans.len() as u32;
-                let ks: Vec<usize> = index_meta
-                    .iter()
-                    .map(|p| press_k[*p as usize])
-                    .chain(v.items.iter().map(|m| press_k[(base + m.press) as usize]))
-                    .collect();
-                Some((rows, cl, ks))
+                ks.extend(
+                    v.items
+                        .iter()
+                        .map(|m| press_k[plans.len() + m.press as usize]),
+                );
             }
-            None => Some((
-                emb.clone(),
-                labels.clone(),
-                index_meta.iter().map(|p| press_k[*p as usize]).collect(),
-            )),
+            Some((rows, cl, ks))
         };
         indexes.push((emb, labels, dim, r, pooled, coverage));
     }
@@ -1089,9 +1080,8 @@ pub fn run_suite(
                 let (rows, labels, ks) = coverage.as_ref().context("no coverage index")?;
                 let (qe, _) = e.embed(&v, |s| background_of(refs, s))?;
                 for value in factor.levels(cfg.quick) {
-                    let k = value as usize;
-                    let (index, labels) = first_presses(rows, labels, ks, *dim, k);
-                    let kept: Vec<usize> = ks.iter().copied().filter(|&p| p < k).collect();
+                    let (index, labels, kept) =
+                        first_presses(rows, labels, ks, *dim, value as usize);
                     curves[mi].push(score_level(
                         value,
                         &v,
@@ -1840,9 +1830,10 @@ mod tests {
         assert!(swatches.len() >= 5, "{swatches:?}");
         // An index's first k presses: only their rows, in order.
         let rows = [1.0, 0.0, 2.0, 0.0, 3.0, 0.0, 4.0, 0.0];
-        let (index, labels) = first_presses(&rows, &[0, 0, 1, 1], &[0, 1, 0, 1], 2, 1);
+        let (index, labels, kept) = first_presses(&rows, &[0, 0, 1, 1], &[0, 1, 0, 1], 2, 1);
         assert_eq!(index, vec![1.0, 0.0, 3.0, 0.0]);
         assert_eq!(labels, vec![0, 1]);
+        assert_eq!(kept, vec![0, 0]);
         assert_eq!(
             first_presses(&rows, &[0, 0, 1, 1], &[0, 1, 0, 1], 2, 2)
                 .1
