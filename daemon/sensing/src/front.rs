@@ -356,20 +356,20 @@ impl References {
             let image = telextiles_sim::recording::read_frame(std::path::Path::new(path))
                 .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
-            let what = serial
-                .as_ref()
-                .map_or("every sensor".to_string(), |s| format!("sensor {s}"));
-            let slot = match serial {
-                Some(s) => out.by_serial.entry(s).or_default(),
-                None => out.any.get_or_insert_with(Vec::new),
+            let twice = |what: String| ReferenceError::Twice {
+                arg: arg.to_string(),
+                what,
             };
-            if !slot.is_empty() {
-                return Err(ReferenceError::Twice {
-                    arg: arg.to_string(),
-                    what,
-                });
+            match serial {
+                Some(s) if out.by_serial.contains_key(&s) => {
+                    return Err(twice(format!("sensor {s}")))
+                }
+                Some(s) => {
+                    out.by_serial.insert(s, px);
+                }
+                None if out.any.is_some() => return Err(twice("every sensor".into())),
+                None => out.any = Some(px),
             }
-            *slot = px;
         }
         Ok(out)
     }
@@ -439,7 +439,7 @@ pub struct Segment {
 /// its first steady frames). None when no reference could be formed or no
 /// frame was in contact.
 pub fn segment(press: &Press, cfg: &ContactConfig) -> Option<Segment> {
-    segment_with(press, cfg, recording_reference(press))
+    segment_with(press, cfg, recording_reference(press).as_deref())
 }
 
 /// [`segment`] with the reference to replay the recording with
@@ -448,9 +448,9 @@ pub fn segment(press: &Press, cfg: &ContactConfig) -> Option<Segment> {
 pub fn segment_with(
     press: &Press,
     cfg: &ContactConfig,
-    reference: Option<Vec<f32>>,
+    reference: Option<&[f32]>,
 ) -> Option<Segment> {
-    let mut det = match &reference {
+    let mut det = match reference {
         Some(px) => ContactDetector::with_reference_pixels(cfg.clone(), px),
         None => ContactDetector::new(cfg.clone()),
     };

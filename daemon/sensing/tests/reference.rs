@@ -490,7 +490,7 @@ fn a_given_reference_replays_a_recording_that_has_none() {
     let arg = png.to_str().unwrap().to_string();
     let refs = References::from_args(std::slice::from_ref(&arg)).unwrap();
     let given = refs.for_press(&cut).expect("the given reference");
-    let replayed = segment_with(&cut, &ContactConfig::default(), Some(given)).unwrap();
+    let replayed = segment_with(&cut, &ContactConfig::default(), Some(&given)).unwrap();
     let m = contact(&Some(replayed.clone()));
     assert!(m + 3 >= n && m <= n, "{m} of {n}");
     // A recording's own reference wins over a given one.

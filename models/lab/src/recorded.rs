@@ -362,7 +362,7 @@ impl Processor {
         };
         let reference = self.references.for_press(&press);
         out.given_reference = !out.own_reference && reference.is_some();
-        let Some(mut seg) = front::segment_with(&press, &self.contact, reference.clone()) else {
+        let Some(mut seg) = front::segment_with(&press, &self.contact, reference.as_deref()) else {
             out.skipped = Some(if out.own_reference || out.given_reference {
                 "no frame in contact".into()
             } else {
