@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
-use telextiles_sensing::front::{recording_reference, References};
+use telextiles_sensing::front::References;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
@@ -228,7 +228,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
             .load()
             .with_context(|| format!("cannot replay {name}"))?;
         let reference = references.for_press(&press);
-        let hint = no_contact_hint(&press, reference.is_some());
+        let hint = no_reference_hint(reference.is_some());
         pipeline.reset(reference.as_deref());
         let mut src = RecordedSource::from_press(press, pace, name.clone());
         let mut err = Ok(());
@@ -250,14 +250,15 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     Ok(())
 }
 
-/// What to add to "no contact detected" for a recording: the way out when
-/// it carries no reference and none was given for its sensor (its first
-/// frames, maybe in contact, became the reference).
-pub fn no_contact_hint(press: &telextiles_sim::Press, given: bool) -> &'static str {
-    if recording_reference(press).is_none() && !given {
-        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"
-    } else {
+/// What to add to "no contact detected" for a recording replayed without
+/// a reference (neither its own nor one given for its sensor,
+/// `References::for_press`): the way out, since its first frames, maybe
+/// in contact, became the reference.
+pub fn no_reference_hint(has_reference: bool) -> &'static str {
+    if has_reference {
         ""
+    } else {
+        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"
     }
 }
 

@@ -285,7 +285,7 @@ fn build(a: BuildArgs) -> Result<()> {
                 progress.println(&format!(
                     "warning: {}: no contact detected, press skipped{}",
                     d.display(),
-                    crate::cmd_classify::no_contact_hint(&press, reference.is_some())
+                    crate::cmd_classify::no_reference_hint(reference.is_some())
                 ));
             }
             add(&press.meta.textile, embs);
@@ -332,9 +332,6 @@ fn build(a: BuildArgs) -> Result<()> {
     builder.keep_exemplars = keep_exemplars(&a);
     builder.metric_shrinkage = learn_metric(&a).then_some(a.metric_shrinkage);
     builder.unknown_quantile = calibrate_unknown(&a).then_some(a.unknown_quantile);
-    // Fabrics with few presses: an index press covers only the few
-    // millimetres of cloth it touched (docs/benchmarks.md, "Where on the
-    // cloth").
     // Presses of fabrics pressed twice or more: what the unknown distance
     // is calibrated on.
     let pressed_twice: usize = by_textile
@@ -342,6 +339,9 @@ fn build(a: BuildArgs) -> Result<()> {
         .map(|(_, means)| means.len())
         .filter(|&n| n >= 2)
         .sum();
+    // Fabrics with few presses: an index press covers only the few
+    // millimetres of cloth it touched (docs/benchmarks.md, "Where on the
+    // cloth").
     let thin: Vec<String> = by_textile
         .iter()
         .filter(|(_, (_, means))| means.len() < RECOMMENDED_PRESSES)
