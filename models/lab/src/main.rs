@@ -529,6 +529,21 @@ impl SplitArgs {
             || self.encode_run
             || self.index_metric.is_some()
             || !self.unknown_quantiles.is_empty()
+            || !self.references.is_empty()
+    }
+
+    /// The study on the recordings under `dir` as these options set it
+    /// (one ONNX Runtime thread per session; the caller sets the workers,
+    /// timing and runs).
+    fn study(&self, dir: &Path) -> Result<StudyConfig> {
+        let mut cfg = StudyConfig::new(dir, self.split()?);
+        cfg.frames_per_press = self.frames_per_press;
+        cfg.encode_run = self.encode_run;
+        cfg.metric = self.index_metric;
+        cfg.unknown_quantiles = self.unknown_quantiles.clone();
+        cfg.references = telextiles_sensing::front::References::from_args(&self.references)?;
+        cfg.threads = 1;
+        Ok(cfg)
     }
 }
 
@@ -1023,13 +1038,7 @@ fn eval(mut a: EvalArgs) -> Result<()> {
         std::fs::read(&a.model).with_context(|| format!("cannot read {}", a.model.display()))?;
     let m = telextiles_lab::methods::Method::onnx(a.model.display().to_string(), bytes)?;
     if let Source::Presses(dir) = &a.data.source {
-        let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
-        cfg.frames_per_press = a.recorded.frames_per_press;
-        cfg.encode_run = a.recorded.encode_run;
-        cfg.metric = a.recorded.index_metric;
-        cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
-        cfg.references = telextiles_sensing::front::References::from_args(&a.recorded.references)?;
-        cfg.threads = 1;
+        let mut cfg = a.recorded.study(dir)?;
         cfg.workers = a.ort_threads;
         cfg.time_threads = if a.ort_threads > 1 {
             vec![1, a.ort_threads]
@@ -1047,7 +1056,7 @@ fn eval(mut a: EvalArgs) -> Result<()> {
     let metric = a.recorded.index_metric.take();
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split/--encode-run/--unknown-quantiles are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference are for --source presses:<dir>"
     );
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
@@ -1095,13 +1104,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         models.push((name, path));
     }
     if let Source::Presses(dir) = &a.data.source {
-        let mut cfg = StudyConfig::new(dir, a.recorded.split()?);
-        cfg.frames_per_press = a.recorded.frames_per_press;
-        cfg.encode_run = a.recorded.encode_run;
-        cfg.metric = a.recorded.index_metric;
-        cfg.unknown_quantiles = a.recorded.unknown_quantiles.clone();
-        cfg.references = telextiles_sensing::front::References::from_args(&a.recorded.references)?;
-        cfg.threads = 1;
+        let mut cfg = a.recorded.study(dir)?;
         cfg.workers = a.data.threads;
         cfg.time_threads = a.time_threads.clone();
         cfg.runs = a.runs;
@@ -1120,7 +1123,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from("docs/bench"));
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split/--encode-run are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run/--reference are for --source presses:<dir>"
     );
     let roller: Vec<String> = if a.roller.is_empty() {
         Vec::new()

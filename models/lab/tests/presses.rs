@@ -333,6 +333,19 @@ fn presses_from_the_command_line() {
             "exclude each other",
         ),
         (vec!["bench", "--source", "presses:"], "needs a directory"),
+        // A reference is for recordings; the simulator would ignore it.
+        (
+            vec![
+                "bench",
+                "--source",
+                "sim",
+                "--reference",
+                "bg.png",
+                "--out",
+                "x",
+            ],
+            "--reference are for --source presses:<dir>",
+        ),
     ] {
         let o = run(&args);
         assert!(!o.status.success(), "{args:?}");
