@@ -534,3 +534,195 @@ fn a_recording_whose_timestamps_go_backwards_is_refused_not_a_panic() {
         Ok(_) => panic!("opened a recording whose timestamps go backwards"),
     }
 }
+
+/// `replay:<dir>`: every recording under a directory, one after another
+/// in sorted order, each first frame announcing its recording with the
+/// recording's own reference; one stream whose timestamps keep increasing;
+/// an unreadable recording skipped by name; looping; and a clear end when
+/// nothing can be read.
+#[test]
+fn a_directory_of_recordings_replays_one_after_another_each_with_its_reference() {
+    use telextiles_sensing::front::{recording_reference, References};
+    use telextiles_sensing::source::recorded::RecordingsSource;
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let render = |t: &str, seed: u64, frames: usize| {
+        let spec = telextiles_sim::PressSpec {
+            frames,
+            ..telextiles_sim::PressSpec::new(t, seed)
+        };
+        sim.render_press(&spec).unwrap()
+    };
+    let (a, b) = (render("T030", 3, 12), render("T045", 4, 10));
+    assert_ne!(recording_reference(&a), recording_reference(&b));
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("recordings");
+    telextiles_sim::recording::write_press(&root.join("T030/0001"), &a).unwrap();
+    telextiles_sim::recording::write_press(&root.join("T045/0001"), &b).unwrap();
+    // A third recording whose metadata is corrupt: skipped, by name.
+    telextiles_sim::recording::write_press(&root.join("T099/0001"), &a).unwrap();
+    std::fs::write(root.join("T099/0001/press.json"), "{ not json").unwrap();
+
+    let mut src = RecordingsSource::open(&root, Pace::AsFastAsPossible, References::none())
+        .unwrap()
+        .looping(true);
+    assert_eq!(src.recordings().len(), 3);
+    assert!(
+        src.describe().contains("3 recordings"),
+        "{}",
+        src.describe()
+    );
+    let mut f = Frame::blank();
+    let mut last_t: Option<u64> = None;
+    // Two rounds: a, b, (the corrupt one), a, b.
+    for round in 0..2 {
+        for (press, name) in [(&a, "T030/0001"), (&b, "T045/0001")] {
+            for (i, want) in press.frames.iter().enumerate() {
+                src.next_frame(&mut f).unwrap();
+                assert_eq!(&f.image, want, "round {round}, {name}, frame {i}");
+                let t = f.timestamp_us;
+                match (i, last_t) {
+                    // Within a recording, its own spacing.
+                    (1.., Some(l)) => assert_eq!(
+                        t - l,
+                        press.meta.timestamps_us[i] - press.meta.timestamps_us[i - 1]
+                    ),
+                    // Between recordings one frame period (60 fps).
+                    (0, Some(l)) => assert_eq!(t - l, 16_667, "{name}"),
+                    (_, None) => assert_eq!(t, 0),
+                }
+                last_t = Some(t);
+                let announced = src.new_recording();
+                if i == 0 {
+                    let r = announced.unwrap_or_else(|| panic!("{name} not announced"));
+                    assert!(r.name.ends_with(name), "{}", r.name);
+                    assert_eq!(r.reference, recording_reference(press));
+                    assert!(r.reference.is_some());
+                } else {
+                    assert_eq!(announced, None, "{name} frame {i}");
+                }
+            }
+        }
+        match src.next_frame(&mut f) {
+            Err(SourceError::Skipped(m)) => assert!(m.contains("T099/0001"), "{m}"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(src.new_recording(), None);
+    }
+
+    // Without looping: the end after one round.
+    let mut once = RecordingsSource::open(
+        &root.join("T045"),
+        Pace::AsFastAsPossible,
+        References::none(),
+    )
+    .unwrap();
+    let mut n = 0;
+    while once.next_frame(&mut f).is_ok() {
+        n += 1;
+    }
+    assert_eq!(n, b.frames.len());
+    assert!(matches!(once.next_frame(&mut f), Err(SourceError::Ended)));
+
+    // A press directory itself is one recording.
+    let one = RecordingsSource::open(
+        &root.join("T030/0001"),
+        Pace::AsFastAsPossible,
+        References::none(),
+    )
+    .unwrap();
+    assert_eq!(one.recordings().len(), 1);
+
+    // Real time: 22 frames of two recordings take 21 periods (350 ms).
+    let mut paced = RecordingsSource::open(&root, Pace::RealTime, References::none()).unwrap();
+    let t0 = std::time::Instant::now();
+    for _ in 0..a.frames.len() + b.frames.len() {
+        paced.next_frame(&mut f).unwrap();
+    }
+    assert!(
+        t0.elapsed() >= Duration::from_millis(345),
+        "{:?}",
+        t0.elapsed()
+    );
+
+    // Nothing readable: each skipped, then a fatal error naming the directory.
+    let bad = dir.path().join("bad");
+    for k in ["x/0001", "y/0001"] {
+        telextiles_sim::recording::write_press(&bad.join(k), &a).unwrap();
+        std::fs::write(bad.join(k).join("press.json"), "[]").unwrap();
+    }
+    let mut src = RecordingsSource::open(&bad, Pace::AsFastAsPossible, References::none())
+        .unwrap()
+        .looping(true);
+    for k in ["x/0001", "y/0001"] {
+        match src.next_frame(&mut f) {
+            Err(SourceError::Skipped(m)) => assert!(m.contains(k), "{m}"),
+            other => panic!("{other:?}"),
+        }
+    }
+    match src.next_frame(&mut f) {
+        Err(SourceError::Fatal(m)) => {
+            assert!(m.contains("none of its 2 recordings"), "{m}");
+            assert!(m.contains("bad"), "{m}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // A directory that does not exist.
+    match RecordingsSource::open(
+        &dir.path().join("nope"),
+        Pace::AsFastAsPossible,
+        References::none(),
+    ) {
+        Err(SourceError::Fatal(m)) => assert!(m.contains("nope"), "{m}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("opened a missing directory"),
+    }
+}
+
+/// A PyTouch-style dataset replays as well; its sequences carry no
+/// reference, so each is announced with the one given for its sensor (or
+/// None: captured from its first frames, as from a camera).
+#[test]
+fn a_pytouch_dataset_replays_with_the_references_given_for_its_sensors() {
+    use telextiles_sensing::front::{pixels_of, References};
+    use telextiles_sensing::source::recorded::RecordingsSource;
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let spec = telextiles_sim::PressSpec {
+        frames: 6,
+        ..telextiles_sim::PressSpec::new("T030", 3)
+    };
+    let press = sim.render_press(&spec).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("data");
+    for (class, serial) in [("cotton", "D00001"), ("wool", "D00002")] {
+        let d = root.join(class).join(serial);
+        std::fs::create_dir_all(&d).unwrap();
+        for (i, fr) in press.frames.iter().enumerate() {
+            fr.save(d.join(format!("{i:04}.png"))).unwrap();
+        }
+    }
+    let ref_png = dir.path().join("ref.png");
+    let blank = RgbImage::from_pixel(FRAME_W, FRAME_H, Rgb([40, 60, 80]));
+    blank.save(&ref_png).unwrap();
+    let refs = References::from_args(&[format!("D00002={}", ref_png.display())]).unwrap();
+    let mut src = RecordingsSource::open(&root, Pace::AsFastAsPossible, refs).unwrap();
+    let mut f = Frame::blank();
+    let mut announced = Vec::new();
+    while src.next_frame(&mut f).is_ok() {
+        if let Some(r) = src.new_recording() {
+            announced.push(r);
+        }
+    }
+    assert_eq!(announced.len(), 2);
+    assert!(
+        announced[0].name.ends_with("cotton/D00001"),
+        "{}",
+        announced[0].name
+    );
+    assert_eq!(announced[0].reference, None);
+    assert!(
+        announced[1].name.ends_with("wool/D00002"),
+        "{}",
+        announced[1].name
+    );
+    assert_eq!(announced[1].reference, Some(pixels_of(&blank)));
+}

@@ -26,9 +26,28 @@ pub enum SourceError {
     /// A finite source (a recording) has no more frames.
     #[error("end of frames")]
     Ended,
+    /// Part of a finite source (one of several recordings) could not be
+    /// read and was skipped; the source goes on with the rest.
+    #[error("{0}")]
+    Skipped(String),
     /// Cannot continue (bad configuration, unreadable recording).
     #[error("{0}")]
     Fatal(String),
+}
+
+/// The frame just delivered is the first of another recording (a source
+/// that replays several, [`recorded::RecordingsSource`]): nothing of the
+/// previous recording's frames says anything about this one's, so the
+/// consumer ends any press in progress and starts afresh
+/// ([`crate::front::FrontEnd::reset`]) with `reference` before it
+/// processes the frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NewRecording {
+    /// The recording, as logs name it (its directory).
+    pub name: String,
+    /// Its no-contact reference (RGB 0..255, 240x320x3), or None: capture
+    /// one from its first steady frames, as from a camera.
+    pub reference: Option<Vec<f32>>,
 }
 
 /// Anything that yields DIGIT-shaped frames.
@@ -47,6 +66,12 @@ pub trait FrameSource: Send {
             self.describe()
         )))
     }
+    /// Asked after each frame delivered: Some when that frame begins
+    /// another recording (taken: asked again, None). A camera, the
+    /// simulator and a single recording never say so.
+    fn new_recording(&mut self) -> Option<NewRecording> {
+        None
+    }
 }
 
 impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
@@ -58,6 +83,9 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
     }
     fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
         (**self).set_leds(r, g, b)
+    }
+    fn new_recording(&mut self) -> Option<NewRecording> {
+        (**self).new_recording()
     }
 }
 
@@ -263,5 +291,9 @@ impl FrameSource for Resilient {
                 "the sensor is not connected right now".into(),
             )),
         }
+    }
+
+    fn new_recording(&mut self) -> Option<NewRecording> {
+        self.current.as_mut().and_then(|s| s.new_recording())
     }
 }

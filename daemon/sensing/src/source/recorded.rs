@@ -1,13 +1,17 @@
-//! Replay of recorded presses (the simulator crate's on-disk format), at the
-//! recorded pace or as fast as possible.
+//! Replay of recorded presses (the simulator crate's on-disk format, and
+//! PyTouch-style datasets), at the recorded pace or as fast as possible:
+//! one press ([`RecordedSource`]), or every recording under a directory,
+//! one after another ([`RecordingsSource`], the daemon's `replay:<dir>`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use telextiles_sim::recording::{find_recordings, Recording};
 use telextiles_sim::{Press, PressMeta};
 
-use super::{FrameSource, SourceError};
+use super::{FrameSource, NewRecording, SourceError};
 use crate::frame::{Frame, FrameError};
+use crate::front::References;
 
 /// How fast to replay.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,5 +164,176 @@ impl FrameSource for RecordedSource {
             self.frames.len(),
             self.meta.textile
         )
+    }
+}
+
+/// Every recording under a directory (press directories at any depth, else
+/// a PyTouch-style dataset: `telextiles_sim::recording::find_recordings`),
+/// replayed one after another in sorted order, optionally looping, as one
+/// stream whose timestamps keep increasing (one frame period between the
+/// last frame of a recording and the first of the next).
+///
+/// The first frame of each recording comes with a [`NewRecording`]
+/// ([`FrameSource::new_recording`]) that carries the recording's reference:
+/// its own quiet frames, else the one given for its sensor
+/// ([`References::for_press`]), else None. Recordings are read one at a
+/// time, when their turn comes. One that cannot be read, or has no frames,
+/// or stops being readable (timestamps that go backwards) is skipped with
+/// [`SourceError::Skipped`] naming it, and the replay goes on; when no
+/// recording of a whole round gave a frame, the source fails for good
+/// ([`SourceError::Fatal`]).
+pub struct RecordingsSource {
+    root: PathBuf,
+    recordings: Vec<Recording>,
+    references: References,
+    pace: Pace,
+    looping: bool,
+    /// The recording to read next.
+    next: usize,
+    /// The recording being replayed, and whether it has given a frame.
+    current: Option<(RecordedSource, bool)>,
+    /// Stream time of the current recording's first frame.
+    offset_us: u64,
+    /// Stream time of the last frame delivered, and the frame period of
+    /// its recording.
+    last: Option<(u64, u64)>,
+    /// Recordings in a row that gave no frame.
+    failed: usize,
+    pending: Option<NewRecording>,
+    started: Option<Instant>,
+    seq: u64,
+}
+
+impl RecordingsSource {
+    /// The recordings under `root` (a press directory is one recording).
+    /// None found, or `root` unreadable → [`SourceError::Fatal`] naming it.
+    pub fn open(
+        root: &Path,
+        pace: Pace,
+        references: References,
+    ) -> Result<RecordingsSource, SourceError> {
+        let recordings = find_recordings(root)
+            .map_err(|e| SourceError::Fatal(format!("cannot replay {}: {e}", root.display())))?;
+        Ok(RecordingsSource {
+            root: root.to_path_buf(),
+            recordings,
+            references,
+            pace,
+            looping: false,
+            next: 0,
+            current: None,
+            offset_us: 0,
+            last: None,
+            failed: 0,
+            pending: None,
+            started: None,
+            seq: 0,
+        })
+    }
+
+    /// After the last recording, start again from the first.
+    pub fn looping(mut self, on: bool) -> Self {
+        self.looping = on;
+        self
+    }
+
+    /// The recordings, in the order they are replayed.
+    pub fn recordings(&self) -> &[Recording] {
+        &self.recordings
+    }
+
+    /// Read the next recording in turn; Ok(false) at the end of a round
+    /// that does not loop.
+    fn load_next(&mut self) -> Result<bool, SourceError> {
+        if self.failed >= self.recordings.len() {
+            return Err(SourceError::Fatal(format!(
+                "cannot replay {}: none of its {} recordings gave a frame",
+                self.root.display(),
+                self.recordings.len()
+            )));
+        }
+        if self.next == self.recordings.len() {
+            if !self.looping {
+                return Ok(false);
+            }
+            self.next = 0;
+        }
+        let rec = &self.recordings[self.next];
+        self.next += 1;
+        let name = rec.path().display().to_string();
+        let press = rec.load().map_err(|e| {
+            self.failed += 1;
+            SourceError::Skipped(format!("skipping recording {name}: {e}"))
+        })?;
+        let reference = self.references.for_press(&press);
+        self.offset_us = self.last.map_or(0, |(t, period)| t + period);
+        self.current = Some((
+            RecordedSource::from_press(press, Pace::AsFastAsPossible, name.clone()),
+            false,
+        ));
+        self.pending = Some(NewRecording { name, reference });
+        Ok(true)
+    }
+}
+
+impl FrameSource for RecordingsSource {
+    fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+        loop {
+            if self.current.is_none() && !self.load_next()? {
+                return Err(SourceError::Ended);
+            }
+            let (src, gave) = self.current.as_mut().expect("loaded above");
+            match src.next_frame(out) {
+                Ok(()) => {
+                    *gave = true;
+                    self.failed = 0;
+                    let t = self.offset_us + out.timestamp_us;
+                    if self.pace == Pace::RealTime {
+                        let start = *self.started.get_or_insert_with(Instant::now);
+                        let due = start + Duration::from_micros(t);
+                        let now = Instant::now();
+                        if due > now {
+                            std::thread::sleep(due - now);
+                        }
+                    }
+                    self.last = Some((t, src.period_us));
+                    out.timestamp_us = t;
+                    out.seq = self.seq;
+                    self.seq += 1;
+                    return Ok(());
+                }
+                Err(SourceError::Ended) => {
+                    if !*gave {
+                        self.failed += 1;
+                        let name = src.name.clone();
+                        self.current = None;
+                        return Err(SourceError::Skipped(format!(
+                            "skipping recording {name}: it has no frames"
+                        )));
+                    }
+                    self.current = None;
+                }
+                Err(SourceError::Fatal(why)) => {
+                    if !*gave {
+                        self.failed += 1;
+                    }
+                    self.current = None;
+                    return Err(SourceError::Skipped(format!("skipping the rest: {why}")));
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "replay of {} recordings under {}",
+            self.recordings.len(),
+            self.root.display()
+        )
+    }
+
+    fn new_recording(&mut self) -> Option<NewRecording> {
+        self.pending.take()
     }
 }
