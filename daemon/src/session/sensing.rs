@@ -13,8 +13,8 @@ use telextiles_proto::peer::Control;
 use telextiles_sensing::contact::{ContactConfig, ContactEvent};
 use telextiles_sensing::encoder::Encoder;
 use telextiles_sensing::frame::Frame;
-use telextiles_sensing::front::FrontEnd;
-use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+use telextiles_sensing::front::{FrontEnd, References};
+use telextiles_sensing::source::recorded::{Pace, RecordingsSource};
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::{FrameSource, SourceError};
 use telextiles_session::{SenderCore, TxAction};
@@ -84,8 +84,10 @@ pub(crate) fn open_source(
     match &cfg.sensor {
         SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
         SensorSource::Replay { dir } => {
-            let src = RecordedSource::open(dir, Pace::RealTime)?.looping(true);
-            Ok((Box::new(src), None, format!("replay of {}", dir.display())))
+            let src =
+                RecordingsSource::open(dir, Pace::RealTime, References::none())?.looping(true);
+            let desc = src.describe();
+            Ok((Box::new(src), None, desc))
         }
         SensorSource::Digit { serial } => {
             let opts = telextiles_sensing::source::digit::DigitOptions {
@@ -178,6 +180,22 @@ pub(crate) fn sensing_thread(
             continue;
         }
         let capture_us = now_us();
+        if let Some(rec) = source.new_recording() {
+            // Another recording: its frames owe nothing to the last one's.
+            // A press still in progress ends here, and the front end starts
+            // afresh with the recording's own reference.
+            if sender.in_press() {
+                sender.stop(capture_us, &mut actions);
+                send(&state, &mut actions, [capture_us; 3]);
+                *lock(&state.in_contact) = false;
+                let _ = state.events.send(Event::Contact {
+                    phase: ContactPhase::End,
+                    score: None,
+                });
+            }
+            tracing::debug!(recording = %rec.name, "replaying the next recording");
+            front.reset(rec.reference.as_deref());
+        }
         lock(&state.counters).frames += 1;
         let out = match front.process(&frame) {
             Ok(o) => o,

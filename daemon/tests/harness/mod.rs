@@ -1,5 +1,6 @@
 //! Two live `telextilesd run` daemons on this machine, paired beforehand,
-//! both pressing simulated textiles at 60 fps (so latents flow both ways),
+//! both pressing simulated textiles at 60 fps (so latents flow both ways;
+//! or replaying recordings, `Setup::sensors`),
 //! optionally through the userspace delay/jitter relay, with per-frame
 //! latency traces (`--latency-trace`), process samples (CPU, RSS) and their
 //! control-socket events. Shared by the latency benchmark
@@ -55,15 +56,16 @@ impl Drop for Side {
 pub struct Setup {
     /// Relay delay and jitter in ms between B (client) and A (server).
     pub relay: Option<(u64, u64)>,
-    /// Textiles pressed repeatedly by A and by B.
-    pub textiles: (String, String),
+    /// The sensors of A and of B (`--sensor`): by default each a
+    /// simulated DIGIT pressing one textile again and again.
+    pub sensors: (String, String),
 }
 
 impl Default for Setup {
     fn default() -> Self {
         Setup {
             relay: None,
-            textiles: ("T012".into(), "T047".into()),
+            sensors: ("sim:T012".into(), "sim:T047".into()),
         }
     }
 }
@@ -89,7 +91,7 @@ fn spawn(
     work: &Path,
     listen: SocketAddr,
     connect: Option<SocketAddr>,
-    textile: &str,
+    sensor: &str,
 ) -> Side {
     let dir = work.join(name);
     let socket = dir.join("control.sock");
@@ -107,7 +109,7 @@ fn spawn(
         .arg(&dir)
         .arg("--socket")
         .arg(&socket)
-        .args(["--sensor", &format!("sim:{textile}")])
+        .args(["--sensor", sensor])
         .args(["--roller", "sim", "--map=false", "--mdns=false"])
         .args(["--listen", &listen.to_string()])
         .args([
@@ -206,8 +208,8 @@ impl Pair {
             None => None,
         };
         let target = relay.as_ref().map_or(a_addr, |r| r.local_addr());
-        let a = spawn("a", work.path(), a_addr, None, &setup.textiles.0);
-        let b = spawn("b", work.path(), b_addr, Some(target), &setup.textiles.1);
+        let a = spawn("a", work.path(), a_addr, None, &setup.sensors.0);
+        let b = spawn("b", work.path(), b_addr, Some(target), &setup.sensors.1);
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let pair = Pair {
             a,
