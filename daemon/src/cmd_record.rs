@@ -115,7 +115,7 @@ enum Frames {
     /// One endless stream (a DIGIT, the simulator), with a frame budget.
     Live(Box<dyn FrameSource>, Option<u64>),
     /// Recordings, each replayed with its own reference.
-    Replay(Vec<PathBuf>),
+    Replay(Vec<telextiles_sim::recording::Recording>),
 }
 
 /// Frames between simulated presses: the contact detector's reference
@@ -149,17 +149,17 @@ fn open(args: &Args, first_seed: u64) -> Result<Opened> {
             })
         }
         SensorArg::Replay(dir) => {
-            let mut dirs = Vec::new();
-            find_presses(dir, &mut dirs)?;
-            if dirs.is_empty() {
-                bail!(
-                    "no recorded presses (directories with press.json) under {}",
-                    dir.display()
-                );
-            }
-            let desc = format!("replay of {} presses under {}", dirs.len(), dir.display());
+            // The walk every command shares: press directories, else a
+            // PyTouch-style dataset.
+            let recordings = telextiles_sim::recording::find_recordings(dir)
+                .with_context(|| format!("no recordings to replay under {}", dir.display()))?;
+            let desc = format!(
+                "replay of {} recordings under {}",
+                recordings.len(),
+                dir.display()
+            );
             Ok(Opened {
-                frames: Frames::Replay(dirs),
+                frames: Frames::Replay(recordings),
                 serial: None,
                 sensor_unit: 0,
                 jig: false,
@@ -203,11 +203,6 @@ fn open_digit(_serial: Option<String>) -> Result<Opened> {
 
 /// Press directories (with press.json) under `root`, sorted (the shared
 /// walk: symbolic links followed once, unfinished writes skipped).
-pub fn find_presses(root: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
-    out.extend(telextiles_sim::recording::find_presses(root)?);
-    Ok(())
-}
-
 fn check_id(id: &str) -> Result<()> {
     if id.is_empty()
         || id == "."
@@ -676,8 +671,9 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 s.drain(&mut rec, false);
             }
         }
-        Frames::Replay(dirs) => {
-            for d in &dirs {
+        Frames::Replay(recordings) => {
+            for r in &recordings {
+                let d = &r.path();
                 if s.done() {
                     break;
                 }
@@ -685,7 +681,8 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                     interrupted = true;
                     break;
                 }
-                let press = telextiles_sim::recording::read_press(d)
+                let press = r
+                    .load()
                     .with_context(|| format!("cannot replay {}", d.display()))?;
                 let meta = press.meta.clone();
                 // Each recording with its own reference: its declared
@@ -739,7 +736,10 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 }
             }
             if !s.done() && !interrupted {
-                ran_out = Some(format!("the {} recordings are all replayed", dirs.len()));
+                ran_out = Some(format!(
+                    "the {} recordings are all replayed",
+                    recordings.len()
+                ));
             }
         }
     }

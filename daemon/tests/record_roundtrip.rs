@@ -316,6 +316,61 @@ fn record_replay_re_records_presses_with_their_own_reference() {
     assert!(err.contains("only 2 of 5 presses recorded"), "{err}");
     assert!(d.join("again/wool/0004").is_dir());
     assert!(!d.join("again/wool/0005").exists());
+    // A PyTouch-style dataset (<class>/<serial>/*.png, quiet frames first)
+    // is read by the same walk: its sequence is re-recorded as a press with
+    // its sensor's serial and its own reference.
+    let seq = d.join("pytouch/wool/SIM0000");
+    std::fs::create_dir_all(&seq).unwrap();
+    let first = d.join("orig/T050/0001");
+    let mut frames: Vec<_> = std::fs::read_dir(&first)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    frames.sort();
+    for f in &frames {
+        std::fs::copy(f, seq.join(f.file_name().unwrap())).unwrap();
+    }
+    let out = ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "wool2",
+            "--presses",
+            "1",
+            "--out",
+            "again",
+            "--sensor",
+            "replay:pytouch",
+        ],
+    );
+    assert!(out.contains("recorded 1 of 1 presses of wool2"), "{out}");
+    let m = meta(&d.join("again/wool2/0001"));
+    assert_eq!(m["sensor_serial"], "SIM0000");
+    assert!(
+        m["reference_frames"].as_u64().expect("reference") >= 8,
+        "{m}"
+    );
+    // Nothing to replay: said, naming the directory.
+    std::fs::create_dir_all(d.join("empty")).unwrap();
+    let out = run(
+        d,
+        &[
+            "record",
+            "--textile",
+            "wool",
+            "--presses",
+            "1",
+            "--out",
+            "again",
+            "--sensor",
+            "replay:empty",
+        ],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no recordings to replay under empty"), "{err}");
 }
 
 #[test]
