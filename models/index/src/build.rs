@@ -157,9 +157,18 @@ impl IndexBuilder {
     /// set, so a study can try several quantiles on one build).
     pub fn build_calibrated(self) -> Result<(Index, Vec<f32>), IndexError> {
         self.build_inner(true)
+            .map(|(index, left)| (index, sorted_distances(&left)))
     }
 
-    fn build_inner(self, measure: bool) -> Result<(Index, Vec<f32>), IndexError> {
+    /// [`IndexBuilder::build`], also returning every press left out of the
+    /// index and decided against the rest ([`left_out`], in the records'
+    /// order of fabrics; the same presses the unknown distance is
+    /// calibrated on): how well the index tells its own fabrics apart.
+    pub fn build_checked(self) -> Result<(Index, Vec<LeftOut>), IndexError> {
+        self.build_inner(true)
+    }
+
+    fn build_inner(self, measure: bool) -> Result<(Index, Vec<LeftOut>), IndexError> {
         let dim = self.dim;
         if let Some(q) = self.unknown_quantile {
             if !is_quantile(q) {
@@ -184,11 +193,12 @@ impl IndexBuilder {
         // Every vector in the metric's space (normalised either way).
         let map_in = |v: &[f32]| in_space(metric.as_ref().filter(|_| v.len() == dim), v);
         let keep_exemplars = self.keep_exemplars;
-        let press_d = if measure {
-            press_distances(&presses, dim, keep_exemplars, self.metric_shrinkage)
+        let left = if measure {
+            left_out(&presses, dim, keep_exemplars, self.metric_shrinkage)
         } else {
             Vec::new()
         };
+        let press_d = sorted_distances(&left);
         let unknown = self.unknown_quantile.and_then(|q| {
             Some(UnknownDistance {
                 distance: calibrated_distance(&press_d, q)?,
@@ -266,42 +276,67 @@ impl IndexBuilder {
             e.map_xy = [p[0], p[1]];
         }
         index.validate()?;
-        Ok((index, press_d))
+        Ok((index, left))
     }
 }
 
 /// How many folds [`press_distances`] leaves out in turn, at most.
 pub const MAX_CALIBRATION_FOLDS: usize = 4;
 
-/// Left-out press distances, sorted: what a new press of a known fabric is
-/// likely to be from that fabric's entry, measured on the owner's own
-/// presses. `fabrics`: each fabric's per-press embeddings (encoder space).
+/// A press left out of the index and decided against the rest
+/// ([`left_out`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LeftOut {
+    /// Its fabric (position in the input).
+    pub fabric: usize,
+    /// Its position among its fabric's presses in the input.
+    pub press: usize,
+    /// The fabric whose entry it is nearest to.
+    pub decided: usize,
+    /// Its distance to its own fabric's entry.
+    pub own_distance: f32,
+}
+
+/// A fabric's entry in one fold of [`left_out`]: its centroid and its
+/// presses (in the metric's space).
+type FoldEntry = (Vec<f32>, Vec<Vec<f32>>);
+
+/// Every press of a fabric with another press, left out of the index and
+/// decided against an index of the others: what a new press of a known
+/// fabric is likely to be, measured on the owner's own presses.
+/// `fabrics`: each fabric's per-press embeddings (encoder space).
 /// The presses are dealt into folds (press `i` of a fabric into fold
 /// `i mod F`, `F` = the most presses of a fabric, at most
 /// [`MAX_CALIBRATION_FOLDS`]); for each fold the index is made again without
 /// it, its metric learned again with `shrinkage` when given (a metric
 /// learned with the press in it would flatter it: whitening shrinks the
-/// directions its own presses vary in), and every left-out press of a
-/// fabric with another press left in is measured to that fabric's entry:
-/// the normalised mean of its remaining presses, or (with `exemplars`) the
-/// nearest of that and the remaining presses. (The entry's real centroid is
-/// the mean of its frames, not of its presses' means; with presses of equal
-/// frame counts the two agree.)
-pub fn press_distances(
+/// directions its own presses vary in). Each fabric's entry is the
+/// normalised mean of its remaining presses, or (with `exemplars`) the
+/// nearest of that and the remaining presses; a fabric with none left in
+/// has no entry in that fold. (The entry's real centroid is the mean of
+/// its frames, not of its presses' means; with presses of equal frame
+/// counts the two agree.) Presses with a non-finite distance are left out.
+pub fn left_out(
     fabrics: &[Vec<Vec<f32>>],
     dim: usize,
     exemplars: bool,
     shrinkage: Option<f32>,
-) -> Vec<f32> {
+) -> Vec<LeftOut> {
     let folds = fabrics
         .iter()
         .map(Vec::len)
         .max()
         .unwrap_or(0)
         .min(MAX_CALIBRATION_FOLDS);
-    let fabrics: Vec<Vec<&Vec<f32>>> = fabrics
+    // Each fabric's usable presses, with their positions in the input.
+    let fabrics: Vec<Vec<(usize, &Vec<f32>)>> = fabrics
         .iter()
-        .map(|f| f.iter().filter(|v| v.len() == dim).collect())
+        .map(|f| {
+            f.iter()
+                .enumerate()
+                .filter(|(_, v)| v.len() == dim)
+                .collect()
+        })
         .collect();
     let mut out = Vec::new();
     for fold in 0..folds {
@@ -311,32 +346,159 @@ pub fn press_distances(
                 f.iter()
                     .enumerate()
                     .filter(|&(i, _)| i % folds != fold)
-                    .map(|(_, v)| v.to_vec())
+                    .map(|(_, (_, v))| v.to_vec())
                     .collect()
             })
             .collect();
         let metric = shrinkage.and_then(|a| Metric::within_fabric(&kept, dim, a));
         let map_in = |v: &[f32]| in_space(metric.as_ref(), v);
-        for (f, k) in fabrics.iter().zip(&kept) {
-            if k.is_empty() {
-                continue;
+        // Each fabric's entry in this fold: its centroid, then its presses.
+        let entries: Vec<Option<FoldEntry>> = kept
+            .iter()
+            .map(|k| {
+                (!k.is_empty()).then(|| {
+                    let others: Vec<Vec<f32>> = k.iter().map(|v| map_in(v)).collect();
+                    (normalised_mean(&others, dim), others)
+                })
+            })
+            .collect();
+        let to_entry = |p: &[f32], (centroid, others): &FoldEntry| {
+            let mut d = distance(p, centroid);
+            if exemplars {
+                for o in others {
+                    d = d.min(distance(p, o));
+                }
             }
-            let others: Vec<Vec<f32>> = k.iter().map(|v| map_in(v)).collect();
-            let centroid = normalised_mean(&others, dim);
-            for (_, p) in f.iter().enumerate().filter(|&(i, _)| i % folds == fold) {
+            d
+        };
+        for (fabric, f) in fabrics.iter().enumerate() {
+            let Some(own) = &entries[fabric] else {
+                continue;
+            };
+            for (_, &(press, p)) in f.iter().enumerate().filter(|&(i, _)| i % folds == fold) {
                 let p = map_in(p);
-                let mut d = distance(&p, &centroid);
-                if exemplars {
-                    for o in &others {
-                        d = d.min(distance(&p, o));
+                let own_distance = to_entry(&p, own);
+                if !own_distance.is_finite() {
+                    continue;
+                }
+                // Another fabric as near as its own takes it: a tie is
+                // not a press told apart.
+                let mut decided = (fabric, own_distance);
+                for (g, e) in entries.iter().enumerate() {
+                    if let (Some(e), true) = (e, g != fabric) {
+                        let d = to_entry(&p, e);
+                        if d <= decided.1 {
+                            decided = (g, d);
+                        }
                     }
                 }
-                if d.is_finite() {
-                    out.push(d);
-                }
+                out.push(LeftOut {
+                    fabric,
+                    press,
+                    decided: decided.0,
+                    own_distance,
+                });
             }
         }
     }
+    out
+}
+
+/// The left-out presses' distances to their own fabric's entry, sorted
+/// ([`left_out`]): what the unknown-textile distance is calibrated on.
+pub fn press_distances(
+    fabrics: &[Vec<Vec<f32>>],
+    dim: usize,
+    exemplars: bool,
+    shrinkage: Option<f32>,
+) -> Vec<f32> {
+    sorted_distances(&left_out(fabrics, dim, exemplars, shrinkage))
+}
+
+/// How well an index tells its own fabrics apart: its presses, each left
+/// out and decided against the rest ([`left_out`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SelfCheck {
+    /// Presses left out and decided.
+    pub presses: usize,
+    /// Of them, decided as their own fabric.
+    pub right: usize,
+    /// (fabric, decided as, presses), most presses first, then by fabric.
+    pub confusions: Vec<(usize, usize, usize)>,
+}
+
+impl SelfCheck {
+    /// Count the left-out presses.
+    pub fn of(left: &[LeftOut]) -> SelfCheck {
+        let mut pairs = std::collections::BTreeMap::new();
+        for l in left.iter().filter(|l| l.decided != l.fabric) {
+            *pairs.entry((l.fabric, l.decided)).or_insert(0usize) += 1;
+        }
+        let mut confusions: Vec<(usize, usize, usize)> =
+            pairs.into_iter().map(|((f, d), n)| (f, d, n)).collect();
+        confusions.sort_by(|a, b| b.2.cmp(&a.2).then((a.0, a.1).cmp(&(b.0, b.1))));
+        SelfCheck {
+            presses: left.len(),
+            right: left.iter().filter(|l| l.decided == l.fabric).count(),
+            confusions,
+        }
+    }
+}
+
+/// Two self-checks of the same presses (two models' embeddings of them),
+/// paired press by press: only presses both decided count.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Paired {
+    /// Presses both decided.
+    pub presses: usize,
+    /// Of them, right by the first only.
+    pub first_only: usize,
+    /// Right by the second only.
+    pub second_only: usize,
+}
+
+impl Paired {
+    /// Pair two sets of left-out presses by (fabric, press).
+    pub fn of(first: &[LeftOut], second: &[LeftOut]) -> Paired {
+        let right = |l: &[LeftOut]| -> std::collections::BTreeMap<(usize, usize), bool> {
+            l.iter()
+                .map(|l| ((l.fabric, l.press), l.decided == l.fabric))
+                .collect()
+        };
+        let (a, b) = (right(first), right(second));
+        let mut p = Paired {
+            presses: 0,
+            first_only: 0,
+            second_only: 0,
+        };
+        for (k, &ra) in &a {
+            if let Some(&rb) = b.get(k) {
+                p.presses += 1;
+                p.first_only += usize::from(ra && !rb);
+                p.second_only += usize::from(rb && !ra);
+            }
+        }
+        p
+    }
+
+    /// Whether the second is right more often by at least two standard
+    /// errors of the paired difference (the presses one got right and the
+    /// other did not: what one model's advantage on these presses rests
+    /// on).
+    pub fn second_ahead(&self) -> bool {
+        let n = self.presses as f64;
+        let (b, c) = (self.second_only as f64, self.first_only as f64);
+        if self.presses == 0 || b <= c {
+            return false;
+        }
+        let d = (b - c) / n;
+        let se = (((b + c) / n - d * d) / n).max(0.0).sqrt();
+        d >= 2.0 * se
+    }
+}
+
+fn sorted_distances(left: &[LeftOut]) -> Vec<f32> {
+    let mut out: Vec<f32> = left.iter().map(|l| l.own_distance).collect();
     out.sort_by(f32::total_cmp);
     out
 }
@@ -385,6 +547,108 @@ mod tests {
         // With exemplars, each outer press is 0.1 rad from the middle one.
         let e = press_distances(&[vec![unit(-0.1), unit(0.0), unit(0.1)]], 2, true, None);
         assert!((e[2] - chord(0.1)).abs() < 1e-5, "{e:?}");
+    }
+
+    #[test]
+    fn left_out_presses_are_decided_against_the_rest() {
+        // Fabric 0 at 0 rad (three presses, the last straying to 0.9 rad),
+        // fabric 1 at 1.2 rad (two presses), fabric 2 at 3 rad (one press:
+        // never left out alone, an entry in the folds it is kept in).
+        let fabrics = vec![
+            vec![unit(0.0), unit(0.05), unit(0.9)],
+            vec![unit(1.2), unit(1.25)],
+            vec![unit(3.0)],
+        ];
+        let left = left_out(&fabrics, 2, false, None);
+        // Three folds: fold 0 leaves out press 0 of every fabric (fabric 2
+        // then has no entry, and its press is not decided); fold 1 press 1;
+        // fold 2 press 2 (fabric 0's stray press).
+        let got: Vec<(usize, usize, usize)> = left
+            .iter()
+            .map(|l| (l.fabric, l.press, l.decided))
+            .collect();
+        assert_eq!(
+            got,
+            vec![(0, 0, 0), (1, 0, 1), (0, 1, 0), (1, 1, 1), (0, 2, 1)]
+        );
+        // Its own distances are the calibration's.
+        let mut own: Vec<f32> = left.iter().map(|l| l.own_distance).collect();
+        own.sort_by(f32::total_cmp);
+        assert_eq!(own, press_distances(&fabrics, 2, false, None));
+        let check = SelfCheck::of(&left);
+        assert_eq!((check.presses, check.right), (5, 4));
+        assert_eq!(check.confusions, vec![(0, 1, 1)]);
+        // With exemplars the stray press is still nearer fabric 1's presses
+        // (0.3 rad) than fabric 0's (0.85 rad).
+        let check = SelfCheck::of(&left_out(&fabrics, 2, true, None));
+        assert_eq!(check.confusions, vec![(0, 1, 1)]);
+        // Presses that all look the same tell nothing apart: a tie is
+        // another fabric's.
+        let same = vec![vec![unit(0.0); 2], vec![unit(0.0); 2]];
+        let check = SelfCheck::of(&left_out(&same, 2, true, None));
+        assert_eq!((check.presses, check.right), (4, 0));
+        // A press of the wrong dimension is skipped, and the others keep
+        // their positions.
+        let odd = vec![
+            vec![vec![1.0, 0.0, 0.0], unit(0.0), unit(0.1)],
+            vec![unit(2.0), unit(2.1)],
+        ];
+        let presses: Vec<(usize, usize)> = left_out(&odd, 2, false, None)
+            .iter()
+            .map(|l| (l.fabric, l.press))
+            .collect();
+        assert_eq!(presses, vec![(0, 1), (1, 0), (0, 2), (1, 1)]);
+        // Confusions are ordered by count, then by fabric.
+        let l = |fabric, decided| LeftOut {
+            fabric,
+            press: 0,
+            decided,
+            own_distance: 0.1,
+        };
+        let check = SelfCheck::of(&[l(2, 0), l(1, 0), l(1, 0), l(0, 0), l(0, 2)]);
+        assert_eq!(check.confusions, vec![(1, 0, 2), (0, 2, 1), (2, 0, 1)]);
+        assert_eq!((check.presses, check.right), (5, 1));
+    }
+
+    #[test]
+    fn two_self_checks_are_compared_press_by_press() {
+        let l = |fabric, press, right: bool| LeftOut {
+            fabric,
+            press,
+            decided: if right { fabric } else { fabric + 1 },
+            own_distance: 0.1,
+        };
+        // 71 presses both decided; the second right on 4 the first missed,
+        // the first on none the second missed: 4 / 71 = 5.6 points, two
+        // standard errors 5.5: ahead. With 3 it is not (4.2 against 4.8).
+        let first: Vec<LeftOut> = (0..71).map(|i| l(i % 12, i / 12, i >= 4)).collect();
+        let mut second: Vec<LeftOut> = (0..71).map(|i| l(i % 12, i / 12, true)).collect();
+        // A press only one of them decided does not count.
+        second.push(l(0, 99, true));
+        let p = Paired::of(&first, &second);
+        assert_eq!(
+            p,
+            Paired {
+                presses: 71,
+                first_only: 0,
+                second_only: 4
+            }
+        );
+        assert!(p.second_ahead());
+        let three: Vec<LeftOut> = (0..71).map(|i| l(i % 12, i / 12, i >= 3)).collect();
+        assert!(!Paired::of(&three, &second).second_ahead());
+        // The other way round, or level: never ahead.
+        assert!(!Paired::of(&second, &first).second_ahead());
+        assert!(!Paired::of(&first, &first).second_ahead());
+        assert!(!Paired::of(&[], &first).second_ahead());
+        // Wins on both sides weigh against each other: 10 against 4 of 71
+        // is 8.5 points, two standard errors 10.3.
+        let mixed: Vec<LeftOut> = (0..71)
+            .map(|i| l(i % 12, i / 12, !(10..20).contains(&i)))
+            .collect();
+        let p = Paired::of(&mixed, &first);
+        assert_eq!((p.first_only, p.second_only), (4, 10));
+        assert!(!p.second_ahead());
     }
 
     #[test]
