@@ -4,7 +4,8 @@ use anyhow::{bail, Context, Result};
 use clap::{Args as ClapArgs, Subcommand};
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use telextiles_index::build::{Paired, SelfCheck};
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
 use telextiles_sensing::contact::ContactConfig;
@@ -24,6 +25,45 @@ pub enum Args {
     Build(BuildArgs),
     /// Print an index file's contents and fingerprint.
     Inspect(InspectArgs),
+    /// Check how well your presses tell your fabrics apart, with one model
+    /// or several: each press left out and decided against an index of the
+    /// others; with several, which model to use on your sensor.
+    Check(CheckArgs),
+}
+
+/// `telextilesd index check`
+#[derive(ClapArgs, Debug)]
+pub struct CheckArgs {
+    /// ONNX encoder to check (repeat it to compare): the first is the one
+    /// in use, and another is recommended only when it is right on more of
+    /// your presses by two standard errors of the paired difference.
+    #[arg(long = "model", required = true)]
+    pub models: Vec<PathBuf>,
+    /// Directory of recorded presses, as for `index build --presses`
+    /// (press directories, or a PyTouch-style dataset).
+    #[arg(long)]
+    pub presses: PathBuf,
+    /// The sensor's no-contact frame, as for `index build --reference`.
+    #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
+    pub references: Vec<String>,
+    /// One centroid per textile only (as `index build --no-exemplars`).
+    #[arg(long)]
+    pub no_exemplars: bool,
+    /// Plain cosine distance (as `index build --no-metric`).
+    #[arg(long)]
+    pub no_metric: bool,
+    /// Shrinkage of the learned distance towards plain cosine (0..=1).
+    #[arg(long, default_value_t = telextiles_index::metric::DEFAULT_SHRINKAGE)]
+    pub metric_shrinkage: f32,
+    /// Use every n-th contact frame.
+    #[arg(long, default_value_t = 4)]
+    pub stride: usize,
+    /// Encoder threads.
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// `telextilesd index build`
@@ -141,7 +181,190 @@ pub fn run(args: Args) -> Result<()> {
     match args {
         Args::Build(a) => build(a),
         Args::Inspect(a) => inspect(a),
+        Args::Check(a) => check(a),
     }
+}
+
+fn open_encoder(model: &Path, threads: usize) -> Result<Encoder> {
+    Encoder::open(
+        model,
+        &EncoderOptions {
+            threads,
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("cannot load the encoder {}", model.display()))
+}
+
+/// `index check`: the self-check of `index build --presses` for each model,
+/// on the same presses, and the model to use by the paired rule.
+fn check(a: CheckArgs) -> Result<()> {
+    if !(0.0..=1.0).contains(&a.metric_shrinkage) {
+        bail!("--metric-shrinkage {} is outside 0..=1", a.metric_shrinkage);
+    }
+    let references = References::from_args(&a.references)?;
+    let mut fronts = Vec::new();
+    for m in &a.models {
+        fronts.push(FrontEnd::new(
+            open_encoder(m, a.threads)?,
+            ContactConfig::default(),
+            None,
+        ));
+    }
+    let embedded = embed_recordings(
+        &mut fronts,
+        &a.presses,
+        &references,
+        a.stride,
+        "index check",
+    )?;
+    let ids: Vec<String> = embedded.by_textile[0].keys().cloned().collect();
+    if ids.is_empty() {
+        return Err(none_in_contact(&a.presses, "check"));
+    }
+    let exemplars = !a.no_exemplars;
+    let shrinkage = (!a.no_metric).then_some(a.metric_shrinkage);
+    let left: Vec<Vec<telextiles_index::build::LeftOut>> = embedded
+        .by_textile
+        .iter()
+        .zip(&fronts)
+        .map(|(by_textile, front)| {
+            let fabrics: Vec<Vec<Vec<f32>>> = ids
+                .iter()
+                .map(|id| by_textile.get(id).map(|e| e.1.clone()).unwrap_or_default())
+                .collect();
+            telextiles_index::build::left_out(&fabrics, front.encoder().dim(), exemplars, shrinkage)
+        })
+        .collect();
+    let checks: Vec<SelfCheck> = left.iter().map(|l| SelfCheck::of(l)).collect();
+    if checks[0].presses == 0 {
+        bail!(
+            "no fabric under {} has two presses with contact: a press can only be checked against other presses of its fabric (press each fabric twice or more)",
+            a.presses.display()
+        );
+    }
+    let paired: Vec<Option<Paired>> = (0..left.len())
+        .map(|k| (k > 0).then(|| Paired::of(&left[0], &left[k])))
+        .collect();
+    let choice = choose_model(&checks, &paired);
+    let id = |i: usize| ids.get(i).map_or("?", String::as_str);
+    let mut out = crate::out::stdout();
+    if a.json {
+        let models: Vec<serde_json::Value> = a
+            .models
+            .iter()
+            .zip(&checks)
+            .zip(&paired)
+            .map(|((m, c), p)| {
+                serde_json::json!({
+                    "model": m.display().to_string(),
+                    "presses": c.presses,
+                    "right": c.right,
+                    "share": share(c),
+                    "confusions": c.confusions.iter().map(|&(f, d, n)| serde_json::json!({
+                        "fabric": id(f), "as": id(d), "presses": n,
+                    })).collect::<Vec<_>>(),
+                    "against_first": p.map(|p| serde_json::json!({
+                        "presses": p.presses,
+                        "right_only_first": p.first_only,
+                        "right_only_this": p.second_only,
+                        "ahead": p.second_ahead(),
+                    })),
+                })
+            })
+            .collect();
+        let v = serde_json::json!({
+            "recordings": embedded.presses,
+            "fabrics": ids.len(),
+            "exemplars": exemplars,
+            "metric_shrinkage": shrinkage,
+            "models": models,
+            "choice": a.models[choice].display().to_string(),
+        });
+        writeln!(out, "{v}")?;
+        return Ok(());
+    }
+    writeln!(
+        out,
+        "self-check of {} presses of {} fabrics: each left out and decided against an index of the other presses ({}, {})",
+        checks[0].presses,
+        ids.len(),
+        if exemplars { "centroids and presses" } else { "centroids only" },
+        match shrinkage {
+            Some(s) => format!("distance learned with shrinkage {s}"),
+            None => "cosine distance".into(),
+        }
+    )?;
+    for (k, m) in a.models.iter().enumerate() {
+        let c = &checks[k];
+        let mut line = format!(
+            "  {}: {} of {} right ({:.1} %)",
+            m.display(),
+            c.right,
+            c.presses,
+            100.0 * share(c)
+        );
+        if let Some(p) = paired[k] {
+            line += &format!(
+                "; against the first, right on {} it missed and missed {} it got",
+                p.second_only, p.first_only
+            );
+        }
+        line += &confusions_text(c, &id);
+        writeln!(out, "{line}")?;
+    }
+    if a.models.len() > 1 {
+        if choice == 0 {
+            writeln!(
+                out,
+                "choice: keep {}: no other model is right on more of these presses by two standard errors of the paired difference",
+                a.models[0].display()
+            )?;
+        } else {
+            writeln!(
+                out,
+                "choice: {}: right on more of these presses than {} by two standard errors of the paired difference or more; use it on both sides of a session (`model`) and build the index with it",
+                a.models[choice].display(),
+                a.models[0].display()
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Share of a self-check's presses decided right.
+fn share(c: &SelfCheck) -> f64 {
+    c.right as f64 / c.presses.max(1) as f64
+}
+
+/// Which of the checked models to use: the first (the one in use) unless
+/// another is right on more of the same presses by two standard errors of
+/// the paired difference (`paired[k]`: model k against the first); of
+/// those, the one right on the largest share.
+fn choose_model(checks: &[SelfCheck], paired: &[Option<Paired>]) -> usize {
+    (1..checks.len().min(paired.len()))
+        .filter(|&k| paired[k].is_some_and(|p| p.second_ahead()))
+        .max_by(|&x, &y| share(&checks[x]).total_cmp(&share(&checks[y])))
+        .unwrap_or(0)
+}
+
+/// "; taken for another: A as B (3), ..." (at most five pairs), or nothing.
+fn confusions_text<'a>(check: &SelfCheck, id: &dyn Fn(usize) -> &'a str) -> String {
+    if check.confusions.is_empty() {
+        return String::new();
+    }
+    let shown: Vec<String> = check
+        .confusions
+        .iter()
+        .take(5)
+        .map(|&(f, d, n)| format!("{} as {} ({n})", id(f), id(d)))
+        .collect();
+    let more = check.confusions.len() - shown.len();
+    let mut text = format!("; taken for another: {}", shown.join(", "));
+    if more > 0 {
+        text += &format!(" and {more} more");
+    }
+    text
 }
 
 /// Embeddings of the in-contact frames of a press (every `stride`-th),
@@ -233,6 +456,102 @@ fn record(
     }
 }
 
+/// How well the index tells the owner's fabrics apart: its presses, each
+/// left out of it and decided against the others (as `classify` decides a
+/// press at its end), and the fabrics most often taken for others.
+fn self_check_line(index: &Index, left: &[telextiles_index::build::LeftOut]) -> String {
+    let check = SelfCheck::of(left);
+    if check.presses == 0 {
+        return "self-check: no fabric has two presses with contact, so the index cannot be checked against presses it does not hold".into();
+    }
+    let id = |i: usize| index.entries.get(i).map_or("?", |e| e.id.as_str());
+    format!(
+        "self-check: {} of {} presses ({:.1} %) decided as their own fabric by an index of the other presses{}",
+        check.right,
+        check.presses,
+        100.0 * check.right as f64 / check.presses as f64,
+        confusions_text(&check, &id)
+    )
+}
+
+/// A press's frame embeddings and their mean into its textile's entry
+/// (nothing for a press never in contact).
+fn add_press(
+    by_textile: &mut BTreeMap<String, FrameAndPressEmbeddings>,
+    id: &str,
+    embs: Vec<Vec<f32>>,
+) {
+    if embs.is_empty() {
+        return;
+    }
+    let slot = by_textile.entry(id.to_string()).or_default();
+    slot.1.push(mean(&embs));
+    slot.0.extend(embs);
+}
+
+/// The recordings under a directory, embedded by each front end (one per
+/// model; each recording is read once).
+struct Embedded {
+    /// Per front end: textile id -> (frame embeddings, per-press means).
+    by_textile: Vec<BTreeMap<String, FrameAndPressEmbeddings>>,
+    /// Names of the owner's fabrics (`telextilesd record --name`).
+    names: BTreeMap<String, String>,
+    /// Recordings read.
+    presses: usize,
+}
+
+/// Read every recording under `root` (the walk every command shares) and
+/// embed its frames in contact with each front end; a recording never in
+/// contact is named in a warning.
+fn embed_recordings(
+    fronts: &mut [FrontEnd],
+    root: &Path,
+    references: &References,
+    stride: usize,
+    what: &str,
+) -> Result<Embedded> {
+    let recordings = telextiles_sim::recording::find_recordings(root)?;
+    let progress = Progress::new(what, recordings.len() as u64, "presses");
+    let mut out = Embedded {
+        by_textile: vec![BTreeMap::new(); fronts.len()],
+        names: BTreeMap::new(),
+        presses: 0,
+    };
+    for rec in recordings {
+        let d = rec.path();
+        let press = rec.load()?;
+        if let Some(name) = textile_name(&d, &press.meta.textile) {
+            out.names.insert(press.meta.textile.clone(), name);
+        }
+        let reference = references.for_press(&press);
+        for (k, front) in fronts.iter_mut().enumerate() {
+            let embs = embeddings_with(front, &press, reference.as_deref(), stride)?;
+            // Contact is the front end's detector's, the same for every
+            // model: warn once.
+            if embs.is_empty() && k == 0 {
+                progress.println(&format!(
+                    "warning: {}: no contact detected, press skipped{}",
+                    d.display(),
+                    crate::cmd_classify::no_reference_hint(reference.is_some())
+                ));
+            }
+            add_press(&mut out.by_textile[k], &press.meta.textile, embs);
+        }
+        out.presses += 1;
+        progress.inc(1);
+    }
+    progress.finish();
+    Ok(out)
+}
+
+/// The error when no recording under `root` was in contact.
+fn none_in_contact(root: &Path, to: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "no press under {} was seen in contact: nothing to {to} (see the warnings above)",
+        root.display()
+    )
+}
+
 fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
     let mut m = vec![0.0; vs[0].len()];
     for v in vs {
@@ -244,14 +563,7 @@ fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
 }
 
 fn build(a: BuildArgs) -> Result<()> {
-    let enc = Encoder::open(
-        &a.model,
-        &EncoderOptions {
-            threads: a.threads,
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("cannot load the encoder {}", a.model.display()))?;
+    let enc = open_encoder(&a.model, a.threads)?;
     let info = enc.info().clone();
     let mut front = FrontEnd::new(enc, ContactConfig::default(), None);
     let cat = Catalogue::version(a.catalogue)
@@ -260,44 +572,21 @@ fn build(a: BuildArgs) -> Result<()> {
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
     // Names of the user's own fabrics (`telextilesd record --name`).
     let mut names: BTreeMap<String, String> = BTreeMap::new();
-    let mut add = |id: &str, embs: Vec<Vec<f32>>| {
-        if embs.is_empty() {
-            return;
-        }
-        let slot = by_textile.entry(id.to_string()).or_default();
-        slot.1.push(mean(&embs));
-        slot.0.extend(embs);
-    };
     let mut presses = 0usize;
     if let Some(root) = &a.presses {
         let references = References::from_args(&a.references)?;
-        let recordings = telextiles_sim::recording::find_recordings(root)?;
-        let progress = Progress::new("index build", recordings.len() as u64, "presses");
-        for rec in recordings {
-            let d = rec.path();
-            let press = rec.load()?;
-            if let Some(name) = textile_name(&d, &press.meta.textile) {
-                names.insert(press.meta.textile.clone(), name);
-            }
-            let reference = references.for_press(&press);
-            let embs = embeddings_with(&mut front, &press, reference.as_deref(), a.stride)?;
-            if embs.is_empty() {
-                progress.println(&format!(
-                    "warning: {}: no contact detected, press skipped{}",
-                    d.display(),
-                    crate::cmd_classify::no_reference_hint(reference.is_some())
-                ));
-            }
-            add(&press.meta.textile, embs);
-            presses += 1;
-            progress.inc(1);
-        }
-        progress.finish();
+        let mut embedded = embed_recordings(
+            std::slice::from_mut(&mut front),
+            root,
+            &references,
+            a.stride,
+            "index build",
+        )?;
+        by_textile = embedded.by_textile.remove(0);
+        names = embedded.names;
+        presses = embedded.presses;
         if by_textile.is_empty() {
-            bail!(
-                "no press under {} was seen in contact: nothing to index (see the warnings above)",
-                root.display()
-            );
+            return Err(none_in_contact(root, "index"));
         }
     } else if a.sim {
         let sim = Simulator::with_options(a.catalogue, 1)?;
@@ -313,7 +602,8 @@ fn build(a: BuildArgs) -> Result<()> {
         let progress = Progress::new("index build", total as u64, "simulated presses");
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
-            add(
+            add_press(
+                &mut by_textile,
                 &spec.textile,
                 press_embeddings(&mut front, &press, a.stride)?,
             );
@@ -356,7 +646,13 @@ fn build(a: BuildArgs) -> Result<()> {
             means,
         ))?;
     }
-    let index = builder.build()?;
+    // An index of the owner's presses checks itself: each press left out
+    // and decided against the others.
+    let (index, left) = if a.presses.is_some() {
+        builder.build_checked()?
+    } else {
+        (builder.build()?, Vec::new())
+    };
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -373,6 +669,9 @@ fn build(a: BuildArgs) -> Result<()> {
         unknown_summary(&index),
         &index.fingerprint()[..16]
     )?;
+    if a.presses.is_some() {
+        writeln!(crate::out::stdout(), "{}", self_check_line(&index, &left))?;
+    }
     if a.presses.is_some() && !thin.is_empty() {
         eprintln!(
             "note: {} of {} fabrics have fewer than {RECOMMENDED_PRESSES} presses with contact: {}. A press tells the index only about the few millimetres of cloth it touched; press each fabric {RECOMMENDED_PRESSES} times or more, each at a different place (docs/recording.md)",
@@ -929,6 +1228,63 @@ mod tests {
         let e = &sim_index.entries[0];
         assert_eq!(e.name, c2.get(&e.id).unwrap().name);
         assert!(Cli::try_parse_from(["x", "--model", "m", "--sim", "--catalogue", "3"]).is_err());
+    }
+
+    #[test]
+    fn index_check_keeps_the_model_in_use_unless_another_is_ahead_on_the_same_presses() {
+        let check = |right| SelfCheck {
+            presses: 71,
+            right,
+            confusions: Vec::new(),
+        };
+        let pair = |first_only, second_only| {
+            Some(Paired {
+                presses: 71,
+                first_only,
+                second_only,
+            })
+        };
+        // One model: itself.
+        assert_eq!(choose_model(&[check(60)], &[None]), 0);
+        // Ahead by 4 presses of 71 with none the other way: switch; by 3:
+        // keep.
+        assert_eq!(
+            choose_model(&[check(60), check(64)], &[None, pair(0, 4)]),
+            1
+        );
+        assert_eq!(
+            choose_model(&[check(60), check(63)], &[None, pair(0, 3)]),
+            0
+        );
+        // Of two that are ahead, the one right most often; one behind is
+        // never chosen for its share alone.
+        let checks = [check(50), check(60), check(70), check(71)];
+        let paired = [None, pair(0, 10), pair(0, 20), pair(30, 51)];
+        assert_eq!(choose_model(&checks, &paired), 3);
+        let paired = [None, pair(0, 10), pair(0, 20), pair(30, 31)];
+        assert_eq!(choose_model(&checks, &paired), 2);
+        // Parsed: --model is required and repeatable, and takes
+        // build's options for the distance and the exemplars.
+        #[derive(clap::Parser)]
+        struct CheckCli {
+            #[command(flatten)]
+            c: CheckArgs,
+        }
+        let a = CheckCli::try_parse_from([
+            "index-check",
+            "--presses",
+            "r",
+            "--model",
+            "a.onnx",
+            "--model",
+            "b.onnx",
+            "--no-metric",
+        ])
+        .unwrap()
+        .c;
+        assert_eq!(a.models.len(), 2);
+        assert!(a.no_metric && !a.no_exemplars);
+        assert!(CheckCli::try_parse_from(["index-check", "--presses", "r"]).is_err());
     }
 
     #[test]

@@ -182,6 +182,10 @@ fn record_index_classify_round_trip_as_a_user_runs_it() {
         out.contains("2 textiles from 6 presses"),
         "index build: {out}"
     );
+    // It checks itself: each of the six presses left out and decided
+    // against the other five.
+    assert!(out.contains("self-check: "), "index build: {out}");
+    assert!(out.contains(" of 6 presses ("), "index build: {out}");
     // The note on thinly covered fabrics (fewer than 8 presses).
     let thin = |args: &[&str]| {
         let o = run(d, args);
@@ -621,4 +625,122 @@ fn pytouch_data_cut_to_the_press_needs_and_takes_a_reference() {
         err.contains("--reference bad.png") && err.contains("corrupt PNG"),
         "{err}"
     );
+}
+
+/// `index check` on an owner's presses with the two shipped models (the
+/// trained model and its untrained front end, the fallback): each press
+/// left out and decided against the others, paired press by press, and
+/// the model in use kept unless the other is ahead by the paired rule.
+#[test]
+fn index_check_compares_the_shipped_models_on_the_owners_presses() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    let shipped = models.join("encoder.onnx");
+    let fallback = models.join("descriptor.onnx");
+    let (shipped, fallback) = (shipped.to_str().unwrap(), fallback.to_str().unwrap());
+    for t in ["T030", "T080"] {
+        ok(
+            d,
+            &[
+                "record",
+                "--textile",
+                t,
+                "--presses",
+                "3",
+                "--out",
+                "recordings",
+                "--sensor",
+                "sim",
+            ],
+        );
+    }
+    let check = |extra: &[&str]| {
+        let mut args = vec![
+            "index",
+            "check",
+            "--presses",
+            "recordings",
+            "--model",
+            shipped,
+            "--model",
+            fallback,
+        ];
+        args.extend_from_slice(extra);
+        ok(d, &args)
+    };
+    let v: serde_json::Value = serde_json::from_str(check(&["--json"]).trim()).expect("json");
+    assert_eq!(v["recordings"], 6, "{v}");
+    assert_eq!(v["fabrics"], 2, "{v}");
+    assert_eq!(v["exemplars"], true, "{v}");
+    assert_eq!(v["metric_shrinkage"], 0.5, "{v}");
+    let m = v["models"].as_array().expect("models");
+    assert_eq!(m.len(), 2);
+    for (k, path) in [shipped, fallback].iter().enumerate() {
+        assert_eq!(m[k]["model"], *path);
+        // Two fabrics far apart: every press told apart by either model.
+        assert_eq!(
+            (m[k]["presses"].as_u64(), m[k]["right"].as_u64()),
+            (Some(6), Some(6)),
+            "{v}"
+        );
+        assert!(m[k]["confusions"]
+            .as_array()
+            .expect("confusions")
+            .is_empty());
+    }
+    assert!(m[0]["against_first"].is_null());
+    assert_eq!(
+        m[1]["against_first"],
+        serde_json::json!({"presses": 6, "right_only_first": 0, "right_only_this": 0, "ahead": false})
+    );
+    assert_eq!(v["choice"], shipped);
+    // As text: each model's line and the choice, said.
+    let text = check(&[]);
+    assert!(
+        text.contains("self-check of 6 presses of 2 fabrics"),
+        "{text}"
+    );
+    assert!(text.contains("6 of 6 right (100.0 %)"), "{text}");
+    assert!(text.contains(&format!("choice: keep {shipped}")), "{text}");
+    // One press per fabric cannot be checked; a model that does not load
+    // is named.
+    ok(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "single",
+            "--sensor",
+            "sim",
+        ],
+    );
+    let out = run(
+        d,
+        &["index", "check", "--presses", "single", "--model", shipped],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no fabric under single has two presses with contact"),
+        "{err}"
+    );
+    let out = run(
+        d,
+        &[
+            "index",
+            "check",
+            "--presses",
+            "recordings",
+            "--model",
+            "nope.onnx",
+        ],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("cannot load the encoder nope.onnx"), "{err}");
 }
