@@ -84,3 +84,30 @@ fn the_previous_descriptor_is_still_written_byte_for_byte() {
         "12c205945c650bb7915c536cd7a77a2055aa04fd73a7b22f3b31ab464edbd028"
     );
 }
+
+/// `models/descriptor.onnx`, the fallback shipped beside the model (the
+/// whitened spectrum alone, with no trained part: `telextiles-lab
+/// export-descriptor --kind wspec --crop 240 --input 120 --subtract`), is
+/// what this crate's graph builder writes, byte for byte: the shipped
+/// model's own front end.
+#[test]
+fn the_shipped_fallback_is_the_untrained_front_end_of_the_model() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../descriptor.onnx");
+    let shipped = std::fs::read(&path).unwrap();
+    let spec = DescriptorSpec {
+        kind: BaselineKind::WSpec,
+        crop: 240,
+        input: 120,
+        subtract: true,
+        min_bin: 1,
+    };
+    let bytes = telextiles_lab::graph::descriptor_model(&spec).unwrap();
+    assert!(
+        bytes == shipped,
+        "{} ({} bytes) is not the wspec-c240-s120-bg graph ({} bytes): regenerate it with \
+         the command of models/MODEL_CARD.md",
+        path.display(),
+        shipped.len(),
+        bytes.len()
+    );
+}
