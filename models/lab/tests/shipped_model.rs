@@ -31,17 +31,22 @@ fn card_config() -> SpectralConfig {
     cfg
 }
 
-#[test]
-fn the_shipped_model_is_the_exported_descriptor_with_its_trained_head() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../encoder.onnx");
-    let shipped = std::fs::read(&path).unwrap();
-    let spec = DescriptorSpec {
+/// The shipped model's front end, `wspec-c240-s120-bg`.
+fn wspec_spec() -> DescriptorSpec {
+    DescriptorSpec {
         kind: BaselineKind::WSpec,
         crop: 240,
         input: 120,
         subtract: true,
         min_bin: 1,
-    };
+    }
+}
+
+#[test]
+fn the_shipped_model_is_the_exported_descriptor_with_its_trained_head() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../encoder.onnx");
+    let shipped = std::fs::read(&path).unwrap();
+    let spec = wspec_spec();
     assert_eq!(spec.arch(), "wspec-c240-s120-bg");
     let (head, hash) = read_head(&shipped)
         .unwrap()
@@ -94,13 +99,7 @@ fn the_previous_descriptor_is_still_written_byte_for_byte() {
 fn the_shipped_fallback_is_the_untrained_front_end_of_the_model() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../descriptor.onnx");
     let shipped = std::fs::read(&path).unwrap();
-    let spec = DescriptorSpec {
-        kind: BaselineKind::WSpec,
-        crop: 240,
-        input: 120,
-        subtract: true,
-        min_bin: 1,
-    };
+    let spec = wspec_spec();
     let bytes = telextiles_lab::graph::descriptor_model(&spec).unwrap();
     assert!(
         bytes == shipped,

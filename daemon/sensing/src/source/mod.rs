@@ -89,6 +89,18 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
     }
 }
 
+/// Real-time pacing of a source that plays frames at their timestamps:
+/// sleep until `t_us` after the first frame was delivered (`started`, set
+/// on the first call).
+pub(crate) fn sleep_until_due(started: &mut Option<std::time::Instant>, t_us: u64) {
+    let start = *started.get_or_insert_with(std::time::Instant::now);
+    let due = start + Duration::from_micros(t_us);
+    let now = std::time::Instant::now();
+    if due > now {
+        std::thread::sleep(due - now);
+    }
+}
+
 /// Exponential backoff between reopen attempts.
 #[derive(Clone, Debug)]
 pub struct Backoff {

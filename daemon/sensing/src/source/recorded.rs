@@ -4,7 +4,7 @@
 //! one after another ([`RecordingsSource`], the daemon's `replay:<dir>`).
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use telextiles_sim::recording::{find_recordings, Recording};
 use telextiles_sim::{Press, PressMeta};
@@ -136,12 +136,7 @@ impl FrameSource for RecordedSource {
             + self.period_us;
         let t = (self.timestamps[i] - first).saturating_add(self.loops.saturating_mul(span));
         if self.pace == Pace::RealTime {
-            let start = *self.started.get_or_insert_with(Instant::now);
-            let due = start + Duration::from_micros(t);
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
+            super::sleep_until_due(&mut self.started, t);
         }
         let img = &self.frames[i];
         out.timestamp_us = t;
@@ -289,12 +284,7 @@ impl FrameSource for RecordingsSource {
                     self.failed = 0;
                     let t = self.offset_us + out.timestamp_us;
                     if self.pace == Pace::RealTime {
-                        let start = *self.started.get_or_insert_with(Instant::now);
-                        let due = start + Duration::from_micros(t);
-                        let now = Instant::now();
-                        if due > now {
-                            std::thread::sleep(due - now);
-                        }
+                        super::sleep_until_due(&mut self.started, t);
                     }
                     self.last = Some((t, src.period_us));
                     out.timestamp_us = t;

@@ -4,7 +4,7 @@
 
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use telextiles_sim::{PressSpec, Simulator};
 
@@ -166,12 +166,7 @@ impl FrameSource for SimSource {
         }
         let t = frame_time_us(self.seq);
         if self.pace == Pace::RealTime {
-            let start = *self.started.get_or_insert_with(Instant::now);
-            let due = start + Duration::from_micros(t);
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
+            super::sleep_until_due(&mut self.started, t);
         }
         if self.idle || self.pos < self.gap_frames {
             let sensor = self.spec.sensor;
