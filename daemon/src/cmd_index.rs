@@ -469,7 +469,7 @@ fn self_check_line(index: &Index, left: &[telextiles_index::build::LeftOut]) -> 
         "self-check: {} of {} presses ({:.1} %) decided as their own fabric by an index of the other presses{}",
         check.right,
         check.presses,
-        100.0 * check.right as f64 / check.presses as f64,
+        100.0 * share(&check),
         confusions_text(&check, &id)
     )
 }
