@@ -201,8 +201,6 @@ fn open_digit(_serial: Option<String>) -> Result<Opened> {
     bail!("the DIGIT is read over V4L2, which only Linux has; use --sensor sim or replay:<dir>")
 }
 
-/// Press directories (with press.json) under `root`, sorted (the shared
-/// walk: symbolic links followed once, unfinished writes skipped).
 fn check_id(id: &str) -> Result<()> {
     if id.is_empty()
         || id == "."
