@@ -150,7 +150,8 @@ pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
 /// Every press directory (one holding `press.json`) at or under `root`,
 /// in sorted path order. Symbolic links to directories are followed (each
 /// directory is read once, so link loops end); unfinished writes
-/// (`<name>.tmp-<pid>-<n>`) are not presses.
+/// (`<name>.tmp-<pid>-<n>`) and hidden directories (`.git`) are not
+/// searched.
 pub fn find_presses(root: &Path) -> Result<Vec<PathBuf>, RecordingError> {
     fn walk(
         dir: &Path,
@@ -315,10 +316,18 @@ pub struct PytouchEntry {
     pub files: Vec<PathBuf>,
 }
 
+/// The entries of a directory the walkers read, sorted by path. Hidden
+/// entries (a name starting with `.`) are left out: `.git`,
+/// `.ipynb_checkpoints` (a notebook's copies, which would read as one more
+/// sensor) and the `._0001.png` files a Mac leaves beside each frame
+/// copied to another file system (not PNGs at all) are never recordings.
 fn sorted_dir(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
     let mut v = Vec::new();
     for e in std::fs::read_dir(path).map_err(io_err(path))? {
-        v.push(e.map_err(io_err(path))?.path());
+        let e = e.map_err(io_err(path))?;
+        if !e.file_name().as_encoded_bytes().starts_with(b".") {
+            v.push(e.path());
+        }
     }
     v.sort();
     Ok(v)

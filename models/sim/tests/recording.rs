@@ -215,6 +215,48 @@ fn pytouch_layout_reads_and_names_bad_files() {
     }
 }
 
+/// Hidden entries are never recordings: a notebook's
+/// `.ipynb_checkpoints` would read as one more sensor, the `._frame.png`
+/// files a Mac leaves beside copied frames are not PNGs, and a `.git`
+/// directory may hold anything, a press directory included.
+#[test]
+fn hidden_files_and_directories_are_not_recordings() {
+    let sim = Simulator::new().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let p = small_press(&sim);
+    for serial in ["D20001", ".ipynb_checkpoints"] {
+        let d = root.join("cotton").join(serial);
+        std::fs::create_dir_all(&d).unwrap();
+        for (i, f) in p.frames.iter().take(3).enumerate() {
+            f.save(d.join(format!("frame_{i}.png"))).unwrap();
+            std::fs::write(d.join(format!("._frame_{i}.png")), b"\0\x05\x16\x07").unwrap();
+        }
+    }
+    std::fs::create_dir_all(root.join(".trash/D20001")).unwrap();
+    p.frames[0]
+        .save(root.join(".trash/D20001/frame_0.png"))
+        .unwrap();
+    let recs = recording::find_recordings(root).unwrap();
+    assert_eq!(recs.len(), 1, "{recs:?}");
+    let loaded = recs[0].load().unwrap();
+    assert_eq!(loaded.frames.len(), 3);
+    assert_eq!(loaded.meta.sensor_serial.as_deref(), Some("D20001"));
+    assert_eq!(read_pytouch(root).unwrap().len(), 1);
+
+    // Press directories: one under .git is not searched.
+    write_press(&root.join("presses/0001"), &p).unwrap();
+    write_press(&root.join("presses/.git/0002"), &p).unwrap();
+    let recs = recording::find_recordings(root).unwrap();
+    assert_eq!(
+        recs,
+        vec![recording::Recording::Press(root.join("presses/0001"))]
+    );
+    // The root itself may be hidden.
+    let hidden_root = root.join("presses/.git");
+    assert_eq!(recording::find_recordings(&hidden_root).unwrap().len(), 1);
+}
+
 /// `find_presses`: recursive, sorted, follows symlinked directories (a
 /// user's split of recordings into index and query sets), skips unfinished
 /// writes, and survives a link loop.
