@@ -38,6 +38,7 @@ pub const KEYS: &[&str] = &[
     "system",
     "group",
     "sensor",
+    "reference",
     "model",
     "index",
     "roller",
@@ -176,6 +177,9 @@ pub struct ConfigArgs {
     /// Frame source: digit[:serial] | sim[:textile] | replay:<dir> [env: TELEXTILESD_SENSOR] [default: digit]
     #[arg(long, value_name = "SOURCE")]
     pub sensor: Option<SensorSource>,
+    /// No-contact frame for replayed recordings that carry none (PyTouch data cut to contact): PNG for every sensor, SERIAL=PNG for one; repeat it (comma-separate in the env) [env: TELEXTILESD_REFERENCE]
+    #[arg(long, value_name = "[SERIAL=]PNG")]
+    pub reference: Option<Vec<String>>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -223,6 +227,7 @@ struct FileConfig {
     system: Option<bool>,
     group: Option<String>,
     sensor: Option<String>,
+    reference: Option<Vec<String>>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -249,6 +254,10 @@ pub struct Config {
     pub system: bool,
     pub group: String,
     pub sensor: SensorSource,
+    /// `[SERIAL=]PNG` no-contact frames for `sensor = replay:<dir>`
+    /// (`telextiles_sensing::front::References::from_args`); paths from
+    /// the file are already joined to the file's directory.
+    pub reference: Vec<String>,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -414,6 +423,17 @@ impl Config {
             file_sensor,
         )
         .unwrap_or(SensorSource::Digit { serial: None });
+        let file_reference = file.reference.map(|v| {
+            v.iter()
+                .map(|r| reference_in_file(&file_dir, r))
+                .collect::<Vec<_>>()
+        });
+        let reference = pick(
+            args.reference.clone(),
+            e.get("REFERENCE", parse_list)?,
+            file_reference,
+        )
+        .unwrap_or_default();
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -489,6 +509,7 @@ impl Config {
             system,
             group,
             sensor,
+            reference,
             model,
             index,
             roller,
@@ -555,7 +576,7 @@ impl Config {
         };
         let p = |p: &Path| q(&p.display().to_string());
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -564,6 +585,7 @@ impl Config {
             self.system,
             q(&self.group),
             q(&self.sensor.to_string()),
+            list(&self.reference),
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -582,6 +604,20 @@ impl Config {
 fn toml_string(s: &str) -> String {
     // JSON string escaping is valid TOML basic-string escaping.
     serde_json::Value::from(s).to_string()
+}
+
+/// A `[SERIAL=]PNG` reference from the file, its path joined to the
+/// file's directory. As `References::from_args` reads it: a file that
+/// exists is a path even with `=` in its name, else the part before the
+/// first `=` is a serial.
+fn reference_in_file(file_dir: &Path, r: &str) -> String {
+    let whole = file_dir.join(r);
+    match r.split_once('=') {
+        Some((serial, png)) if !whole.exists() && !serial.is_empty() && !png.is_empty() => {
+            format!("{serial}={}", file_dir.join(png).display())
+        }
+        _ => whole.display().to_string(),
+    }
 }
 
 /// First of flag, env, file that is set.
@@ -1015,10 +1051,55 @@ mod tests {
         );
     }
 
+    #[test]
+    fn references_are_listed_and_paths_in_the_file_are_relative_to_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        // A file whose name holds `=` is a path, as on the command line.
+        std::fs::write(dir.path().join("a=b.png"), b"").unwrap();
+        std::fs::write(
+            &cfg,
+            "sensor = \"replay:data\"\nreference = [\"ref.png\", \"D20001=refs/d1.png\", \"a=b.png\", \"D2=/abs/d2.png\"]\n",
+        )
+        .unwrap();
+        let base = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let d = dir.path().display();
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!(
+            c.reference,
+            vec![
+                format!("{d}/ref.png"),
+                format!("D20001={d}/refs/d1.png"),
+                format!("{d}/a=b.png"),
+                "D2=/abs/d2.png".to_string(),
+            ]
+        );
+        // The env replaces the file's list (comma-separated), a flag the env's.
+        let mut env2 = env.clone();
+        env2.push(("TELEXTILESD_REFERENCE", "D1=x.png, y.png"));
+        assert_eq!(
+            resolve(&[], &env2).unwrap().reference,
+            vec!["D1=x.png".to_string(), "y.png".to_string()]
+        );
+        let c = resolve(&["--reference", "z.png", "--reference", "D9=w.png"], &env2).unwrap();
+        assert_eq!(
+            c.reference,
+            vec!["z.png".to_string(), "D9=w.png".to_string()]
+        );
+        // None given: empty.
+        std::fs::write(&cfg, "").unwrap();
+        assert!(resolve(&[], &env).unwrap().reference.is_empty());
+    }
+
     fn sample_toml(key: &str) -> &'static str {
         match key {
             "system" | "mdns" | "map" => "true",
             "connect" | "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
+            "reference" => "[\"/x.png\"]",
             "listen" | "map_bind" => "\"127.0.0.1:9\"",
             "sensor" => "\"sim\"",
             "roller" => "\"sim\"",
@@ -1032,6 +1113,7 @@ mod tests {
             "mdns" => "false",
             "map" => "true",
             "connect" | "mdns_allow" | "mdns_deny" => "x:1",
+            "reference" => "D1=/x.png",
             "listen" | "map_bind" => "127.0.0.1:9",
             "sensor" => "sim",
             "roller" => "sim",

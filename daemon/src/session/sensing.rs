@@ -50,6 +50,23 @@ pub(crate) type OpenedSource = (
     String,
 );
 
+/// The no-contact frames given for replayed recordings that carry none
+/// (`reference`), read and checked. They are for `sensor = replay:<dir>`
+/// only: a live DIGIT or the simulator captures its own while idle, so
+/// with any other sensor they are refused rather than silently unused.
+pub(crate) fn given_references(cfg: &Config) -> Result<References> {
+    if cfg.reference.is_empty() {
+        return Ok(References::none());
+    }
+    if !matches!(cfg.sensor, SensorSource::Replay { .. }) {
+        anyhow::bail!(
+            "`reference` is for sensor = replay:<dir> (recordings that carry no no-contact frame); sensor {} captures its own while nothing touches it",
+            cfg.sensor
+        );
+    }
+    Ok(References::from_args(&cfg.reference)?)
+}
+
 /// Opens the configured frame source. A simulated DIGIT presses fabrics
 /// of the index's simulator catalogue (so that its textile ids mean the
 /// fabrics the index was built from).
@@ -81,11 +98,11 @@ pub(crate) fn open_source(
         let src: Box<dyn FrameSource> = Box::new(src);
         Ok((src, Some((handle, simulator)), desc))
     };
+    let references = given_references(cfg)?;
     match &cfg.sensor {
         SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
         SensorSource::Replay { dir } => {
-            let src =
-                RecordingsSource::open(dir, Pace::RealTime, References::none())?.looping(true);
+            let src = RecordingsSource::open(dir, Pace::RealTime, references)?.looping(true);
             let desc = src.describe();
             Ok((Box::new(src), None, desc))
         }
@@ -299,6 +316,69 @@ fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
                     capture_us,
                 );
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ConfigArgs;
+    use telextiles_sim::RgbImage;
+
+    fn config(sensor: &str, reference: &[String]) -> Config {
+        let args = ConfigArgs {
+            sensor: Some(sensor.parse().unwrap()),
+            reference: Some(reference.to_vec()),
+            runtime_dir: Some("/r".into()),
+            config: Some("/dev/null".into()),
+            ..ConfigArgs::default()
+        };
+        Config::resolve(&args, &|k| (k == "HOME").then(|| "/h".into())).unwrap()
+    }
+
+    #[test]
+    fn given_references_are_read_for_a_replay_and_refused_for_any_other_sensor() {
+        let dir = tempfile::tempdir().unwrap();
+        let png = dir.path().join("bg.png");
+        let blank = RgbImage::from_raw(240, 320, [40u8, 60, 80].repeat(240 * 320)).unwrap();
+        blank.save(&png).unwrap();
+        let one = [format!("D20001={}", png.display())];
+        let refs = given_references(&config("replay:data", &one)).unwrap();
+        assert_eq!(
+            refs.given(Some("D20001")),
+            Some(telextiles_sensing::front::pixels_of(&blank).as_slice())
+        );
+        assert_eq!(refs.given(Some("D20002")), None);
+        assert!(given_references(&config("replay:data", &[]))
+            .unwrap()
+            .is_empty());
+        assert!(given_references(&config("sim", &[])).unwrap().is_empty());
+        for sensor in ["sim:T030", "digit", "digit:D20001"] {
+            let err = given_references(&config(sensor, &one))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("`reference` is for sensor = replay:<dir>")
+                    && err.contains(&format!("sensor {sensor} captures its own")),
+                "{err}"
+            );
+        }
+        // A frame of the wrong size, a missing file, two for one sensor.
+        let small = dir.path().join("small.png");
+        RgbImage::new(8, 8).save(&small).unwrap();
+        for (bad, want) in [
+            (vec![small.display().to_string()], "small.png"),
+            (
+                vec!["D1=/nonexistent/bg.png".to_string()],
+                "/nonexistent/bg.png",
+            ),
+            (vec![one[0].clone(), one[0].clone()], "already given"),
+        ] {
+            let err = given_references(&config("replay:data", &bad))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("--reference") && err.contains(want), "{err}");
         }
     }
 }

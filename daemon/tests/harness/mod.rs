@@ -59,6 +59,8 @@ pub struct Setup {
     /// The sensors of A and of B (`--sensor`): by default each a
     /// simulated DIGIT pressing one textile again and again.
     pub sensors: (String, String),
+    /// Further flags of A and of B (e.g. `--reference PNG`).
+    pub flags: (Vec<String>, Vec<String>),
 }
 
 impl Default for Setup {
@@ -66,6 +68,7 @@ impl Default for Setup {
         Setup {
             relay: None,
             sensors: ("sim:T012".into(), "sim:T047".into()),
+            flags: Default::default(),
         }
     }
 }
@@ -92,6 +95,7 @@ fn spawn(
     listen: SocketAddr,
     connect: Option<SocketAddr>,
     sensor: &str,
+    flags: &[String],
 ) -> Side {
     let dir = work.join(name);
     let socket = dir.join("control.sock");
@@ -110,6 +114,7 @@ fn spawn(
         .arg("--socket")
         .arg(&socket)
         .args(["--sensor", sensor])
+        .args(flags)
         .args(["--roller", "sim", "--map=false", "--mdns=false"])
         .args(["--listen", &listen.to_string()])
         .args([
@@ -208,8 +213,22 @@ impl Pair {
             None => None,
         };
         let target = relay.as_ref().map_or(a_addr, |r| r.local_addr());
-        let a = spawn("a", work.path(), a_addr, None, &setup.sensors.0);
-        let b = spawn("b", work.path(), b_addr, Some(target), &setup.sensors.1);
+        let a = spawn(
+            "a",
+            work.path(),
+            a_addr,
+            None,
+            &setup.sensors.0,
+            &setup.flags.0,
+        );
+        let b = spawn(
+            "b",
+            work.path(),
+            b_addr,
+            Some(target),
+            &setup.sensors.1,
+            &setup.flags.1,
+        );
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let pair = Pair {
             a,
