@@ -74,12 +74,12 @@ pub struct BuildArgs {
     pub model: PathBuf,
     /// Directory of recorded presses (each a folder with press.json and
     /// frames), searched recursively, or a PyTouch-style dataset
-    /// (`<class>/<serial>/*.png`, one recording per sequence); presses are
+    /// (`<class>/<serial>/*.png` or `.jpg`, one recording per sequence); presses are
     /// grouped by textile id (the class).
     #[arg(long, conflicts_with = "sim")]
     pub presses: Option<PathBuf>,
-    /// The sensor's no-contact frame (a 240x320 RGB PNG taken with nothing
-    /// touching the gel), for recordings that carry no reference (PyTouch
+    /// The sensor's no-contact frame (a 240x320 RGB PNG or JPEG taken with
+    /// nothing touching the gel), for recordings that carry no reference (PyTouch
     /// data) and whose first frames are already in contact: `PNG` for
     /// every sensor, `SERIAL=PNG` for one (repeat it). A recording's own
     /// reference always wins.

@@ -622,7 +622,7 @@ fn pytouch_data_cut_to_the_press_needs_and_takes_a_reference() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(
-        err.contains("--reference bad.png") && err.contains("corrupt PNG"),
+        err.contains("--reference bad.png") && err.contains("neither a PNG nor a JPEG"),
         "{err}"
     );
 }

@@ -57,7 +57,8 @@ fn a_directory_of_recordings_replays_as_one_press_each_in_order() {
 
 /// A PyTouch-style dataset (`<class>/<serial>/*.png`) cut to the press,
 /// as shared datasets are: no recording carries a no-contact frame, each
-/// starts with the fabric held and ends before the release. With `--reference SERIAL=PNG` for each
+/// starts with the fabric held and ends before the release; one unit's
+/// frames and no-contact frame are JPEG. With `--reference SERIAL=PNG` for each
 /// sensor, as a DIGIT owner gives them, each sequence is replayed against
 /// its own unit's frame and decided as its fabric. (Without them the front
 /// end takes the pressed first frames as the reference and sees no press:
@@ -87,11 +88,14 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
         let serial = format!("D0000{unit}");
         let dir = data.join(textile).join(&serial);
         std::fs::create_dir_all(&dir).unwrap();
+        // The second unit's frames and reference are JPEG, as many
+        // datasets store them.
+        let ext = if *unit == 1 { "jpg" } else { "png" };
         for (i, frame) in press.frames[hold..].iter().enumerate() {
-            frame.save(dir.join(format!("{i:04}.png"))).unwrap();
+            frame.save(dir.join(format!("{i:04}.{ext}"))).unwrap();
         }
         // One untouched frame of the unit, as an owner would take it.
-        let png = rec.path().join(format!("{serial}.png"));
+        let png = rec.path().join(format!("{serial}.{ext}"));
         press.frames[0].save(&png).unwrap();
         flags.extend([
             "--reference".to_string(),

@@ -334,8 +334,9 @@ impl References {
 
     /// From command-line values `[SERIAL=]PNG`: an existing file is a
     /// path, even with `=` in its name; else the part before the first `=`
-    /// is a sensor serial. Each PNG must be an 8-bit RGB frame of the
-    /// sensor (240x320 portrait), taken with nothing touching the gel.
+    /// is a sensor serial. Each image (PNG or JPEG) must be an 8-bit RGB
+    /// frame of the sensor (240x320 portrait), taken with nothing touching
+    /// the gel.
     pub fn from_args<S: AsRef<str>>(args: &[S]) -> Result<References, ReferenceError> {
         let mut out = References::default();
         for arg in args {
@@ -353,7 +354,7 @@ impl References {
                 }
                 _ => (None, arg),
             };
-            let image = telextiles_sim::recording::read_frame(std::path::Path::new(path))
+            let image = telextiles_sim::recording::read_image(std::path::Path::new(path))
                 .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
             let twice = |what: String| ReferenceError::Twice {

@@ -9,6 +9,10 @@
 //! ```
 //! Writes are atomic: everything goes to `<dir>.tmp-<pid>-<n>` first, which
 //! is renamed to `<dir>` when complete.
+//!
+//! Others' data is read in the PyTouch layout
+//! `<root>/<class>/<serial>/<frame>.png` (or `.jpg`): one sequence per
+//! class and sensor, frames in name order ([`find_recordings`]).
 
 use crate::{Press, PressMeta, HEIGHT, WIDTH};
 use serde::{Deserialize, Serialize};
@@ -266,11 +270,47 @@ fn read_file(dir: &Path) -> Result<PressFile, RecordingError> {
     Ok(file)
 }
 
-/// Decode one frame file, checking it is 240x320 RGB 8-bit.
+/// Decode one frame file of a recording, checking it is a 240x320 RGB
+/// 8-bit PNG (what `telextilesd record` writes, read back bit-exact).
 pub fn read_frame(path: &Path) -> Result<image::RgbImage, RecordingError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
         .map_err(|e| invalid(path, format!("corrupt PNG: {e}")))?;
+    checked_frame(path, img)
+}
+
+/// Whether a file name is a frame image others' tools save: `.png`,
+/// `.jpg` or `.jpeg`, any case.
+pub fn is_frame_image(path: &Path) -> bool {
+    path.extension().is_some_and(|e| {
+        ["png", "jpg", "jpeg"]
+            .iter()
+            .any(|x| e.eq_ignore_ascii_case(x))
+    })
+}
+
+/// Decode a frame saved by another tool (a PyTouch-style dataset, a
+/// no-contact frame given with `--reference`): PNG or JPEG, told apart by
+/// the content, not the name (many datasets store DIGIT frames as JPEG).
+/// It must be a 240x320 RGB 8-bit image, as for [`read_frame`].
+pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let format = match image::guess_format(&bytes) {
+        Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => f,
+        Ok(other) => {
+            return Err(invalid(
+                path,
+                format!("a {other:?} image; expected PNG or JPEG"),
+            ))
+        }
+        Err(_) => return Err(invalid(path, "neither a PNG nor a JPEG image")),
+    };
+    let img = image::load_from_memory_with_format(&bytes, format)
+        .map_err(|e| invalid(path, format!("corrupt {format:?}: {e}")))?;
+    checked_frame(path, img)
+}
+
+fn checked_frame(path: &Path, img: image::DynamicImage) -> Result<image::RgbImage, RecordingError> {
     let img = match img {
         image::DynamicImage::ImageRgb8(i) => i,
         other => {
@@ -333,7 +373,9 @@ fn sorted_dir(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
     Ok(v)
 }
 
-/// List a PyTouch layout `root/<class>/<serial>/*.png` without decoding.
+/// List a PyTouch layout `root/<class>/<serial>/*.{png,jpg}` without
+/// decoding: the frames of a sequence are its PNG and JPEG files, in
+/// name order.
 pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
     let mut out = Vec::new();
     for class_dir in sorted_dir(root)? {
@@ -356,7 +398,7 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
                 .into_owned();
             let files: Vec<PathBuf> = sorted_dir(&serial_dir)?
                 .into_iter()
-                .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+                .filter(|p| is_frame_image(p))
                 .collect();
             if !files.is_empty() {
                 out.push(PytouchEntry {
@@ -370,7 +412,7 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
     if out.is_empty() {
         return Err(invalid(
             root,
-            "no <class>/<serial>/*.png frames found (PyTouch layout)",
+            "no <class>/<serial>/*.png (or .jpg) frames found (PyTouch layout)",
         ));
     }
     Ok(out)
@@ -419,7 +461,7 @@ impl Recording {
                 let frames = entry
                     .files
                     .iter()
-                    .map(|f| read_frame(f))
+                    .map(|f| read_image(f))
                     .collect::<Result<Vec<_>, _>>()?;
                 let n = frames.len() as u64;
                 Ok(Press {
@@ -445,7 +487,7 @@ impl Recording {
 
 /// The recordings under `root`: every press directory at any depth
 /// ([`find_presses`]), in sorted path order; where there is none, the
-/// PyTouch layout `root/<class>/<serial>/*.png`.
+/// PyTouch layout `root/<class>/<serial>/*.png` (or `.jpg`).
 pub fn find_recordings(root: &Path) -> Result<Vec<Recording>, RecordingError> {
     if !root.is_dir() {
         return Err(invalid(root, "not a directory"));
@@ -458,7 +500,7 @@ pub fn find_recordings(root: &Path) -> Result<Vec<Recording>, RecordingError> {
     find_recordings_pytouch(root).map_err(|_| {
         invalid(
             root,
-            "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png) either",
+            "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png or .jpg) either",
         )
     })
 }

@@ -2,7 +2,9 @@
 //! errors naming the file on bad input.
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
-use telextiles_sim::recording::{self, read_press, read_pytouch, write_press, RecordingError};
+use telextiles_sim::recording::{
+    self, read_frame, read_press, read_pytouch, write_press, RecordingError,
+};
 use telextiles_sim::{Press, PressSpec, RgbImage, Simulator};
 
 fn small_press(sim: &Simulator) -> Press {
@@ -213,6 +215,65 @@ fn pytouch_layout_reads_and_names_bad_files() {
         let e = recording::find_recordings(&bad).unwrap_err().to_string();
         assert!(e.contains(msg), "{}: {e}", bad.display());
     }
+}
+
+/// Others' datasets often store DIGIT frames as JPEG: a PyTouch sequence
+/// may be PNG or JPEG frames (the content decides, not the name), read to
+/// within JPEG's loss; a press directory stays PNG only, read bit-exact.
+#[test]
+fn pytouch_frames_may_be_jpeg() {
+    let sim = Simulator::new().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let p = small_press(&sim);
+    let d = root.join("denim").join("D20001");
+    std::fs::create_dir_all(&d).unwrap();
+    for (i, f) in p.frames.iter().take(3).enumerate() {
+        f.save(d.join(format!("frame_{i}.JPG"))).unwrap();
+    }
+    let recs = recording::find_recordings(root).unwrap();
+    assert_eq!(recs.len(), 1);
+    let loaded = recs[0].load().unwrap();
+    assert_eq!(loaded.frames.len(), 3);
+    for (got, want) in loaded.frames.iter().zip(&p.frames) {
+        let n = got.as_raw().len() as f64;
+        let mad: f64 = got
+            .as_raw()
+            .iter()
+            .zip(want.as_raw())
+            .map(|(&a, &b)| (a as f64 - b as f64).abs())
+            .sum::<f64>()
+            / n;
+        assert!(mad < 6.0, "mean absolute difference {mad} DN (quality 75)");
+    }
+    // A JPEG named .png is read as what it is.
+    std::fs::copy(d.join("frame_0.JPG"), root.join("named.png")).unwrap();
+    let img = recording::read_image(&root.join("named.png")).unwrap();
+    assert_eq!(img, loaded.frames[0]);
+    // ...but a press directory's frames must be PNG.
+    let e = read_frame(&root.join("named.png")).unwrap_err().to_string();
+    assert!(e.contains("corrupt PNG"), "{e}");
+    // Neither PNG nor JPEG; a grey JPEG; a landscape JPEG.
+    std::fs::write(root.join("text.jpg"), "frame").unwrap();
+    let e = recording::read_image(&root.join("text.jpg"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("text.jpg") && e.contains("neither a PNG nor a JPEG"),
+        "{e}"
+    );
+    image::GrayImage::new(240, 320)
+        .save(root.join("grey.jpg"))
+        .unwrap();
+    let e = recording::read_image(&root.join("grey.jpg"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("expected 8-bit RGB"), "{e}");
+    RgbImage::new(320, 240).save(root.join("wide.jpg")).unwrap();
+    let e = recording::read_image(&root.join("wide.jpg"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame is 320x240, expected 240x320"), "{e}");
 }
 
 /// Hidden entries are never recordings: a notebook's
