@@ -321,10 +321,16 @@ fn checked_frame(path: &Path, img: image::DynamicImage) -> Result<image::RgbImag
         }
     };
     if img.width() != WIDTH || img.height() != HEIGHT {
+        // The DIGIT's camera streams landscape; digit-interface turns it.
+        let hint = if img.width() > img.height() {
+            " (portrait, as digit-interface returns it: turn landscape camera frames 90 degrees counter-clockwise)"
+        } else {
+            ""
+        };
         return Err(invalid(
             path,
             format!(
-                "frame is {}x{}, expected {WIDTH}x{HEIGHT}",
+                "frame is {}x{}, expected {WIDTH}x{HEIGHT}{hint}",
                 img.width(),
                 img.height()
             ),

@@ -273,7 +273,10 @@ fn pytouch_frames_may_be_jpeg() {
     let e = recording::read_image(&root.join("wide.jpg"))
         .unwrap_err()
         .to_string();
-    assert!(e.contains("frame is 320x240, expected 240x320"), "{e}");
+    assert!(
+        e.contains("frame is 320x240, expected 240x320") && e.contains("counter-clockwise"),
+        "{e}"
+    );
 }
 
 /// Hidden entries are never recordings: a notebook's
