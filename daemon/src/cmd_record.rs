@@ -32,7 +32,7 @@ use telextiles_sensing::record::{
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
 use telextiles_sensing::source::{FrameSource, SourceError};
-use telextiles_sim::{PressSpec, RgbImage, Simulator};
+use telextiles_sim::{PressSpec, Simulator};
 
 /// Where the frames come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -431,20 +431,6 @@ impl Guide {
     }
 }
 
-/// Mean of the first `k` frames (a recording's own no-contact reference).
-fn mean_image(frames: &[RgbImage]) -> Option<RgbImage> {
-    let first = frames.first()?;
-    let mut acc = vec![0u32; first.as_raw().len()];
-    for f in frames {
-        for (a, &v) in acc.iter_mut().zip(f.as_raw()) {
-            *a += v as u32;
-        }
-    }
-    let n = frames.len() as u32;
-    let raw: Vec<u8> = acc.iter().map(|&a| ((a + n / 2) / n) as u8).collect();
-    RgbImage::from_raw(first.width(), first.height(), raw)
-}
-
 struct Session {
     guide: Guide,
     writer: Option<Writer>,
@@ -683,18 +669,17 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                     .load()
                     .with_context(|| format!("cannot replay {}", d.display()))?;
                 let meta = press.meta.clone();
-                // Each recording with its own reference: its declared
-                // reference frames, else captured from its first frames.
-                let press_ref = meta.reference_frames.filter(|&k| k > 0).and_then(|k| {
-                    mean_image(&press.frames[..(k as usize).min(press.frames.len())])
-                });
+                // Each recording with its own reference, as every reader
+                // takes it (`front::recording_reference`), else captured
+                // from its first frames.
+                let press_ref = telextiles_sensing::front::recording_reference(&press);
                 let mut src = RecordedSource::from_press(
                     press,
                     Pace::AsFastAsPossible,
                     d.display().to_string(),
                 );
                 let mut det = match &press_ref {
-                    Some(r) => ContactDetector::with_reference(ContactConfig::default(), r),
+                    Some(r) => ContactDetector::with_reference_pixels(ContactConfig::default(), r),
                     None => ContactDetector::new(ContactConfig::default()),
                 };
                 let mut rec = Recorder::new(
@@ -1291,14 +1276,5 @@ mod tests {
             label_from_description("replay of rec/0001"),
             ("replay", None)
         );
-    }
-
-    #[test]
-    fn mean_image_rounds() {
-        let a = RgbImage::from_raw(1, 1, vec![10, 20, 30]).expect("image");
-        let b = RgbImage::from_raw(1, 1, vec![11, 20, 31]).expect("image");
-        let m = mean_image(&[a, b]).expect("mean");
-        assert_eq!(m.as_raw(), &[11, 20, 31]);
-        assert!(mean_image(&[]).is_none());
     }
 }
