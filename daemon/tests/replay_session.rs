@@ -31,11 +31,6 @@ fn a_directory_of_recordings_replays_as_one_press_each_in_order() {
         let dir = rec.path().join(format!("{k}-{textile}"));
         telextiles_sim::recording::write_press(&dir, &press).unwrap();
     }
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
     let setup = Setup {
         sensors: (
             format!("replay:{}", rec.path().display()),
@@ -43,16 +38,12 @@ fn a_directory_of_recordings_replays_as_one_press_each_in_order() {
         ),
         ..Setup::default()
     };
-    let pair = rt.block_on(Pair::start(&setup));
-    let want: Vec<&str> = plan.iter().chain(plan.iter()).map(|p| p.0).collect();
-    let finals = finals_from(&pair, &want);
-    let (_, _, a, b) = pair.stop();
-    assert_eq!(
-        finals, want,
-        "one press per recording, each decided as its fabric, in order"
+    let textiles: Vec<&str> = plan.iter().map(|p| p.0).collect();
+    replays_in_order(
+        &setup,
+        &textiles,
+        "one press per recording, each decided as its fabric, in order",
     );
-    assert_no_sensor_errors(&a);
-    drop(b);
 }
 
 /// A PyTouch-style dataset (`<class>/<serial>/*.png`) cut to the press,
@@ -102,24 +93,33 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
             format!("{serial}={}", png.display()),
         ]);
     }
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
     let setup = Setup {
         sensors: (format!("replay:{}", data.display()), "sim:T047".into()),
         flags: (flags, Vec::new()),
         ..Setup::default()
     };
-    let pair = rt.block_on(Pair::start(&setup));
-    let want: Vec<&str> = plan.iter().chain(plan.iter()).map(|p| p.0).collect();
+    let textiles: Vec<&str> = plan.iter().map(|p| p.0).collect();
+    replays_in_order(
+        &setup,
+        &textiles,
+        "one press per sequence, each decided as its fabric against its unit's reference",
+    );
+}
+
+/// Runs the pair until B has decided two whole rounds of A's replay, and
+/// checks that B's final decisions are `textiles` twice, in order, and
+/// that A's sensor and encoder raised no error.
+fn replays_in_order(setup: &Setup, textiles: &[&str], why: &str) {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let pair = rt.block_on(Pair::start(setup));
+    let want: Vec<&str> = textiles.iter().chain(textiles).copied().collect();
     let finals = finals_from(&pair, &want);
     let (_, _, a, b) = pair.stop();
-    assert_eq!(
-        finals, want,
-        "one press per sequence, each decided as its fabric against its unit's reference"
-    );
+    assert_eq!(finals, want, "{why}");
     assert_no_sensor_errors(&a);
     drop(b);
 }
