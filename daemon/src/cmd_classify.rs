@@ -23,8 +23,8 @@ pub struct Args {
     /// dataset `<class>/<serial>/*.png` or `.jpg`); may be repeated.
     #[arg(long, required_unless_present = "sim")]
     pub press: Vec<PathBuf>,
-    /// The sensor's no-contact frame (a 240x320 RGB PNG or JPEG taken with
-    /// nothing touching the gel), for recordings that carry no reference (PyTouch
+    /// The sensor's no-contact frame (an RGB PNG or JPEG of the frames'
+    /// geometry, taken with nothing touching the gel), for recordings that carry no reference (PyTouch
     /// data) and whose first frames are already in contact: `PNG` for
     /// every sensor, `SERIAL=PNG` for one (repeat it). A recording's own
     /// reference always wins.

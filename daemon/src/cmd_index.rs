@@ -78,8 +78,8 @@ pub struct BuildArgs {
     /// grouped by textile id (the class).
     #[arg(long, conflicts_with = "sim")]
     pub presses: Option<PathBuf>,
-    /// The sensor's no-contact frame (a 240x320 RGB PNG or JPEG taken with
-    /// nothing touching the gel), for recordings that carry no reference (PyTouch
+    /// The sensor's no-contact frame (an RGB PNG or JPEG of the frames'
+    /// geometry, taken with nothing touching the gel), for recordings that carry no reference (PyTouch
     /// data) and whose first frames are already in contact: `PNG` for
     /// every sensor, `SERIAL=PNG` for one (repeat it). A recording's own
     /// reference always wins.

@@ -517,13 +517,13 @@ fn a_given_reference_replays_a_recording_that_has_none() {
 
     // Bad references: each refused with what is wrong.
     let small = dir.path().join("small.png");
-    RgbImage::new(320, 240).save(&small).unwrap();
+    RgbImage::new(300, 200).save(&small).unwrap();
     let gray = dir.path().join("gray.png");
     image::GrayImage::new(240, 320).save(&gray).unwrap();
     for (args, msg) in [
         (
             vec![small.to_str().unwrap().to_string()],
-            "320x240, expected 240x320",
+            "cannot map a 300x200 image to the 240x320 frame",
         ),
         (
             vec![gray.to_str().unwrap().to_string()],

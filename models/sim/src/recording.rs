@@ -292,7 +292,9 @@ pub fn is_frame_image(path: &Path) -> bool {
 /// Decode a frame saved by another tool (a PyTouch-style dataset, a
 /// no-contact frame given with `--reference`): PNG or JPEG, told apart by
 /// the content, not the name (many datasets store DIGIT frames as JPEG).
-/// It must be a 240x320 RGB 8-bit image, as for [`read_frame`].
+/// It must be an RGB 8-bit image of a size [`to_frame`] maps to the
+/// 240x320 portrait frame (VGA, or the camera's landscape orientation),
+/// mapped as the live DIGIT source maps the camera's stream.
 pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let format = match image::guess_format(&bytes) {
@@ -307,7 +309,92 @@ pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
     };
     let img = image::load_from_memory_with_format(&bytes, format)
         .map_err(|e| invalid(path, format!("corrupt {format:?}: {e}")))?;
+    let img = match img {
+        image::DynamicImage::ImageRgb8(i) if (i.width(), i.height()) != (WIDTH, HEIGHT) => {
+            let mut out = image::RgbImage::new(WIDTH, HEIGHT);
+            to_frame(i.as_raw(), i.width(), i.height(), &mut out).map_err(|e| invalid(path, e))?;
+            image::DynamicImage::ImageRgb8(out)
+        }
+        other => other,
+    };
     checked_frame(path, img)
+}
+
+/// Maps an RGB image from the DIGIT's camera, as it streams or as a tool
+/// saved it, to the 240x320 portrait frame, into `out`. The one mapping
+/// the live DIGIT source (`telextiles_sensing::source::yuv`) and the
+/// reader of others' frames ([`read_image`]) share:
+///
+/// - landscape, the camera's own orientation (320x240 QVGA, 640x480
+///   VGA): turned 90 degrees counter-clockwise, as digit-interface's
+///   `get_frame()` turns it (`cv2.transpose` then `cv2.flip(frame, 0)`):
+///   frame pixel (x, y) = camera pixel (W-1-y, x);
+/// - portrait, already turned (240x320, 480x640 from a VGA stream);
+/// - VGA either way is then averaged over 2x2 blocks (rounded), so the
+///   rest of the pipeline sees one geometry.
+///
+/// Any other size is an error naming the sizes that map.
+pub fn to_frame(
+    rgb: &[u8],
+    width: u32,
+    height: u32,
+    out: &mut image::RgbImage,
+) -> Result<(), String> {
+    let (w, h) = (width as usize, height as usize);
+    if rgb.len() != w * h * 3 {
+        return Err(format!(
+            "RGB buffer holds {} bytes, {width}x{height} needs {}",
+            rgb.len(),
+            w * h * 3
+        ));
+    }
+    let (turn, scale) = match (width, height) {
+        (320, 240) => (true, 1),
+        (640, 480) => (true, 2),
+        (WIDTH, HEIGHT) => (false, 1),
+        (480, 640) => (false, 2),
+        _ => {
+            return Err(format!(
+                "cannot map a {width}x{height} image to the {WIDTH}x{HEIGHT} frame (it takes 240x320 or 480x640 portrait, or the camera's 320x240 or 640x480 landscape)"
+            ))
+        }
+    };
+    if (out.width(), out.height()) != (WIDTH, HEIGHT) {
+        *out = image::RgbImage::new(WIDTH, HEIGHT);
+    }
+    let ow = WIDTH as usize;
+    let dst = &mut **out;
+    // The source index of turned (full-resolution) pixel (X, Y).
+    let at = |x: usize, y: usize| {
+        if turn {
+            (x * w + (w - 1 - y)) * 3
+        } else {
+            (y * w + x) * 3
+        }
+    };
+    for oy in 0..HEIGHT as usize {
+        for ox in 0..ow {
+            let d = (oy * ow + ox) * 3;
+            if scale == 1 {
+                let s = at(ox, oy);
+                dst[d..d + 3].copy_from_slice(&rgb[s..s + 3]);
+            } else {
+                let mut acc = [0u32; 3];
+                for dy in 0..2 {
+                    for dx in 0..2 {
+                        let s = at(ox * 2 + dx, oy * 2 + dy);
+                        for c in 0..3 {
+                            acc[c] += rgb[s + c] as u32;
+                        }
+                    }
+                }
+                for c in 0..3 {
+                    dst[d + c] = ((acc[c] + 2) / 4) as u8;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 fn checked_frame(path: &Path, img: image::DynamicImage) -> Result<image::RgbImage, RecordingError> {

@@ -269,8 +269,57 @@ fn pytouch_frames_may_be_jpeg() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("expected 8-bit RGB"), "{e}");
-    RgbImage::new(320, 240).save(root.join("wide.jpg")).unwrap();
-    let e = recording::read_image(&root.join("wide.jpg"))
+    RgbImage::new(300, 200).save(root.join("odd.jpg")).unwrap();
+    let e = recording::read_image(&root.join("odd.jpg"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("odd.jpg") && e.contains("cannot map a 300x200 image"),
+        "{e}"
+    );
+}
+
+/// Others' frames at the other sizes a DIGIT gives (the camera's landscape
+/// QVGA and VGA, portrait VGA) are mapped to the portrait frame as the
+/// live source maps the camera's stream; a press directory's frames must
+/// be the frame itself.
+#[test]
+fn others_frames_are_mapped_to_the_portrait_frame_as_the_camera_stream_is() {
+    let sim = Simulator::new().unwrap();
+    let frame = small_press(&sim).frames[0].clone();
+    // The camera's landscape view: camera pixel (319 - y, x) is frame
+    // pixel (x, y) (digit-interface turns it 90 degrees counter-clockwise).
+    let mut land = RgbImage::new(320, 240);
+    for y in 0..320 {
+        for x in 0..240 {
+            land.put_pixel(319 - y, x, *frame.get_pixel(x, y));
+        }
+    }
+    let land_vga = RgbImage::from_fn(640, 480, |x, y| *land.get_pixel(x / 2, y / 2));
+    let portrait_vga = RgbImage::from_fn(480, 640, |x, y| *frame.get_pixel(x / 2, y / 2));
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, img) in [
+        ("qvga-landscape.png", &land),
+        ("vga-landscape.png", &land_vga),
+        ("vga-portrait.png", &portrait_vga),
+        ("frame.png", &frame),
+    ] {
+        let path = tmp.path().join(name);
+        img.save(&path).unwrap();
+        assert_eq!(recording::read_image(&path).unwrap(), frame, "{name}");
+    }
+    // VGA is averaged over 2x2 blocks, rounded.
+    let mut out = RgbImage::new(1, 1);
+    let mut vga = vec![0u8; 480 * 640 * 3];
+    vga[..3].copy_from_slice(&[10, 20, 30]);
+    vga[3..6].copy_from_slice(&[11, 20, 31]);
+    recording::to_frame(&vga, 480, 640, &mut out).unwrap();
+    assert_eq!((out.width(), out.height()), (240, 320));
+    assert_eq!(out.get_pixel(0, 0).0, [5, 10, 15]);
+    let e = recording::to_frame(&vga[..30], 480, 640, &mut out).unwrap_err();
+    assert!(e.contains("30 bytes"), "{e}");
+    // A press directory's frame is read as it is, or refused.
+    let e = read_frame(&tmp.path().join("qvga-landscape.png"))
         .unwrap_err()
         .to_string();
     assert!(

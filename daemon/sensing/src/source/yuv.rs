@@ -224,60 +224,21 @@ pub fn decode_mjpg(
 /// Rotate a sensor-orientation RGB buffer (`width` x `height`, landscape)
 /// into the 240x320 portrait frame: 90 degrees counter-clockwise
 /// (digit-interface's transpose + vertical flip). 320x240 maps 1:1; 640x480
-/// is rotated and averaged over 2x2 blocks.
+/// is rotated and averaged over 2x2 blocks. The mapping is
+/// [`telextiles_sim::recording::to_frame`], which the reader of others'
+/// saved frames shares; a stream must be landscape.
 pub fn rotate_to_frame(
     rgb: &[u8],
     width: u32,
     height: u32,
     out: &mut RgbImage,
 ) -> Result<(), FrameError> {
-    let (w, h) = (width as usize, height as usize);
-    if rgb.len() != w * h * 3 {
+    if width < height {
         return Err(FrameError::Decode(format!(
-            "RGB buffer holds {} bytes, {width}x{height} needs {}",
-            rgb.len(),
-            w * h * 3
+            "cannot map a {width}x{height} sensor frame to {FRAME_W}x{FRAME_H}: the camera streams landscape"
         )));
     }
-    let scale = match (width, height) {
-        (320, 240) => 1,
-        (640, 480) => 2,
-        _ => {
-            return Err(FrameError::Decode(format!(
-                "cannot map a {width}x{height} sensor frame to {FRAME_W}x{FRAME_H}"
-            )))
-        }
-    };
-    if (out.width(), out.height()) != (FRAME_W, FRAME_H) {
-        *out = RgbImage::new(FRAME_W, FRAME_H);
-    }
-    let ow = FRAME_W as usize;
-    let dst = &mut **out;
-    // Rotated (full-resolution) pixel (X, Y) = sensor pixel (w-1-Y, X).
-    for oy in 0..FRAME_H as usize {
-        for ox in 0..ow {
-            let d = (oy * ow + ox) * 3;
-            if scale == 1 {
-                let s = (ox * w + (w - 1 - oy)) * 3;
-                dst[d..d + 3].copy_from_slice(&rgb[s..s + 3]);
-            } else {
-                let mut acc = [0u32; 3];
-                for dy in 0..2 {
-                    for dx in 0..2 {
-                        let (rx, ry) = (ox * 2 + dx, oy * 2 + dy);
-                        let s = (rx * w + (w - 1 - ry)) * 3;
-                        for c in 0..3 {
-                            acc[c] += rgb[s + c] as u32;
-                        }
-                    }
-                }
-                for c in 0..3 {
-                    dst[d + c] = ((acc[c] + 2) / 4) as u8;
-                }
-            }
-        }
-    }
-    Ok(())
+    telextiles_sim::recording::to_frame(rgb, width, height, out).map_err(FrameError::Decode)
 }
 
 /// Decode a captured buffer and rotate it into `out`. `scratch` is reused.
