@@ -466,9 +466,48 @@ fn sorted_dir(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
     Ok(v)
 }
 
+/// The order of a sequence's frame files: by name, with each run of digits
+/// compared as a number, so that `frame_2.png` comes before
+/// `frame_10.png` (many tools number frames without zero padding, and a
+/// plain sort would scramble the press). Zero-padded names keep their
+/// plain order; equal numbers fall back to the plain name order.
+pub fn frame_order(a: &str, b: &str) -> std::cmp::Ordering {
+    use std::cmp::Ordering;
+    let (mut x, mut y) = (a.as_bytes(), b.as_bytes());
+    loop {
+        match (x.first(), y.first()) {
+            (None, None) => return a.cmp(b),
+            (None, Some(_)) => return Ordering::Less,
+            (Some(_), None) => return Ordering::Greater,
+            (Some(p), Some(q)) if p.is_ascii_digit() && q.is_ascii_digit() => {
+                let dx = x.iter().take_while(|c| c.is_ascii_digit()).count();
+                let dy = y.iter().take_while(|c| c.is_ascii_digit()).count();
+                let (nx, ny) = (&x[..dx], &y[..dy]);
+                // Compare as numbers of any length: without leading zeros,
+                // the longer is larger, else digit by digit.
+                let strip = |n: &[u8]| -> usize { n.iter().take_while(|&&c| c == b'0').count() };
+                let (sx, sy) = (&nx[strip(nx)..], &ny[strip(ny)..]);
+                let o = sx.len().cmp(&sy.len()).then_with(|| sx.cmp(sy));
+                if o != Ordering::Equal {
+                    return o;
+                }
+                x = &x[dx..];
+                y = &y[dy..];
+            }
+            (Some(p), Some(q)) => {
+                if p != q {
+                    return p.cmp(q);
+                }
+                x = &x[1..];
+                y = &y[1..];
+            }
+        }
+    }
+}
+
 /// List a PyTouch layout `root/<class>/<serial>/*.{png,jpg}` without
 /// decoding: the frames of a sequence are its PNG and JPEG files, in
-/// name order.
+/// [`frame_order`] (numbers in names compared as numbers).
 pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
     let mut out = Vec::new();
     for class_dir in sorted_dir(root)? {
@@ -489,10 +528,16 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
                 .unwrap_or_default()
                 .to_string_lossy()
                 .into_owned();
-            let files: Vec<PathBuf> = sorted_dir(&serial_dir)?
+            let mut files: Vec<PathBuf> = sorted_dir(&serial_dir)?
                 .into_iter()
                 .filter(|p| is_frame_image(p))
                 .collect();
+            files.sort_by(|a, b| {
+                frame_order(
+                    &a.file_name().unwrap_or_default().to_string_lossy(),
+                    &b.file_name().unwrap_or_default().to_string_lossy(),
+                )
+            });
             if !files.is_empty() {
                 out.push(PytouchEntry {
                     class: class.clone(),

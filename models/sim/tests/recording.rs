@@ -217,6 +217,47 @@ fn pytouch_layout_reads_and_names_bad_files() {
     }
 }
 
+/// Many tools number frames without zero padding (`frame_1.png`, …,
+/// `frame_12.png`): a sequence's frames are taken with the numbers
+/// compared as numbers, not as text (which would put frame 10 after
+/// frame 1 and scramble the press).
+#[test]
+fn unpadded_frame_numbers_keep_the_frames_in_order() {
+    use std::cmp::Ordering::*;
+    use telextiles_sim::recording::frame_order;
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("silk").join("D20001");
+    std::fs::create_dir_all(&d).unwrap();
+    // Frame k is a flat grey of level k, so the order can be read back.
+    for k in 1..=12u8 {
+        RgbImage::from_pixel(240, 320, image::Rgb([k, k, k]))
+            .save(d.join(format!("frame_{k}.png")))
+            .unwrap();
+    }
+    let recs = recording::find_recordings(tmp.path()).unwrap();
+    let press = recs[0].load().unwrap();
+    let levels: Vec<u8> = press.frames.iter().map(|f| f.as_raw()[0]).collect();
+    assert_eq!(levels, (1..=12).collect::<Vec<u8>>());
+
+    for (a, b, o) in [
+        ("frame_2.png", "frame_10.png", Less),
+        ("000009.png", "000010.png", Less),
+        ("frame_10.png", "frame_10.png", Equal),
+        ("a2b10.png", "a2b9.png", Greater),
+        ("frame_007.png", "frame_7.png", Less),
+        (
+            "frame_99999999999999999999999.png",
+            "frame_100000000000000000000000.png",
+            Less,
+        ),
+        ("frame.png", "frame_1.png", Less),
+        ("b1.png", "a2.png", Greater),
+    ] {
+        assert_eq!(frame_order(a, b), o, "{a} vs {b}");
+        assert_eq!(frame_order(b, a), o.reverse(), "{b} vs {a}");
+    }
+}
+
 /// Others' datasets often store DIGIT frames as JPEG: a PyTouch sequence
 /// may be PNG or JPEG frames (the content decides, not the name), read to
 /// within JPEG's loss; a press directory stays PNG only, read bit-exact.
