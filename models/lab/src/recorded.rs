@@ -7,8 +7,8 @@
 //! frames per press, found recursively, as `telextilesd record` writes
 //! them; the textile is `press.json`'s `textile`), or, when no `press.json`
 //! is found, the PyTouch layout `root/<class>/<serial>/*.png` (one
-//! recording per `<class>/<serial>` directory, 60 fps assumed as the reader
-//! does). Recordings are taken in sorted path order.
+//! recording per `<class>/<serial>` directory, and one for frames directly
+//! under `<class>`; 60 fps assumed as the reader does). Recordings are taken in sorted path order.
 //!
 //! **One reference per recording.** Every recording is processed alone,
 //! from a clean state, with its own no-contact reference and never with
@@ -121,7 +121,7 @@ impl Split {
 pub enum Layout {
     /// `telextiles_sim::recording` press directory.
     Press,
-    /// PyTouch `<class>/<serial>/*.png`.
+    /// PyTouch `<class>/<serial>/*.png` (or `<class>/*.png`).
     Pytouch,
 }
 

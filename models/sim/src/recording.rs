@@ -11,8 +11,9 @@
 //! is renamed to `<dir>` when complete.
 //!
 //! Others' data is read in the PyTouch layout
-//! `<root>/<class>/<serial>/<frame>.png` (or `.jpg`): one sequence per
-//! class and sensor, frames in name order ([`find_recordings`]).
+//! `<root>/<class>/<serial>/<frame>.png` (or `.jpg`; or `<root>/<class>/
+//! <frame>.png` with no serial level): one sequence per class and sensor,
+//! frames in name order ([`find_recordings`]).
 
 use crate::{Press, PressMeta, HEIGHT, WIDTH};
 use serde::{Deserialize, Serialize};
@@ -440,12 +441,14 @@ pub fn read_press(dir: &Path) -> Result<Press, RecordingError> {
     })
 }
 
-/// One `<class>/<serial>` directory of a PyTouch-style dataset.
+/// One sequence of a PyTouch-style dataset: a `<class>/<serial>`
+/// directory, or the frames directly under `<class>` (`serial` empty).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PytouchEntry {
     pub class: String,
+    /// The sensor's serial (the directory's name), empty when not named.
     pub serial: String,
-    /// Frame files, sorted by name.
+    /// Frame files, in [`frame_order`].
     pub files: Vec<PathBuf>,
 }
 
@@ -507,41 +510,48 @@ pub fn frame_order(a: &str, b: &str) -> std::cmp::Ordering {
 
 /// List a PyTouch layout `root/<class>/<serial>/*.{png,jpg}` without
 /// decoding: the frames of a sequence are its PNG and JPEG files, in
-/// [`frame_order`] (numbers in names compared as numbers).
+/// [`frame_order`] (numbers in names compared as numbers). Frames directly
+/// under a class directory (the image-folder layout `root/<class>/*.png`,
+/// with no serial level) are one more sequence of that class, from a
+/// sensor not named (`serial` empty).
 pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
+    let name = |p: &Path| {
+        p.file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned()
+    };
+    let frames = |dir: &Path| -> Result<Vec<PathBuf>, RecordingError> {
+        let mut files: Vec<PathBuf> = sorted_dir(dir)?
+            .into_iter()
+            .filter(|p| p.is_file() && is_frame_image(p))
+            .collect();
+        files.sort_by(|a, b| frame_order(&name(a), &name(b)));
+        Ok(files)
+    };
     let mut out = Vec::new();
     for class_dir in sorted_dir(root)? {
         if !class_dir.is_dir() {
             continue;
         }
-        let class = class_dir
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
+        let class = name(&class_dir);
+        let own = frames(&class_dir)?;
+        if !own.is_empty() {
+            out.push(PytouchEntry {
+                class: class.clone(),
+                serial: String::new(),
+                files: own,
+            });
+        }
         for serial_dir in sorted_dir(&class_dir)? {
             if !serial_dir.is_dir() {
                 continue;
             }
-            let serial = serial_dir
-                .file_name()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned();
-            let mut files: Vec<PathBuf> = sorted_dir(&serial_dir)?
-                .into_iter()
-                .filter(|p| is_frame_image(p))
-                .collect();
-            files.sort_by(|a, b| {
-                frame_order(
-                    &a.file_name().unwrap_or_default().to_string_lossy(),
-                    &b.file_name().unwrap_or_default().to_string_lossy(),
-                )
-            });
+            let files = frames(&serial_dir)?;
             if !files.is_empty() {
                 out.push(PytouchEntry {
                     class: class.clone(),
-                    serial,
+                    serial: name(&serial_dir),
                     files,
                 });
             }
@@ -550,7 +560,7 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
     if out.is_empty() {
         return Err(invalid(
             root,
-            "no <class>/<serial>/*.png (or .jpg) frames found (PyTouch layout)",
+            "no <class>/<serial>/*.png or <class>/*.png (or .jpg) frames found (PyTouch layout)",
         ));
     }
     Ok(out)
@@ -612,7 +622,7 @@ impl Recording {
                         timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
                         seed: None,
                         source: "pytouch".into(),
-                        sensor_serial: Some(entry.serial.clone()),
+                        sensor_serial: (!entry.serial.is_empty()).then(|| entry.serial.clone()),
                         params: None,
                         reference_frames: None,
                     },
@@ -638,7 +648,7 @@ pub fn find_recordings(root: &Path) -> Result<Vec<Recording>, RecordingError> {
     find_recordings_pytouch(root).map_err(|_| {
         invalid(
             root,
-            "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png or .jpg) either",
+            "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png, <class>/*.png, or .jpg) either",
         )
     })
 }

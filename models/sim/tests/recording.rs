@@ -217,6 +217,56 @@ fn pytouch_layout_reads_and_names_bad_files() {
     }
 }
 
+/// The image-folder layout `<class>/*.png` (no serial level): one sequence
+/// per class from a sensor not named, beside any `<class>/<serial>`
+/// sequences.
+#[test]
+fn frames_directly_under_a_class_are_one_sequence_of_an_unnamed_sensor() {
+    let sim = Simulator::new().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let p = small_press(&sim);
+    for dir in [
+        root.join("cotton"),
+        root.join("wool"),
+        root.join("wool/D20001"),
+    ] {
+        std::fs::create_dir_all(&dir).unwrap();
+        for (i, f) in p.frames.iter().take(2).enumerate() {
+            f.save(dir.join(format!("{i}.png"))).unwrap();
+        }
+    }
+    let recs = recording::find_recordings(root).unwrap();
+    let got: Vec<(PathBuf, Option<String>, String)> = recs
+        .iter()
+        .map(|r| {
+            let m = r.load().unwrap().meta;
+            (r.path(), m.sensor_serial, m.textile)
+        })
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            (root.join("cotton"), None, "cotton".to_string()),
+            (root.join("wool"), None, "wool".to_string()),
+            (
+                root.join("wool/D20001"),
+                Some("D20001".to_string()),
+                "wool".to_string()
+            ),
+        ]
+    );
+    assert_eq!(recs[0].load().unwrap().frames, p.frames[..2].to_vec());
+    // A class directory holding neither frames nor sequences is no dataset.
+    let empty = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(empty.path().join("cotton")).unwrap();
+    std::fs::write(empty.path().join("cotton/notes.txt"), "x").unwrap();
+    let e = recording::find_recordings(empty.path())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("<class>/*.png"), "{e}");
+}
+
 /// Many tools number frames without zero padding (`frame_1.png`, …,
 /// `frame_12.png`): a sequence's frames are taken with the numbers
 /// compared as numbers, not as text (which would put frame 10 after
