@@ -607,16 +607,14 @@ fn toml_string(s: &str) -> String {
 }
 
 /// A `[SERIAL=]PNG` reference from the file, its path joined to the
-/// file's directory. As `References::from_args` reads it: a file that
-/// exists is a path even with `=` in its name, else the part before the
-/// first `=` is a serial.
+/// file's directory, split as `References::from_args` splits it
+/// (`front::split_reference_arg`, asked of the file's directory).
 fn reference_in_file(file_dir: &Path, r: &str) -> String {
-    let whole = file_dir.join(r);
-    match r.split_once('=') {
-        Some((serial, png)) if !whole.exists() && !serial.is_empty() && !png.is_empty() => {
-            format!("{serial}={}", file_dir.join(png).display())
-        }
-        _ => whole.display().to_string(),
+    let exists = |whole: &str| file_dir.join(whole).exists();
+    match telextiles_sensing::front::split_reference_arg(r, exists) {
+        Some((Some(serial), png)) => format!("{serial}={}", file_dir.join(png).display()),
+        // A path, or a malformed value left for `from_args` to refuse.
+        _ => file_dir.join(r).display().to_string(),
     }
 }
 

@@ -304,6 +304,21 @@ pub struct References {
     by_serial: std::collections::BTreeMap<String, Vec<f32>>,
 }
 
+/// How a `[SERIAL=]PNG` value splits into serial and image path: a value
+/// that names an existing file (`exists`, asked of the whole value) is a
+/// path even with `=` in its name; else the part before the first `=` is
+/// a serial. None when that `=` has an empty side. The one rule for
+/// `--reference` and the daemon's `reference` key.
+pub fn split_reference_arg(
+    arg: &str,
+    exists: impl Fn(&str) -> bool,
+) -> Option<(Option<&str>, &str)> {
+    match arg.split_once('=') {
+        Some((s, p)) if !exists(arg) => (!s.is_empty() && !p.is_empty()).then_some((Some(s), p)),
+        _ => Some((None, arg)),
+    }
+}
+
 /// A `--reference` that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum ReferenceError {
@@ -345,15 +360,10 @@ impl References {
                 arg: arg.to_string(),
                 reason,
             };
-            let (serial, path) = match arg.split_once('=') {
-                Some((s, p)) if !std::path::Path::new(arg).exists() => {
-                    if s.is_empty() || p.is_empty() {
-                        return Err(bad("expected [SERIAL=]PNG".into()));
-                    }
-                    (Some(s.to_string()), p)
-                }
-                _ => (None, arg),
-            };
+            let (serial, path) =
+                split_reference_arg(arg, |whole| std::path::Path::new(whole).exists())
+                    .ok_or_else(|| bad("expected [SERIAL=]PNG".into()))?;
+            let serial = serial.map(str::to_string);
             let image = telextiles_sim::recording::read_image(std::path::Path::new(path))
                 .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
