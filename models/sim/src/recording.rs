@@ -282,7 +282,7 @@ pub fn read_frame(path: &Path) -> Result<image::RgbImage, RecordingError> {
 
 /// Whether a file name is a frame image others' tools save: `.png`,
 /// `.jpg` or `.jpeg`, any case.
-pub fn is_frame_image(path: &Path) -> bool {
+fn is_frame_image(path: &Path) -> bool {
     path.extension().is_some_and(|e| {
         ["png", "jpg", "jpeg"]
             .iter()
