@@ -297,6 +297,12 @@ fn is_frame_image(path: &Path) -> bool {
 /// 240x320 portrait frame (VGA, or the camera's landscape orientation),
 /// mapped as the live DIGIT source maps the camera's stream.
 pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
+    read_image_sized(path).map(|(frame, _)| frame)
+}
+
+/// [`read_image`], and the image's own width and height before it was
+/// mapped to the frame (what [`default_fps`] goes by).
+fn read_image_sized(path: &Path) -> Result<(image::RgbImage, (u32, u32)), RecordingError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let format = match image::guess_format(&bytes) {
         Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => f,
@@ -310,6 +316,7 @@ pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
     };
     let img = image::load_from_memory_with_format(&bytes, format)
         .map_err(|e| invalid(path, format!("corrupt {format:?}: {e}")))?;
+    let size = (img.width(), img.height());
     let img = match img {
         image::DynamicImage::ImageRgb8(i) if (i.width(), i.height()) != (WIDTH, HEIGHT) => {
             let mut out = image::RgbImage::new(WIDTH, HEIGHT);
@@ -318,7 +325,38 @@ pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
         }
         other => other,
     };
-    checked_frame(path, img)
+    Ok((checked_frame(path, img)?, size))
+}
+
+/// The frame rate of a sequence saved without timestamps, by the size its
+/// frames were saved at: the DIGIT's own stream rate at that resolution
+/// (digit-interface's defaults: QVGA, 240x320 or 320x240, at 60 fps; VGA,
+/// 480x640 or 640x480, at 30 fps, the most the DIGIT streams VGA at).
+pub fn default_fps(width: u32, height: u32) -> f32 {
+    if width.max(height) >= 640 {
+        30.0
+    } else {
+        crate::FPS
+    }
+}
+
+/// Fastest frame rate a `--fps` may give (the DIGIT streams at most 60).
+pub const MAX_FPS: f32 = 1000.0;
+
+/// Parse a frame rate given for recordings that carry no timestamps
+/// (`--fps`): a number of frames per second above 0 and at most
+/// [`MAX_FPS`].
+pub fn parse_fps(s: &str) -> Result<f32, String> {
+    let fps: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a frame rate (frames per second, e.g. 30)"))?;
+    if !(fps.is_finite() && fps > 0.0 && fps <= MAX_FPS) {
+        return Err(format!(
+            "frame rate {s} out of range (above 0 and at most {MAX_FPS} frames per second)"
+        ));
+    }
+    Ok(fps)
 }
 
 /// Maps an RGB image from the DIGIT's camera, as it streams or as a tool
@@ -567,7 +605,8 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
 }
 
 /// Read a PyTouch layout: one `Press` per `<class>/<serial>` directory, with
-/// the class as textile id, the serial as sensor serial, 60 fps timestamps.
+/// the class as textile id, the serial as sensor serial, timestamps at the
+/// DIGIT's stream rate for the frames' size ([`default_fps`]).
 pub fn read_pytouch(root: &Path) -> Result<Vec<Press>, RecordingError> {
     find_recordings_pytouch(root)?
         .iter()
@@ -581,9 +620,15 @@ pub fn read_pytouch(root: &Path) -> Result<Vec<Press>, RecordingError> {
 pub enum Recording {
     /// A press directory (with press.json).
     Press(PathBuf),
-    /// A PyTouch sequence, and the number of its serial among the
-    /// dataset's serials in sorted order (its sensor unit).
-    Pytouch { entry: PytouchEntry, unit: u32 },
+    /// A PyTouch sequence, the number of its serial among the dataset's
+    /// serials in sorted order (its sensor unit), and the frame rate it
+    /// was given ([`Recording::assume_fps`]; None: by its frames' size,
+    /// [`default_fps`]).
+    Pytouch {
+        entry: PytouchEntry,
+        unit: u32,
+        fps: Option<f32>,
+    },
 }
 
 impl Recording {
@@ -600,17 +645,43 @@ impl Recording {
         }
     }
 
-    /// Load its frames. A PyTouch sequence has no timestamps (60 fps is
-    /// assumed) and no no-contact reference.
+    /// Give a PyTouch sequence its frame rate (its files carry no
+    /// timestamps). A press directory has its own timestamps: refused.
+    pub fn assume_fps(&mut self, fps: f32) -> Result<(), RecordingError> {
+        match self {
+            Recording::Press(p) => Err(invalid(
+                p,
+                "a press directory: its press.json gives its timestamps, so a frame rate given for recordings without them (--fps) does not apply",
+            )),
+            Recording::Pytouch { fps: f, .. } => {
+                *f = Some(fps);
+                Ok(())
+            }
+        }
+    }
+
+    /// Load its frames. A PyTouch sequence has no no-contact reference and
+    /// no timestamps: its frames are spaced at the rate it was given
+    /// ([`Recording::assume_fps`]), else at the DIGIT's stream rate for
+    /// the size they were saved at ([`default_fps`]).
     pub fn load(&self) -> Result<Press, RecordingError> {
         match self {
             Recording::Press(p) => read_press(p),
-            Recording::Pytouch { entry, unit } => {
+            Recording::Pytouch { entry, unit, fps } => {
+                let mut size = None;
                 let frames = entry
                     .files
                     .iter()
-                    .map(|f| read_image(f))
-                    .collect::<Result<Vec<_>, _>>()?;
+                    .map(|f| {
+                        let (frame, s) = read_image_sized(f)?;
+                        size.get_or_insert(s);
+                        Ok(frame)
+                    })
+                    .collect::<Result<Vec<_>, RecordingError>>()?;
+                let fps = fps.unwrap_or_else(|| {
+                    let (w, h) = size.unwrap_or((WIDTH, HEIGHT));
+                    default_fps(w, h)
+                });
                 let n = frames.len() as u64;
                 Ok(Press {
                     meta: PressMeta {
@@ -618,8 +689,10 @@ impl Recording {
                         person: 0,
                         sensor: *unit,
                         jig: false,
-                        fps: crate::FPS,
-                        timestamps_us: (0..n).map(|i| (i * 1_000_000 + 30) / 60).collect(),
+                        fps,
+                        timestamps_us: (0..n)
+                            .map(|i| (i as f64 * 1e6 / fps as f64).round() as u64)
+                            .collect(),
                         seed: None,
                         source: "pytouch".into(),
                         sensor_serial: (!entry.serial.is_empty()).then(|| entry.serial.clone()),
@@ -662,7 +735,25 @@ fn find_recordings_pytouch(root: &Path) -> Result<Vec<Recording>, RecordingError
         .into_iter()
         .map(|entry| {
             let unit = serials.iter().position(|s| *s == entry.serial).unwrap_or(0) as u32;
-            Recording::Pytouch { entry, unit }
+            Recording::Pytouch {
+                entry,
+                unit,
+                fps: None,
+            }
         })
         .collect())
+}
+
+/// [`find_recordings`], with `fps` (when given) as the frame rate of
+/// sequences saved without timestamps ([`Recording::assume_fps`]). A
+/// frame rate given for press directories, which carry their own
+/// timestamps, is refused rather than ignored.
+pub fn find_recordings_at(root: &Path, fps: Option<f32>) -> Result<Vec<Recording>, RecordingError> {
+    let mut recordings = find_recordings(root)?;
+    if let Some(fps) = fps {
+        for r in &mut recordings {
+            r.assume_fps(fps)?;
+        }
+    }
+    Ok(recordings)
 }

@@ -419,6 +419,85 @@ fn others_frames_are_mapped_to_the_portrait_frame_as_the_camera_stream_is() {
     );
 }
 
+/// A sequence saved without timestamps is spaced at the DIGIT's stream
+/// rate for the size it was saved at (QVGA 60 fps, VGA 30 fps), or at the
+/// rate given for it; press directories keep their own timestamps and
+/// refuse a rate given for them.
+#[test]
+fn frames_without_timestamps_take_the_streams_rate_or_the_one_given() {
+    let sim = Simulator::new().unwrap();
+    let p = small_press(&sim);
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("data");
+    for (serial, vga) in [("D1", false), ("D2", true)] {
+        let d = root.join("cotton").join(serial);
+        std::fs::create_dir_all(&d).unwrap();
+        for (i, f) in p.frames.iter().take(4).enumerate() {
+            let img = if vga {
+                RgbImage::from_fn(480, 640, |x, y| *f.get_pixel(x / 2, y / 2))
+            } else {
+                f.clone()
+            };
+            img.save(d.join(format!("{i}.png"))).unwrap();
+        }
+    }
+    let rates = |recs: &[recording::Recording]| -> Vec<(f32, Vec<u64>)> {
+        recs.iter()
+            .map(|r| {
+                let m = r.load().unwrap().meta;
+                (m.fps, m.timestamps_us)
+            })
+            .collect()
+    };
+    let recs = recording::find_recordings_at(&root, None).unwrap();
+    assert_eq!(recs, recording::find_recordings(&root).unwrap());
+    assert_eq!(
+        rates(&recs),
+        vec![
+            (60.0, vec![0, 16_667, 33_333, 50_000]),
+            (30.0, vec![0, 33_333, 66_667, 100_000]),
+        ]
+    );
+    let given = recording::find_recordings_at(&root, Some(25.0)).unwrap();
+    assert_eq!(
+        rates(&given),
+        vec![(25.0, vec![0, 40_000, 80_000, 120_000]); 2]
+    );
+    // The frames are the same whatever the rate.
+    assert_eq!(
+        given[1].load().unwrap().frames,
+        recs[1].load().unwrap().frames
+    );
+
+    // Press directories carry timestamps: a rate given for them is refused.
+    write_press(&tmp.path().join("presses/0001"), &p).unwrap();
+    let e =
+        msg(recording::find_recordings_at(&tmp.path().join("presses"), Some(30.0)).unwrap_err());
+    assert!(
+        e.contains("0001") && e.contains("press.json gives its timestamps"),
+        "{e}"
+    );
+    assert_eq!(
+        recording::find_recordings_at(&tmp.path().join("presses"), None)
+            .unwrap()
+            .len(),
+        1
+    );
+
+    // The flag's parser.
+    assert_eq!(recording::parse_fps("30").unwrap(), 30.0);
+    assert_eq!(recording::parse_fps(" 29.97 ").unwrap(), 29.97);
+    for bad in ["0", "-5", "nan", "inf", "1001", "fast", ""] {
+        assert!(recording::parse_fps(bad).is_err(), "{bad}");
+    }
+    assert!(recording::parse_fps("fast")
+        .unwrap_err()
+        .contains("not a frame rate"));
+    assert!(recording::parse_fps("0")
+        .unwrap_err()
+        .contains("out of range"));
+}
+
 /// Hidden entries are never recordings: a notebook's
 /// `.ipynb_checkpoints` would read as one more sensor, the `._frame.png`
 /// files a Mac leaves beside copied frames are not PNGs, and a `.git`
