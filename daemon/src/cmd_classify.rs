@@ -34,6 +34,12 @@ pub struct Args {
         conflicts_with = "sim"
     )]
     pub references: Vec<String>,
+    /// Frame rate of recordings saved without timestamps (PyTouch-style
+    /// datasets) [default: the DIGIT's stream rate at the frames' size:
+    /// 60 fps for 240x320 or 320x240, 30 for VGA]. Refused for press
+    /// directories, which carry their own timestamps.
+    #[arg(long, value_parser = telextiles_sim::recording::parse_fps, conflicts_with = "sim")]
+    pub fps: Option<f32>,
     /// Simulate presses of this textile id instead (e.g. T030).
     #[arg(long, conflicts_with = "press")]
     pub sim: Option<String>,
@@ -213,7 +219,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     let references = References::from_args(&args.references)?;
     let mut recordings = Vec::new();
     for p in &args.press {
-        recordings.extend(telextiles_sim::recording::find_recordings(p)?);
+        recordings.extend(telextiles_sim::recording::find_recordings_at(p, args.fps)?);
     }
     // One pipeline, reset for every recording with the recording's own
     // reference (else the one given for its sensor): nothing carries over
@@ -316,6 +322,7 @@ mod tests {
         Args {
             press: Vec::new(),
             references: Vec::new(),
+            fps: None,
             sim: None,
             seed: 2,
             person: 0,

@@ -46,6 +46,10 @@ pub struct CheckArgs {
     /// The sensor's no-contact frame, as for `index build --reference`.
     #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
     pub references: Vec<String>,
+    /// Frame rate of recordings saved without timestamps, as for `index
+    /// build --fps`.
+    #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
+    pub fps: Option<f32>,
     /// One centroid per textile only (as `index build --no-exemplars`).
     #[arg(long)]
     pub no_exemplars: bool,
@@ -85,6 +89,12 @@ pub struct BuildArgs {
     /// reference always wins.
     #[arg(long = "reference", value_name = "[SERIAL=]PNG", requires = "presses")]
     pub references: Vec<String>,
+    /// Frame rate of recordings saved without timestamps (PyTouch-style
+    /// datasets) [default: the DIGIT's stream rate at the frames' size:
+    /// 60 fps for 240x320 or 320x240, 30 for VGA]. Refused for press
+    /// directories, which carry their own timestamps.
+    #[arg(long, value_parser = telextiles_sim::recording::parse_fps, requires = "presses")]
+    pub fps: Option<f32>,
     /// Use simulated presses of the built-in catalogue instead.
     #[arg(long)]
     pub sim: bool,
@@ -215,6 +225,7 @@ fn check(a: CheckArgs) -> Result<()> {
         &mut fronts,
         &a.presses,
         &references,
+        a.fps,
         a.stride,
         "index check",
     )?;
@@ -507,10 +518,11 @@ fn embed_recordings(
     fronts: &mut [FrontEnd],
     root: &Path,
     references: &References,
+    fps: Option<f32>,
     stride: usize,
     what: &str,
 ) -> Result<Embedded> {
-    let recordings = telextiles_sim::recording::find_recordings(root)?;
+    let recordings = telextiles_sim::recording::find_recordings_at(root, fps)?;
     let progress = Progress::new(what, recordings.len() as u64, "presses");
     let mut out = Embedded {
         by_textile: vec![BTreeMap::new(); fronts.len()],
@@ -579,6 +591,7 @@ fn build(a: BuildArgs) -> Result<()> {
             std::slice::from_mut(&mut front),
             root,
             &references,
+            a.fps,
             a.stride,
             "index build",
         )?;

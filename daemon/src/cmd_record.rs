@@ -99,6 +99,12 @@ pub struct Args {
     /// Seconds to hold each press before "release" is shown.
     #[arg(long, default_value_t = 1.5)]
     pub hold: f64,
+    /// With --sensor replay: frame rate of recordings saved without
+    /// timestamps (PyTouch-style datasets) [default: the DIGIT's stream
+    /// rate at the frames' size: 60 fps for 240x320 or 320x240, 30 for
+    /// VGA].
+    #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
+    pub fps: Option<f32>,
 }
 
 /// A source and what its presses are labelled with.
@@ -123,6 +129,9 @@ enum Frames {
 const SIM_GAP_FRAMES: usize = 48;
 
 fn open(args: &Args, first_seed: u64) -> Result<Opened> {
+    if args.fps.is_some() && !matches!(args.sensor, SensorArg::Replay(_)) {
+        bail!("--fps is for --sensor replay:<dir> (recordings saved without timestamps); a live sensor's frames carry their own");
+    }
     match &args.sensor {
         SensorArg::Sim => {
             let sim = Arc::new(Simulator::new()?);
@@ -151,7 +160,7 @@ fn open(args: &Args, first_seed: u64) -> Result<Opened> {
         SensorArg::Replay(dir) => {
             // The walk every command shares: press directories, else a
             // PyTouch-style dataset.
-            let recordings = telextiles_sim::recording::find_recordings(dir)
+            let recordings = telextiles_sim::recording::find_recordings_at(dir, args.fps)
                 .with_context(|| format!("no recordings to replay under {}", dir.display()))?;
             let desc = format!(
                 "replay of {} recordings under {}",

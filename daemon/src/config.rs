@@ -39,6 +39,7 @@ pub const KEYS: &[&str] = &[
     "group",
     "sensor",
     "reference",
+    "replay_fps",
     "model",
     "index",
     "roller",
@@ -180,6 +181,9 @@ pub struct ConfigArgs {
     /// No-contact frame for replayed recordings that carry none (PyTouch data cut to contact): PNG for every sensor, SERIAL=PNG for one; repeat it (comma-separate in the env) [env: TELEXTILESD_REFERENCE]
     #[arg(long, value_name = "[SERIAL=]PNG")]
     pub reference: Option<Vec<String>>,
+    /// Frame rate of replayed recordings saved without timestamps (PyTouch data) [env: TELEXTILESD_REPLAY_FPS] [default: the DIGIT's stream rate at the frames' size: 60 fps QVGA, 30 VGA]
+    #[arg(long, value_name = "FPS", value_parser = telextiles_sim::recording::parse_fps)]
+    pub replay_fps: Option<f32>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -228,6 +232,7 @@ struct FileConfig {
     group: Option<String>,
     sensor: Option<String>,
     reference: Option<Vec<String>>,
+    replay_fps: Option<f32>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -258,6 +263,9 @@ pub struct Config {
     /// (`telextiles_sensing::front::References::from_args`); paths from
     /// the file are already joined to the file's directory.
     pub reference: Vec<String>,
+    /// Frame rate of replayed recordings saved without timestamps (None:
+    /// by their frames' size, `telextiles_sim::recording::default_fps`).
+    pub replay_fps: Option<f32>,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -434,6 +442,18 @@ impl Config {
             file_reference,
         )
         .unwrap_or_default();
+        let file_replay_fps = file
+            .replay_fps
+            .map(|f| {
+                telextiles_sim::recording::parse_fps(&f.to_string())
+                    .map_err(|m| file_err("replay_fps", m))
+            })
+            .transpose()?;
+        let replay_fps = pick(
+            args.replay_fps,
+            e.get("REPLAY_FPS", telextiles_sim::recording::parse_fps)?,
+            file_replay_fps,
+        );
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -510,6 +530,7 @@ impl Config {
             group,
             sensor,
             reference,
+            replay_fps,
             model,
             index,
             roller,
@@ -575,8 +596,13 @@ impl Config {
             )
         };
         let p = |p: &Path| q(&p.display().to_string());
+        // Not set: left out (by the frames' size).
+        let replay_fps = self
+            .replay_fps
+            .map(|f| format!("replay_fps = {f:?}\n"))
+            .unwrap_or_default();
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}model = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -586,6 +612,7 @@ impl Config {
             q(&self.group),
             q(&self.sensor.to_string()),
             list(&self.reference),
+            replay_fps,
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -1028,7 +1055,14 @@ mod tests {
         }
         // Round trip through to_toml.
         let c = resolve(
-            &["--connect", "a:1", "--sensor", "sim:T001"],
+            &[
+                "--connect",
+                "a:1",
+                "--sensor",
+                "replay:/d",
+                "--replay-fps",
+                "29.97",
+            ],
             &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
         )
         .unwrap();
@@ -1047,6 +1081,57 @@ mod tests {
             },
             c
         );
+    }
+
+    #[test]
+    fn replay_fps_is_a_positive_rate_from_flag_env_or_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        let base = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        // A TOML integer or float; unset, None (by the frames' size).
+        for (line, want) in [
+            ("replay_fps = 30", Some(30.0)),
+            ("replay_fps = 12.5", Some(12.5)),
+            ("", None),
+        ] {
+            std::fs::write(&cfg, format!("sensor = \"replay:data\"\n{line}\n")).unwrap();
+            assert_eq!(resolve(&[], &env).unwrap().replay_fps, want, "{line}");
+        }
+        // The flag wins over the variable, which wins over the file.
+        std::fs::write(&cfg, "replay_fps = 30\n").unwrap();
+        let mut with_var = env.clone();
+        with_var.push(("TELEXTILESD_REPLAY_FPS", "15"));
+        assert_eq!(resolve(&[], &with_var).unwrap().replay_fps, Some(15.0));
+        assert_eq!(
+            resolve(&["--replay-fps", "24"], &with_var)
+                .unwrap()
+                .replay_fps,
+            Some(24.0)
+        );
+        // Out of range anywhere: a clear error naming where.
+        std::fs::write(&cfg, "replay_fps = 0\n").unwrap();
+        let e = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            e.contains("replay_fps") && e.contains("out of range"),
+            "{e}"
+        );
+        std::fs::write(&cfg, "").unwrap();
+        let mut bad_var = env.clone();
+        bad_var.push(("TELEXTILESD_REPLAY_FPS", "fast"));
+        let e = resolve(&[], &bad_var).unwrap_err().to_string();
+        assert!(
+            e.contains("TELEXTILESD_REPLAY_FPS") && e.contains("not a frame rate"),
+            "{e}"
+        );
+        let e = match T::try_parse_from(["t", "--replay-fps", "0"]) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("--replay-fps 0 was taken"),
+        };
+        assert!(e.contains("out of range"), "{e}");
     }
 
     #[test]
@@ -1098,6 +1183,7 @@ mod tests {
             "system" | "mdns" | "map" => "true",
             "connect" | "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
             "reference" => "[\"/x.png\"]",
+            "replay_fps" => "30",
             "listen" | "map_bind" => "\"127.0.0.1:9\"",
             "sensor" => "\"sim\"",
             "roller" => "\"sim\"",
@@ -1112,6 +1198,7 @@ mod tests {
             "map" => "true",
             "connect" | "mdns_allow" | "mdns_deny" => "x:1",
             "reference" => "D1=/x.png",
+            "replay_fps" => "29.97",
             "listen" | "map_bind" => "127.0.0.1:9",
             "sensor" => "sim",
             "roller" => "sim",

@@ -627,6 +627,162 @@ fn pytouch_data_cut_to_the_press_needs_and_takes_a_reference() {
     );
 }
 
+/// A PyTouch-style dataset carries no timestamps. Its frames are timed at
+/// the DIGIT's stream rate for the size they were saved at (VGA streams at
+/// 30 fps, QVGA at 60), or at the rate `--fps` gives; a rate given for
+/// press directories, which carry their own timestamps, is refused, and
+/// so is one for a live sensor.
+#[test]
+fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_given() {
+    use telextiles_sim::{PressSpec, Simulator};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let model = model();
+    let model = model.to_str().expect("utf-8 path");
+    let sim = Simulator::new().expect("simulator");
+    // Whole presses (quiet frames first, so each takes its reference from
+    // them), at the DIGIT's 240x320 or as VGA 480x640 (each pixel
+    // doubled: averaged back, the very same frames).
+    let write = |set: &str, t: &str, seed: u64, vga: bool| {
+        let p = sim.render_press(&PressSpec::new(t, seed)).expect("press");
+        let dir = d.join(set).join(t).join("D20001");
+        std::fs::create_dir_all(&dir).expect("mkdir");
+        for (i, f) in p.frames.iter().enumerate() {
+            let img = if vga {
+                telextiles_sim::RgbImage::from_fn(480, 640, |x, y| *f.get_pixel(x / 2, y / 2))
+            } else {
+                f.clone()
+            };
+            img.save(dir.join(format!("frame_{i}.png"))).expect("png");
+        }
+    };
+    for t in ["T030", "T080"] {
+        write("index", t, 10, false);
+    }
+    write("qvga", "T030", 100, false);
+    write("vga", "T030", 100, true);
+    ok(
+        d,
+        &[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "index",
+            "-o",
+            "p.tlxi",
+        ],
+    );
+    let classify = |set: &str, extra: &[&str]| -> serde_json::Value {
+        let mut args = vec![
+            "classify", "--model", model, "--index", "p.tlxi", "--press", set, "--json",
+        ];
+        args.extend_from_slice(extra);
+        let out = ok(d, &args);
+        let reports: Vec<serde_json::Value> = out
+            .lines()
+            .filter(|l| l.starts_with('{'))
+            .map(|l| serde_json::from_str(l).expect("json line"))
+            .collect();
+        assert_eq!(reports.len(), 1, "{out}");
+        assert_eq!(reports[0]["textile"], "T030", "{out}");
+        reports[0].clone()
+    };
+    let ms = |r: &serde_json::Value| r["duration_ms"].as_f64().expect("duration_ms");
+    let qvga = classify("qvga", &[]);
+    let vga = classify("vga", &[]);
+    // The same frames, twice as far apart: the press lasts twice as long.
+    assert_eq!(vga["frames"], qvga["frames"]);
+    assert!(ms(&qvga) > 500.0, "{qvga}");
+    assert!(
+        (ms(&vga) - 2.0 * ms(&qvga)).abs() < 1.0,
+        "{vga} against {qvga}"
+    );
+    // Given the rate: as given.
+    let at_60 = classify("vga", &["--fps", "60"]);
+    assert!(
+        (ms(&at_60) - ms(&qvga)).abs() < 1.0,
+        "{at_60} against {qvga}"
+    );
+    let at_15 = classify("qvga", &["--fps", "15"]);
+    assert!(
+        (ms(&at_15) - 4.0 * ms(&qvga)).abs() < 1.0,
+        "{at_15} against {qvga}"
+    );
+
+    // Press directories have timestamps: --fps is refused, not ignored.
+    ok(
+        d,
+        &[
+            "record",
+            "--sensor",
+            "replay:vga",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "rec",
+        ],
+    );
+    let press = d.join("rec/T030/0001");
+    assert_eq!(meta(&press)["fps"], 30.0);
+    for args in [
+        vec![
+            "classify", "--model", model, "--index", "p.tlxi", "--press", "rec", "--fps", "30",
+        ],
+        vec![
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "rec",
+            "--fps",
+            "30",
+            "-o",
+            "q.tlxi",
+        ],
+    ] {
+        let o = run(d, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(
+            err.contains("0001") && err.contains("press.json gives its timestamps"),
+            "{err}"
+        );
+    }
+    assert!(!d.join("q.tlxi").exists());
+    // A live sensor times its own frames; a rate out of range is refused.
+    let o = run(
+        d,
+        &[
+            "record",
+            "--sensor",
+            "sim",
+            "--textile",
+            "T030",
+            "--presses",
+            "1",
+            "--out",
+            "rec2",
+            "--fps",
+            "30",
+        ],
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--fps is for --sensor replay:<dir>"));
+    let o = run(
+        d,
+        &[
+            "classify", "--model", model, "--index", "p.tlxi", "--press", "vga", "--fps", "0",
+        ],
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("out of range"));
+}
+
 /// `index check` on an owner's presses with the two shipped models (the
 /// trained model and its untrained front end, the fallback): each press
 /// left out and decided against the others, paired press by press, and

@@ -725,4 +725,44 @@ fn a_pytouch_dataset_replays_with_the_references_given_for_its_sensors() {
         announced[1].name
     );
     assert_eq!(announced[1].reference, Some(pixels_of(&blank)));
+
+    // The frames' times: 60 fps for these 240x320 frames, unless a rate is
+    // given (`replay_fps`); the second recording follows the first a
+    // frame period after its last frame.
+    let times = |fps: Option<f32>| -> Vec<u64> {
+        let mut src = RecordingsSource::open(&root, Pace::AsFastAsPossible, References::none())
+            .unwrap()
+            .assume_fps(fps)
+            .unwrap();
+        let mut f = Frame::blank();
+        let mut t = Vec::new();
+        while src.next_frame(&mut f).is_ok() {
+            t.push(f.timestamp_us);
+        }
+        t
+    };
+    let at_60: Vec<u64> = (0..12)
+        .map(|i| (i as f64 * 1e6 / 60.0).round() as u64)
+        .collect();
+    assert_eq!(times(None), at_60);
+    assert_eq!(
+        times(Some(20.0)),
+        (0..12).map(|i| i * 50_000).collect::<Vec<u64>>()
+    );
+    // Press directories carry their own times: a rate for them is refused.
+    let presses = dir.path().join("presses");
+    telextiles_sim::recording::write_press(&presses.join("T030/0001"), &press).unwrap();
+    match RecordingsSource::open(&presses, Pace::AsFastAsPossible, References::none())
+        .unwrap()
+        .assume_fps(Some(30.0))
+    {
+        Err(SourceError::Fatal(m)) => {
+            assert!(
+                m.contains("T030/0001") && m.contains("press.json gives its timestamps"),
+                "{m}"
+            )
+        }
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("a rate was taken for press directories"),
+    }
 }

@@ -67,6 +67,18 @@ pub(crate) fn given_references(cfg: &Config) -> Result<References> {
     Ok(References::from_args(&cfg.reference)?)
 }
 
+/// The configured `replay_fps`, checked against the sensor: it is for
+/// `sensor = replay:<dir>` only.
+pub(crate) fn check_replay_fps(cfg: &Config) -> Result<()> {
+    if cfg.replay_fps.is_some() && !matches!(cfg.sensor, SensorSource::Replay { .. }) {
+        anyhow::bail!(
+            "`replay_fps` is for sensor = replay:<dir> (recordings saved without timestamps); sensor {} gives its frames' own times",
+            cfg.sensor
+        );
+    }
+    Ok(())
+}
+
 /// Opens the configured frame source. A simulated DIGIT presses fabrics
 /// of the index's simulator catalogue (so that its textile ids mean the
 /// fabrics the index was built from).
@@ -99,10 +111,13 @@ pub(crate) fn open_source(
         Ok((src, Some((handle, simulator)), desc))
     };
     let references = given_references(cfg)?;
+    check_replay_fps(cfg)?;
     match &cfg.sensor {
         SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
         SensorSource::Replay { dir } => {
-            let src = RecordingsSource::open(dir, Pace::RealTime, references)?.looping(true);
+            let src = RecordingsSource::open(dir, Pace::RealTime, references)?
+                .assume_fps(cfg.replay_fps)?
+                .looping(true);
             let desc = src.describe();
             Ok((Box::new(src), None, desc))
         }
@@ -379,6 +394,24 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(err.contains("--reference") && err.contains(want), "{err}");
+        }
+    }
+
+    #[test]
+    fn a_replay_rate_is_for_a_replay_only() {
+        let with_fps = |sensor: &str| Config {
+            replay_fps: Some(30.0),
+            ..config(sensor, &[])
+        };
+        check_replay_fps(&with_fps("replay:data")).unwrap();
+        check_replay_fps(&config("digit", &[])).unwrap();
+        for sensor in ["sim", "digit:D20001"] {
+            let err = check_replay_fps(&with_fps(sensor)).unwrap_err().to_string();
+            assert!(
+                err.contains("`replay_fps` is for sensor = replay:<dir>")
+                    && err.contains(&format!("sensor {sensor} gives")),
+                "{err}"
+            );
         }
     }
 }

@@ -485,6 +485,11 @@ struct SplitArgs {
     /// A recording's own reference always wins.
     #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
     references: Vec<String>,
+    /// Frame rate of recordings saved without timestamps (PyTouch-style
+    /// datasets) [default: the DIGIT's stream rate at the frames' size:
+    /// 60 fps for 240x320 or 320x240, 30 for VGA].
+    #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
+    fps: Option<f32>,
     /// The decider's indexes learn a distance from their presses, with
     /// this shrinkage (within-fabric whitening, as `telextilesd index
     /// build --presses` does by default; without a value 0.5). Without
@@ -530,6 +535,7 @@ impl SplitArgs {
             || self.index_metric.is_some()
             || !self.unknown_quantiles.is_empty()
             || !self.references.is_empty()
+            || self.fps.is_some()
     }
 
     /// The study on the recordings under `dir` as these options set it
@@ -542,6 +548,7 @@ impl SplitArgs {
         cfg.metric = self.index_metric;
         cfg.unknown_quantiles = self.unknown_quantiles.clone();
         cfg.references = telextiles_sensing::front::References::from_args(&self.references)?;
+        cfg.fps = self.fps;
         cfg.threads = 1;
         Ok(cfg)
     }

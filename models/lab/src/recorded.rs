@@ -141,10 +141,11 @@ pub struct RecordingRef {
 /// The recordings under `dir`, in sorted path order: press directories
 /// found recursively (symbolic links followed, as the daemon's
 /// `classify` and `index build` read them), else the PyTouch layout
-/// (`telextiles_sim::recording::find_recordings`).
-pub fn list_recordings(dir: &Path) -> Result<Vec<RecordingRef>> {
+/// (`telextiles_sim::recording::find_recordings_at`), those saved without
+/// timestamps spaced at `fps` when given.
+pub fn list_recordings(dir: &Path, fps: Option<f32>) -> Result<Vec<RecordingRef>> {
     ensure!(dir.is_dir(), "{} is not a directory", dir.display());
-    recording::find_recordings(dir)?
+    recording::find_recordings_at(dir, fps)?
         .into_iter()
         .map(|r| {
             let (textile, layout) = match &r {
@@ -501,6 +502,9 @@ pub struct StudyConfig {
     /// (`--reference [SERIAL=]PNG`); empty: such recordings capture one
     /// from their first steady frames, as `classify` does.
     pub references: References,
+    /// Frame rate of recordings saved without timestamps (`--fps`); None:
+    /// the DIGIT's stream rate at their frames' size.
+    pub fps: Option<f32>,
 }
 
 impl StudyConfig {
@@ -523,6 +527,7 @@ impl StudyConfig {
             metric: None,
             unknown_quantiles: Vec::new(),
             references: References::none(),
+            fps: None,
         }
     }
 }
@@ -729,7 +734,7 @@ pub fn embed_all(
     cfg: &StudyConfig,
     methods: &[Method],
 ) -> Result<(Vec<RecordingRef>, Vec<Processed>)> {
-    let refs = list_recordings(&cfg.dir)?;
+    let refs = list_recordings(&cfg.dir, cfg.fps)?;
     let progress = telextiles_progress::Progress::new(
         &format!(
             "embedding with {} method{}",

@@ -384,9 +384,15 @@ fn presses_in_the_pytouch_layout() {
             }
         }
     }
-    let refs = recorded::list_recordings(&root).unwrap();
+    let refs = recorded::list_recordings(&root, None).unwrap();
     assert_eq!(refs.len(), 6);
     assert!(refs.iter().all(|r| r.layout == recorded::Layout::Pytouch));
+    // No timestamps: 60 fps for these 240x320 frames, or the rate given
+    // (`bench --fps`).
+    assert_eq!(refs[0].load().unwrap().meta.fps, 60.0);
+    let at_30 = recorded::list_recordings(&root, Some(30.0)).unwrap();
+    let m = at_30[0].load().unwrap().meta;
+    assert_eq!((m.fps, m.timestamps_us[1]), (30.0, 33_333));
     let mut cfg = StudyConfig::new(&root, Split::IndexPresses(2));
     cfg.runs = 0;
     let methods: Vec<Method> = methods()

@@ -226,6 +226,22 @@ impl RecordingsSource {
         })
     }
 
+    /// Space the frames of recordings saved without timestamps (a
+    /// PyTouch-style dataset) at `fps` (None: the DIGIT's stream rate at
+    /// their size, `telextiles_sim::recording::default_fps`). Press
+    /// directories carry their own timestamps: a rate given for them is
+    /// refused ([`SourceError::Fatal`]).
+    pub fn assume_fps(mut self, fps: Option<f32>) -> Result<Self, SourceError> {
+        if let Some(fps) = fps {
+            for r in &mut self.recordings {
+                r.assume_fps(fps).map_err(|e| {
+                    SourceError::Fatal(format!("cannot replay {}: {e}", self.root.display()))
+                })?;
+            }
+        }
+        Ok(self)
+    }
+
     /// After the last recording, start again from the first.
     pub fn looping(mut self, on: bool) -> Self {
         self.looping = on;
