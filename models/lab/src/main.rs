@@ -1063,7 +1063,7 @@ fn eval(mut a: EvalArgs) -> Result<()> {
     let metric = a.recorded.index_metric.take();
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
     );
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
@@ -1130,7 +1130,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from("docs/bench"));
     ensure!(
         !a.recorded.given(),
-        "--index-presses/--split/--encode-run/--reference are for --source presses:<dir>"
+        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
     );
     let roller: Vec<String> = if a.roller.is_empty() {
         Vec::new()

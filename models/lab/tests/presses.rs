@@ -344,7 +344,24 @@ fn presses_from_the_command_line() {
                 "--out",
                 "x",
             ],
-            "--reference are for --source presses:<dir>",
+            "--reference/--fps are for --source presses:<dir>",
+        ),
+        // So is a frame rate; and one out of range is refused.
+        (
+            vec!["bench", "--source", "sim", "--fps", "30", "--out", "x"],
+            "--fps are for --source presses:<dir>",
+        ),
+        (
+            vec![
+                "bench",
+                "--source",
+                source.as_str(),
+                "--fps",
+                "0",
+                "--out",
+                "x",
+            ],
+            "out of range",
         ),
     ] {
         let o = run(&args);
