@@ -33,6 +33,13 @@ fn ok(dir: &Path, args: &[&str]) -> String {
     String::from_utf8(out.stdout).expect("utf-8")
 }
 
+/// Run a command that must fail; its standard error.
+fn fails(dir: &Path, args: &[&str]) -> String {
+    let out = run(dir, args);
+    assert!(!out.status.success(), "telextilesd {args:?} succeeded");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 fn meta(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("press.json")).expect("press.json");
     serde_json::from_str(&text).expect("json")
@@ -728,59 +735,38 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
     );
     let press = d.join("rec/T030/0001");
     assert_eq!(meta(&press)["fps"], 30.0);
-    for args in [
-        vec![
-            "classify", "--model", model, "--index", "p.tlxi", "--press", "rec", "--fps", "30",
-        ],
-        vec![
-            "index",
-            "build",
-            "--model",
-            model,
-            "--presses",
-            "rec",
-            "--fps",
-            "30",
-            "-o",
-            "q.tlxi",
-        ],
-    ] {
-        let o = run(d, &args);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "{args:?}");
-        assert!(
-            err.contains("0001") && err.contains("press.json gives its timestamps"),
-            "{err}"
-        );
+    // A rate for press directories, for a live sensor, or out of range:
+    // refused, and nothing written.
+    let refused = [
+        (
+            "classify --model M --index p.tlxi --press rec --fps 30",
+            "press.json gives its timestamps",
+        ),
+        (
+            "index build --model M --presses rec --fps 30 -o q.tlxi",
+            "press.json gives its timestamps",
+        ),
+        (
+            "record --sensor sim --textile T030 --presses 1 --out rec2 --fps 30",
+            "--fps is for --sensor replay:<dir>",
+        ),
+        (
+            "classify --model M --index p.tlxi --press vga --fps 0",
+            "out of range",
+        ),
+    ];
+    for (line, want) in refused {
+        let args: Vec<&str> = line
+            .split(' ')
+            .map(|a| if a == "M" { model } else { a })
+            .collect();
+        let err = fails(d, &args);
+        assert!(err.contains(want), "{line}: {err}");
+        if want.contains("press.json") {
+            assert!(err.contains("0001"), "{err}");
+        }
     }
-    assert!(!d.join("q.tlxi").exists());
-    // A live sensor times its own frames; a rate out of range is refused.
-    let o = run(
-        d,
-        &[
-            "record",
-            "--sensor",
-            "sim",
-            "--textile",
-            "T030",
-            "--presses",
-            "1",
-            "--out",
-            "rec2",
-            "--fps",
-            "30",
-        ],
-    );
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--fps is for --sensor replay:<dir>"));
-    let o = run(
-        d,
-        &[
-            "classify", "--model", model, "--index", "p.tlxi", "--press", "vga", "--fps", "0",
-        ],
-    );
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("out of range"));
+    assert!(!d.join("q.tlxi").exists() && !d.join("rec2").exists());
 }
 
 /// `index check` on an owner's presses with the two shipped models (the
