@@ -148,6 +148,87 @@ fn print(
     Ok(())
 }
 
+/// Every press `classify` decided, against the fabric it is labelled with
+/// (a recording's `press.json` textile, a PyTouch class, the simulated
+/// id): what a DIGIT owner checking an index on presses kept apart wants
+/// to know, in the terms of `index build`'s self-check.
+#[derive(Debug, Default)]
+struct Tally {
+    /// (label's index entry, decision's index entry) of each press of a
+    /// fabric the index holds.
+    decided: Vec<(usize, usize)>,
+    /// Of those, flagged unknown.
+    known_flagged: usize,
+    /// Presses with no decision.
+    undecided: usize,
+    /// Presses of fabrics the index does not hold, and of them flagged
+    /// unknown.
+    foreign: usize,
+    foreign_flagged: usize,
+    /// Recordings read, and those in which no press was detected.
+    recordings: usize,
+    silent: usize,
+}
+
+impl Tally {
+    fn press(&mut self, label: &str, r: &PressReport, index: &Index) {
+        let decided = r.textile.as_deref().and_then(|id| index.entry_by_id(id));
+        match (index.entry_by_id(label), decided) {
+            (_, None) => self.undecided += 1,
+            (None, Some(_)) => {
+                self.foreign += 1;
+                self.foreign_flagged += usize::from(r.unknown);
+            }
+            (Some(fabric), Some(d)) => {
+                self.decided.push((fabric, d));
+                self.known_flagged += usize::from(r.unknown);
+            }
+        }
+    }
+
+    /// One line: right of decided (the share), the fabrics taken for
+    /// others, then what was not decided, if anything.
+    fn line(&self, index: &Index) -> String {
+        let check = telextiles_index::build::SelfCheck::of_pairs(self.decided.iter().copied());
+        let mut text = if check.presses == 0 {
+            "summary: no press of a fabric the index holds was decided".to_string()
+        } else {
+            let id = |e: usize| index.entries[e].id.as_str();
+            format!(
+                "summary: {} of {} presses ({:.1} %) decided as the fabric they are labelled with{}",
+                check.right,
+                check.presses,
+                100.0 * check.right as f64 / check.presses as f64,
+                crate::cmd_index::confusions_text(&check, &id)
+            )
+        };
+        if self.known_flagged > 0 {
+            text += &format!("; {} of them flagged unknown", self.known_flagged);
+        }
+        let presses = |n: usize| match n {
+            1 => "1 press".to_string(),
+            n => format!("{n} presses"),
+        };
+        if self.undecided > 0 {
+            text += &format!("; {} without a decision", presses(self.undecided));
+        }
+        if self.foreign > 0 {
+            text += &format!(
+                "; {} of fabrics the index does not hold ({} flagged unknown)",
+                presses(self.foreign),
+                self.foreign_flagged
+            );
+        }
+        if self.silent > 0 {
+            text += &format!(
+                "; no press detected in {} of {} recordings",
+                self.silent, self.recordings
+            );
+        }
+        text
+    }
+}
+
 /// Run the command, printing to stdout.
 pub fn run(args: Args) -> Result<()> {
     run_to(args, &mut crate::out::stdout())
@@ -206,15 +287,17 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
             .map_err(anyhow::Error::msg)?;
         let total = (gap + frames) as u64 * args.presses as u64;
         let mut err = Ok(());
+        let mut tally = Tally::default();
         run_source(&mut pipeline, &mut src, Some(total), |r| {
             n += 1;
+            tally.press(id, &r, &index);
             if err.is_ok() {
                 err = print(out, &args, &format!("sim {id}"), n, &r, &index);
             }
         })
         .map_err(anyhow::Error::msg)?;
         err?;
-        return Ok(());
+        return summarise(out, &args, &tally, &index);
     }
     let references = References::from_args(&args.references)?;
     let mut recordings = Vec::new();
@@ -228,6 +311,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     let progress =
         telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
+    let mut tally = Tally::default();
     for rec in recordings {
         let name = rec.path().display().to_string();
         let press = rec
@@ -236,23 +320,39 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         let reference = references.for_press(&press);
         let hint = no_reference_hint(reference.is_some());
         pipeline.reset(reference.as_deref());
+        let label = press.meta.textile.clone();
         let mut src = RecordedSource::from_press(press, pace, name.clone());
         let mut err = Ok(());
         let before = n;
         run_source(&mut pipeline, &mut src, None, |r| {
             n += 1;
+            tally.press(&label, &r, &index);
             if err.is_ok() {
                 err = print(out, &args, &name, n, &r, &index);
             }
         })
         .map_err(anyhow::Error::msg)?;
         err?;
+        tally.recordings += 1;
         if n == before {
+            tally.silent += 1;
             progress.println(&format!("warning: {name}: no press detected{hint}"));
         }
         progress.inc(1);
     }
     progress.finish();
+    summarise(out, &args, &tally, &index)
+}
+
+/// The summary line: after the presses on standard output, or, with
+/// `--json` (one object per press there, nothing else), on standard error.
+fn summarise(out: &mut dyn Write, args: &Args, tally: &Tally, index: &Index) -> Result<()> {
+    let line = tally.line(index);
+    if args.json {
+        eprintln!("{line}");
+    } else {
+        writeln!(out, "{line}")?;
+    }
     Ok(())
 }
 
@@ -413,6 +513,75 @@ mod tests {
                 && text.contains("after contact")
                 && text.contains("encode"),
             "{text}"
+        );
+        assert!(
+            text.ends_with(
+                "summary: 1 of 1 presses (100.0 %) decided as the fabric they are labelled with\n"
+            ),
+            "{text}"
+        );
+        // Over a fabric the index does not hold (U01) and a recording
+        // that never touches: the summary says so.
+        let u = sim.render_press(&PressSpec::new("U01", 2)).unwrap();
+        telextiles_sim::recording::write_press(&dir.path().join("presses/U01"), &u).unwrap();
+        let mut quiet = sim.render_press(&PressSpec::new("T030", 2)).unwrap();
+        quiet.frames.truncate(20);
+        quiet.meta.timestamps_us.truncate(20);
+        quiet.meta.reference_frames = None;
+        telextiles_sim::recording::write_press(&dir.path().join("presses/T030-quiet"), &quiet)
+            .unwrap();
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                json: false,
+                press: vec![dir.path().join("presses")],
+                ..args(fixture_model(), index_file(dir.path()))
+            },
+            &mut out,
+        )
+        .unwrap();
+        let text = String::from_utf8(out).unwrap();
+        let last = text.lines().last().unwrap();
+        assert!(
+            last.starts_with("summary: 2 of 2 presses (100.0 %) decided as the fabric they are labelled with; 1 press of fabrics the index does not hold (")
+                && last.ends_with("; no press detected in 1 of 4 recordings"),
+            "{text}"
+        );
+    }
+
+    /// The summary's counts: right of decided, the fabrics taken for
+    /// others (most first), and every press not counted there.
+    #[test]
+    fn the_summary_counts_presses_as_the_index_self_check_does() {
+        let dir = tempfile::tempdir().unwrap();
+        let index = Index::read(&index_file(dir.path())).unwrap();
+        let t = |id: &str| index.entry_by_id(id).unwrap();
+        let tally = Tally {
+            decided: vec![
+                (t("T030"), t("T030")),
+                (t("T080"), t("T010")),
+                (t("T110"), t("T010")),
+                (t("T080"), t("T010")),
+                (t("T110"), t("T110")),
+            ],
+            known_flagged: 1,
+            undecided: 2,
+            recordings: 6,
+            ..Tally::default()
+        };
+        assert_eq!(
+            tally.line(&index),
+            "summary: 2 of 5 presses (40.0 %) decided as the fabric they are labelled with; taken for another: T080 as T010 (2), T110 as T010 (1); 1 of them flagged unknown; 2 presses without a decision"
+        );
+        assert_eq!(
+            Tally {
+                foreign: 1,
+                silent: 2,
+                recordings: 3,
+                ..Tally::default()
+            }
+            .line(&index),
+            "summary: no press of a fabric the index holds was decided; 1 press of fabrics the index does not hold (0 flagged unknown); no press detected in 2 of 3 recordings"
         );
     }
 

@@ -360,7 +360,7 @@ fn choose_model(checks: &[SelfCheck], paired: &[Option<Paired>]) -> usize {
 }
 
 /// "; taken for another: A as B (3), ..." (at most five pairs), or nothing.
-fn confusions_text<'a>(check: &SelfCheck, id: &dyn Fn(usize) -> &'a str) -> String {
+pub(crate) fn confusions_text<'a>(check: &SelfCheck, id: &dyn Fn(usize) -> &'a str) -> String {
     if check.confusions.is_empty() {
         return String::new();
     }

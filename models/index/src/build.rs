@@ -430,16 +430,28 @@ pub struct SelfCheck {
 impl SelfCheck {
     /// Count the left-out presses.
     pub fn of(left: &[LeftOut]) -> SelfCheck {
+        SelfCheck::of_pairs(left.iter().map(|l| (l.fabric, l.decided)))
+    }
+
+    /// Count presses given as (fabric, decided as) pairs (`classify`'s
+    /// presses against the fabrics they are labelled with).
+    pub fn of_pairs(decided: impl IntoIterator<Item = (usize, usize)>) -> SelfCheck {
+        let (mut presses, mut right) = (0, 0);
         let mut pairs = std::collections::BTreeMap::new();
-        for l in left.iter().filter(|l| l.decided != l.fabric) {
-            *pairs.entry((l.fabric, l.decided)).or_insert(0usize) += 1;
+        for (fabric, as_) in decided {
+            presses += 1;
+            if as_ == fabric {
+                right += 1;
+            } else {
+                *pairs.entry((fabric, as_)).or_insert(0usize) += 1;
+            }
         }
         let mut confusions: Vec<(usize, usize, usize)> =
             pairs.into_iter().map(|((f, d), n)| (f, d, n)).collect();
         confusions.sort_by(|a, b| b.2.cmp(&a.2).then((a.0, a.1).cmp(&(b.0, b.1))));
         SelfCheck {
-            presses: left.len(),
-            right: left.iter().filter(|l| l.decided == l.fabric).count(),
+            presses,
+            right,
             confusions,
         }
     }
