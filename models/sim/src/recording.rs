@@ -341,7 +341,7 @@ pub fn default_fps(width: u32, height: u32) -> f32 {
 }
 
 /// Fastest frame rate `--fps` takes: far above any DIGIT mode (60 fps at
-/// most), so that only a slip (a period in ms, say) is refused.
+/// most): it refuses only a slip, such as a period in µs (16667).
 pub const MAX_FPS: f32 = 1000.0;
 
 /// Parse a frame rate given for recordings that carry no timestamps
