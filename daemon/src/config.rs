@@ -444,10 +444,7 @@ impl Config {
         .unwrap_or_default();
         let file_replay_fps = file
             .replay_fps
-            .map(|f| {
-                telextiles_sim::recording::parse_fps(&f.to_string())
-                    .map_err(|m| file_err("replay_fps", m))
-            })
+            .map(|f| telextiles_sim::recording::check_fps(f).map_err(|m| file_err("replay_fps", m)))
             .transpose()?;
         let replay_fps = pick(
             args.replay_fps,

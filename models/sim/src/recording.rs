@@ -352,9 +352,15 @@ pub fn parse_fps(s: &str) -> Result<f32, String> {
         .trim()
         .parse()
         .map_err(|_| format!("{s:?} is not a frame rate (frames per second, e.g. 30)"))?;
+    check_fps(fps)
+}
+
+/// A frame rate given as a number (a configuration file's): above 0 and
+/// at most [`MAX_FPS`], as [`parse_fps`] takes it.
+pub fn check_fps(fps: f32) -> Result<f32, String> {
     if !(fps.is_finite() && fps > 0.0 && fps <= MAX_FPS) {
         return Err(format!(
-            "frame rate {s} out of range (above 0 and at most {MAX_FPS} frames per second)"
+            "frame rate {fps} out of range (above 0 and at most {MAX_FPS} frames per second)"
         ));
     }
     Ok(fps)
@@ -751,10 +757,17 @@ fn find_recordings_pytouch(root: &Path) -> Result<Vec<Recording>, RecordingError
 /// timestamps, is refused rather than ignored.
 pub fn find_recordings_at(root: &Path, fps: Option<f32>) -> Result<Vec<Recording>, RecordingError> {
     let mut recordings = find_recordings(root)?;
+    assume_fps(&mut recordings, fps)?;
+    Ok(recordings)
+}
+
+/// [`Recording::assume_fps`] for each of `recordings`, when a rate is
+/// given; the first press directory among them refuses it.
+pub fn assume_fps(recordings: &mut [Recording], fps: Option<f32>) -> Result<(), RecordingError> {
     if let Some(fps) = fps {
-        for r in &mut recordings {
+        for r in recordings {
             r.assume_fps(fps)?;
         }
     }
-    Ok(recordings)
+    Ok(())
 }

@@ -232,13 +232,9 @@ impl RecordingsSource {
     /// directories carry their own timestamps: a rate given for them is
     /// refused ([`SourceError::Fatal`]).
     pub fn assume_fps(mut self, fps: Option<f32>) -> Result<Self, SourceError> {
-        if let Some(fps) = fps {
-            for r in &mut self.recordings {
-                r.assume_fps(fps).map_err(|e| {
-                    SourceError::Fatal(format!("cannot replay {}: {e}", self.root.display()))
-                })?;
-            }
-        }
+        telextiles_sim::recording::assume_fps(&mut self.recordings, fps).map_err(|e| {
+            SourceError::Fatal(format!("cannot replay {}: {e}", self.root.display()))
+        })?;
         Ok(self)
     }
 
