@@ -538,6 +538,15 @@ impl SplitArgs {
             || self.fps.is_some()
     }
 
+    /// Refuse these options for a source that is not recordings.
+    fn refuse_unless_presses(&self) -> Result<()> {
+        ensure!(
+            !self.given(),
+            "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
+        );
+        Ok(())
+    }
+
     /// The study on the recordings under `dir` as these options set it
     /// (one ONNX Runtime thread per session; the caller sets the workers,
     /// timing and runs).
@@ -1061,10 +1070,7 @@ fn eval(mut a: EvalArgs) -> Result<()> {
         return Ok(());
     }
     let metric = a.recorded.index_metric.take();
-    ensure!(
-        !a.recorded.given(),
-        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
-    );
+    a.recorded.refuse_unless_presses()?;
     // The model's own crop and input size (its metadata), whatever
     // --input/--crop say.
     let (crop, input) = m.view();
@@ -1128,10 +1134,7 @@ fn bench_cmd(a: BenchArgs) -> Result<()> {
         return Ok(());
     }
     let out = a.out.clone().unwrap_or_else(|| PathBuf::from("docs/bench"));
-    ensure!(
-        !a.recorded.given(),
-        "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
-    );
+    a.recorded.refuse_unless_presses()?;
     let roller: Vec<String> = if a.roller.is_empty() {
         Vec::new()
     } else if a.roller.ends_with(".tlxi") || Path::new(&a.roller).exists() {
