@@ -8,7 +8,9 @@
 //! them; the textile is `press.json`'s `textile`), or, when no `press.json`
 //! is found, the PyTouch layout `root/<class>/<serial>/*.png` (one
 //! recording per `<class>/<serial>` directory, and one for frames directly
-//! under `<class>`; 60 fps assumed as the reader does). Recordings are taken in sorted path order.
+//! under `<class>`; timed as the reader times them: at the DIGIT's stream
+//! rate for the frames' size, or at `--fps`). Recordings are taken in
+//! sorted path order.
 //!
 //! **One reference per recording.** Every recording is processed alone,
 //! from a clean state, with its own no-contact reference and never with
