@@ -700,7 +700,17 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
     let qvga = classify("qvga", &[]);
     let vga = classify("vga", &[]);
     // The same frames, twice as far apart: the press lasts twice as long.
-    assert_eq!(vga["frames"], qvga["frames"]);
+    // The detector's 30 ms to start a press take two frames at 30 fps and
+    // three at 60, so the VGA press starts on its second frame over the
+    // threshold (the same first frame, so the same start) and encodes one
+    // frame more; it is decided at 100 ms, the first frame 50 ms after
+    // that second one, where at 60 fps it is 83 ms.
+    assert_eq!(
+        vga["frames"].as_u64(),
+        qvga["frames"].as_u64().map(|n| n + 1)
+    );
+    assert_eq!(qvga["decision_ms"].as_f64().map(f64::round), Some(83.0));
+    assert_eq!(vga["decision_ms"].as_f64().map(f64::round), Some(100.0));
     assert!(ms(&qvga) > 500.0, "{qvga}");
     assert!(
         (ms(&vga) - 2.0 * ms(&qvga)).abs() < 1.0,
@@ -708,6 +718,7 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
     );
     // Given the rate: as given.
     let at_60 = classify("vga", &["--fps", "60"]);
+    assert_eq!(at_60["frames"], qvga["frames"]);
     assert!(
         (ms(&at_60) - ms(&qvga)).abs() < 1.0,
         "{at_60} against {qvga}"

@@ -4,10 +4,18 @@
 //! the reference, both averaged over 4x4 blocks (60x80 blocks x 3 channels).
 //! Thresholds are relative to the noise floor (the score of untouched frames,
 //! mostly camera noise, about 0.4 on a DIGIT), which is tracked while idle.
-//! Hysteresis: contact starts after `min_enter_frames` consecutive frames with
-//! score >= floor + `enter` and ends after `min_exit_frames` consecutive
-//! frames with score < floor + `exit` (`exit` < `enter`). Press-start carries the timestamp of the
-//! first frame of the run that crossed `enter`.
+//! Hysteresis: contact starts after a run of consecutive frames with
+//! score >= floor + `enter` and ends after a run of consecutive frames with
+//! score < floor + `exit` (`exit` < `enter`). A run counts in frames and in
+//! capture time: it starts a press at `min_enter_frames` frames, or sooner
+//! once it spans `enter_ms` (never on one frame), and ends one at
+//! `min_exit_frames` frames, or sooner once it spans `exit_ms`. At the
+//! DIGIT's 60 fps both come to the same frame (3 to start, 5 to end); at
+//! its 30 fps (VGA) the time comes first (2 and 3 frames), so a press
+//! starts and ends as soon after its first frame as at 60 fps, rather than
+//! twice as late. Timestamps that do not advance (a clock that is not
+//! there) leave the frame counts in force. Press-start carries the
+//! timestamp of the first frame of the run that crossed `enter`.
 //!
 //! The reference is the mean of the first `reference_frames` frames (the
 //! sensor must not be touched at start), or of the frames after
@@ -65,10 +73,17 @@ pub struct ContactConfig {
     pub initial_floor: f32,
     /// The tracked floor never exceeds this.
     pub max_floor: f32,
-    /// Consecutive frames at or above `enter` to start a press.
+    /// Consecutive frames at or above `enter` that start a press.
     pub min_enter_frames: u32,
-    /// Consecutive frames below `exit` to end a press.
+    /// A run of two or more frames at or above `enter` that spans this many
+    /// milliseconds of capture time (from its first frame to this one)
+    /// starts a press before `min_enter_frames` (0 = frames only).
+    pub enter_ms: f32,
+    /// Consecutive frames below `exit` that end a press.
     pub min_exit_frames: u32,
+    /// A run of two or more frames below `exit` that spans this many
+    /// milliseconds ends a press before `min_exit_frames` (0 = frames only).
+    pub exit_ms: f32,
     /// Weight of a no-contact frame in the slowly updated reference (0 = frozen).
     pub background_alpha: f32,
     /// A contact whose score varies by less than `stale_band` for this
@@ -112,7 +127,11 @@ impl Default for ContactConfig {
             initial_floor: 0.5,
             max_floor: 2.0,
             min_enter_frames: 3,
+            // 3 frames at 60 fps span 33 ms, 5 span 67 ms: the margin keeps
+            // a live camera's jitter from deciding one frame early.
+            enter_ms: 30.0,
             min_exit_frames: 5,
+            exit_ms: 60.0,
             background_alpha: 0.01,
             stale_after_ms: 30_000.0,
             stale_band: 0.3,
@@ -202,6 +221,8 @@ enum State {
     Contact {
         start: u64,
         run: u32,
+        /// Timestamp of the first frame of the release run (when `run` > 0).
+        run_start: u64,
         /// When the score entered its current flat band.
         flat_since: u64,
         lo: f32,
@@ -304,7 +325,8 @@ impl ContactDetector {
     /// Frames in the run that may start a press: consecutive frames at or
     /// above the entry threshold while idle, this one included (0 in a
     /// press, while capturing, or when the last frame was below it). The
-    /// press starts on the frame that brings it to `min_enter_frames`, and
+    /// press starts on the frame that brings it to `min_enter_frames` (or
+    /// sooner at a low frame rate, see [`ContactConfig::enter_ms`]), and
     /// its start is the run's first frame.
     pub fn pending_run(&self) -> u32 {
         match self.state {
@@ -499,7 +521,7 @@ impl ContactDetector {
             } => {
                 if score >= enter {
                     let run_start = if run == 0 { t_us } else { run_start };
-                    if run + 1 >= cfg.min_enter_frames.max(1) {
+                    if run_done(run + 1, cfg.min_enter_frames, run_start, t_us, cfg.enter_ms) {
                         // Only a change that a gain explains almost entirely
                         // (what is left is noise, and a small part of the
                         // change): a soft fabric's weak press, whose change
@@ -528,6 +550,7 @@ impl ContactDetector {
                             State::Contact {
                                 start: run_start,
                                 run: 0,
+                                run_start: t_us,
                                 flat_since: t_us,
                                 lo: score,
                                 hi: score,
@@ -598,6 +621,7 @@ impl ContactDetector {
             State::Contact {
                 start,
                 run,
+                run_start,
                 flat_since,
                 lo,
                 hi,
@@ -610,7 +634,8 @@ impl ContactDetector {
                 };
                 let flat_us = t_us.saturating_sub(flat_since);
                 if score < exit {
-                    if run + 1 >= cfg.min_exit_frames.max(1) {
+                    let run_start = if run == 0 { t_us } else { run_start };
+                    if run_done(run + 1, cfg.min_exit_frames, run_start, t_us, cfg.exit_ms) {
                         event = Some(ContactEvent::PressEnd {
                             start_us: start,
                             t_us,
@@ -625,6 +650,7 @@ impl ContactDetector {
                         State::Contact {
                             start,
                             run: run + 1,
+                            run_start,
                             flat_since,
                             lo,
                             hi,
@@ -652,6 +678,7 @@ impl ContactDetector {
                     State::Contact {
                         start,
                         run: 0,
+                        run_start,
                         flat_since,
                         lo,
                         hi,
@@ -740,6 +767,14 @@ fn sample_f32(px: &[f32], out: &mut [f32]) {
 
 /// Mean of each 4x4 block (per channel): averaging cuts camera noise by 4
 /// while keeping the contact's shading and texture.
+/// Whether a run of `frames` frames, the first at `first_us` and the last
+/// at `t_us`, is long enough: `min_frames` of them, or two or more that
+/// span `ms` (> 0) of capture time.
+fn run_done(frames: u32, min_frames: u32, first_us: u64, t_us: u64, ms: f32) -> bool {
+    frames >= min_frames.max(1)
+        || (frames >= 2 && ms > 0.0 && t_us.saturating_sub(first_us) as f64 >= ms as f64 * 1e3)
+}
+
 fn sample(image: &RgbImage, out: &mut [f32]) {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let raw = image.as_raw();

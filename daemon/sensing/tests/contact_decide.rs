@@ -147,6 +147,80 @@ fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
     assert!(matches!(ev[1].1, ContactEvent::PressStart { t_us } if t_us == 8 * 16_667));
 }
 
+/// The frame indices of the starts and ends of presses in `pattern` ('x':
+/// touched, else untouched; 2 reference frames first), timestamped at
+/// `period_us` apart (or all at 0).
+fn starts_and_ends(pattern: &str, period_us: u64) -> Vec<String> {
+    starts_and_ends_with(ContactConfig::default(), pattern, period_us)
+}
+
+/// [`starts_and_ends`] with the detector's configuration `cfg` (its
+/// reference from 2 frames, no stale or lighting rule).
+fn starts_and_ends_with(cfg: ContactConfig, pattern: &str, period_us: u64) -> Vec<String> {
+    let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
+    let touched = RgbImage::from_pixel(240, 320, Rgb([104, 104, 104]));
+    let mut det = ContactDetector::new(ContactConfig {
+        reference_frames: 2,
+        stale_after_ms: 0.0,
+        lighting_check: false,
+        ..cfg
+    });
+    pattern
+        .chars()
+        .enumerate()
+        .filter_map(|(i, c)| {
+            let f = if c == 'x' { &touched } else { &base };
+            match det.update(f, i as u64 * period_us).event? {
+                ContactEvent::PressStart { t_us } => {
+                    assert_eq!(t_us % period_us.max(1), 0);
+                    Some(format!("{i}:start@{}", t_us / period_us.max(1)))
+                }
+                ContactEvent::PressEnd { .. } => Some(format!("{i}:end")),
+                _ => None,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn runs_count_in_capture_time_so_a_press_starts_as_soon_at_30_fps_as_at_60() {
+    // At 60 fps: 3 frames in a row start a press (33 ms from the first), 5
+    // end it (67 ms), as the frame rule alone did.
+    assert_eq!(
+        starts_and_ends("..__xx__xxxxxx...xxxx______", 16_667),
+        ["10:start@8", "25:end"]
+    );
+    // At 30 fps (the DIGIT's VGA rate) the same 33 ms come on the second
+    // frame of the run and the 67 ms on the third: a 2-frame touch is a
+    // press, a 2-frame gap holds it, 3 frames under the threshold end it.
+    assert_eq!(
+        starts_and_ends("..__x__xx_xx__x___xxx", 33_333),
+        ["8:start@7", "17:end", "19:start@18"]
+    );
+    // A single frame over the threshold never starts a press, however far
+    // apart frames come (15 fps: 67 ms), and a single quiet frame never
+    // ends one; two quiet frames 67 ms apart do.
+    assert_eq!(
+        starts_and_ends("..x..x.xx.xx..", 66_667),
+        ["8:start@7", "13:end"]
+    );
+    // Timestamps that do not advance (no clock): the frame rule, 3 and 5.
+    assert_eq!(
+        starts_and_ends("..xx..xxx....x.....", 0),
+        ["8:start@0", "18:end"]
+    );
+    // With `enter_ms` and `exit_ms` at 0 the frames alone count, at any rate.
+    let frames_only = ContactConfig {
+        enter_ms: 0.0,
+        exit_ms: 0.0,
+        ..Default::default()
+    };
+    assert_eq!(
+        starts_and_ends_with(frames_only, "..x__xx_xxx___x_____", 33_333),
+        ["10:start@8", "19:end"]
+    );
+}
+
 #[test]
 fn a_stale_reference_is_recaptured_and_recapture_works_on_command() {
     let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
