@@ -84,7 +84,12 @@ struct Counters {
     presses_received: u64,
     latents_received: u64,
     decisions: u64,
+    /// Frames the source or the encoder rejected.
     bad_frames: u64,
+    /// Recordings of a replay (`sensor = replay:<dir>`) skipped because
+    /// they could not be read, had no frames, or stopped being readable
+    /// part-way (the rest of that one skipped).
+    recordings_skipped: u64,
     refused: u64,
 }
 

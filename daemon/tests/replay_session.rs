@@ -4,7 +4,9 @@
 //! one press, decided as its own fabric, in order: the front end starts
 //! afresh on each recording with the recording's own reference, and a
 //! recording that ends in contact ends its press there. The recordings
-//! come from three sensor units, whose no-contact frames differ.
+//! come from three sensor units, whose no-contact frames differ. A
+//! recording that cannot be read is skipped, said, and counted as such
+//! (`recordings_skipped`), not as bad frames.
 #[path = "harness/mod.rs"]
 mod harness;
 
@@ -31,6 +33,10 @@ fn a_directory_of_recordings_replays_as_one_press_each_in_order() {
         let dir = rec.path().join(format!("{k}-{textile}"));
         telextiles_sim::recording::write_press(&dir, &press).unwrap();
     }
+    // A recording that cannot be read, between the second and the third.
+    let broken = rec.path().join("1a-broken");
+    std::fs::create_dir_all(&broken).unwrap();
+    std::fs::write(broken.join("press.json"), "{ not json").unwrap();
     let setup = Setup {
         sensors: (
             format!("replay:{}", rec.path().display()),
@@ -42,6 +48,7 @@ fn a_directory_of_recordings_replays_as_one_press_each_in_order() {
     replays_in_order(
         &setup,
         &textiles,
+        &["1a-broken"],
         "one press per recording, each decided as its fabric, in order",
     );
 }
@@ -102,14 +109,17 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
     replays_in_order(
         &setup,
         &textiles,
+        &[],
         "one press per sequence, each decided as its fabric against its unit's reference",
     );
 }
 
 /// Runs the pair until B has decided two whole rounds of A's replay, and
 /// checks that B's final decisions are `textiles` twice, in order, and
-/// that A's sensor and encoder raised no error.
-fn replays_in_order(setup: &Setup, textiles: &[&str], why: &str) {
+/// that A's sensor and encoder raised no error but the skipping of the
+/// recordings named in `skipped` (each round), counted as skipped
+/// recordings and not as bad frames.
+fn replays_in_order(setup: &Setup, textiles: &[&str], skipped: &[&str], why: &str) {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -118,9 +128,29 @@ fn replays_in_order(setup: &Setup, textiles: &[&str], why: &str) {
     let pair = rt.block_on(Pair::start(setup));
     let want: Vec<&str> = textiles.iter().chain(textiles).copied().collect();
     let finals = finals_from(&pair, &want);
+    let (n_skipped, bad_frames) = rt.block_on(async {
+        (
+            counter(&pair.a, "recordings_skipped").await,
+            counter(&pair.a, "bad_frames").await,
+        )
+    });
     let (_, _, a, b) = pair.stop();
     assert_eq!(finals, want, "{why}");
-    assert_no_sensor_errors(&a);
+    // Two whole rounds went by, so each was skipped twice at least.
+    assert!(
+        n_skipped >= 2 * skipped.len() as u64 && (n_skipped == 0) == skipped.is_empty(),
+        "{n_skipped} recordings skipped, {skipped:?} expected"
+    );
+    assert_eq!(bad_frames, 0, "a skipped recording is not a bad frame");
+    let sensor_errors: Vec<_> = errors(&a)
+        .into_iter()
+        .filter(|(_, m)| m.starts_with("sensor") || m.starts_with("encoder"))
+        .collect();
+    let (said, other): (Vec<_>, Vec<_>) = sensor_errors.iter().partition(|(_, m)| {
+        m.starts_with("sensor: skipping recording ") && skipped.iter().any(|k| m.contains(k))
+    });
+    assert!(other.is_empty(), "{other:?}");
+    assert_eq!(said.is_empty(), skipped.is_empty(), "each skip is said");
     drop(b);
 }
 
@@ -157,12 +187,4 @@ fn finals_from(pair: &Pair, want: &[&str]) -> Vec<String> {
         );
         std::thread::sleep(Duration::from_millis(200));
     }
-}
-
-fn assert_no_sensor_errors(a: &Side) {
-    let sensor_errors: Vec<_> = errors(a)
-        .into_iter()
-        .filter(|(_, m)| m.starts_with("sensor") || m.starts_with("encoder"))
-        .collect();
-    assert!(sensor_errors.is_empty(), "{sensor_errors:?}");
 }

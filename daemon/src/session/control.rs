@@ -40,7 +40,7 @@ impl Daemon {
             "model": {"path": s.model.path, "sha256": s.model.sha256, "arch": s.model.arch, "dim": s.model.dim},
             "index": {"fingerprint": s.index.fingerprint(), "textiles": s.index.entries.len(), "slots": s.index.roller.n()},
             "counters": {
-                "frames": c.frames, "bad_frames": c.bad_frames,
+                "frames": c.frames, "bad_frames": c.bad_frames, "recordings_skipped": c.recordings_skipped,
                 "presses_sent": c.presses_sent, "latents_sent": c.latents_sent,
                 "presses_received": c.presses_received, "latents_received": c.latents_received,
                 "decisions": c.decisions,

@@ -201,7 +201,16 @@ pub(crate) fn sensing_thread(
                 source: "sensor".into(),
                 message: e.to_string(),
             });
-            lock(&state.counters).bad_frames += 1;
+            {
+                let mut c = lock(&state.counters);
+                match e {
+                    // A recording of a replay, not a frame: the replay
+                    // goes on with the next.
+                    SourceError::Skipped(_) => c.recordings_skipped += 1,
+                    SourceError::Fatal(_) | SourceError::Ended => {}
+                    _ => c.bad_frames += 1,
+                }
+            }
             if matches!(e, SourceError::Fatal(_) | SourceError::Ended) {
                 // Tell the peers the press is over before going.
                 sender.stop(now_us(), &mut actions);
