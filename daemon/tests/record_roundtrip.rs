@@ -778,6 +778,25 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
         }
     }
     assert!(!d.join("q.tlxi").exists() && !d.join("rec2").exists());
+    // A stray image beside a class's sensor directories is not a press of
+    // that class: the dataset is refused, naming it.
+    std::fs::copy(
+        d.join("qvga/T030/D20001/frame_0.png"),
+        d.join("qvga/T030/preview.png"),
+    )
+    .expect("copy");
+    let err = fails(
+        d,
+        &[
+            "classify", "--model", model, "--index", "p.tlxi", "--press", "qvga",
+        ],
+    );
+    assert!(
+        err.contains(
+            "holds both frames (preview.png) and sensor directories with frames (D20001/)"
+        ),
+        "{err}"
+    );
 }
 
 /// `index check` on an owner's presses with the two shipped models (the

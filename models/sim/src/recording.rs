@@ -557,9 +557,24 @@ pub fn frame_order(a: &str, b: &str) -> std::cmp::Ordering {
 /// decoding: the frames of a sequence are its PNG and JPEG files, in
 /// [`frame_order`] (numbers in names compared as numbers). Frames directly
 /// under a class directory (the image-folder layout `root/<class>/*.png`,
-/// with no serial level) are one more sequence of that class, from a
-/// sensor not named (`serial` empty).
+/// with no serial level) are the class's one sequence, from a sensor not
+/// named (`serial` empty). A class directory holding both frames and
+/// sensor directories with frames is refused, naming both: read as two
+/// layouts at once, a stray image (a preview, a photo of the fabric)
+/// would be taken for a press of that class.
 pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
+    let out = pytouch_entries(root)?;
+    if out.is_empty() {
+        return Err(invalid(
+            root,
+            "no <class>/<serial>/*.png or <class>/*.png (or .jpg) frames found (PyTouch layout)",
+        ));
+    }
+    Ok(out)
+}
+
+/// [`pytouch_index`], empty where no frames are found.
+fn pytouch_entries(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
     let name = |p: &Path| {
         p.file_name()
             .unwrap_or_default()
@@ -581,6 +596,38 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
         }
         let class = name(&class_dir);
         let own = frames(&class_dir)?;
+        let mut serials = Vec::new();
+        for serial_dir in sorted_dir(&class_dir)? {
+            if !serial_dir.is_dir() {
+                continue;
+            }
+            let files = frames(&serial_dir)?;
+            if !files.is_empty() {
+                serials.push(PytouchEntry {
+                    class: class.clone(),
+                    serial: name(&serial_dir),
+                    files,
+                });
+            }
+        }
+        if !own.is_empty() && !serials.is_empty() {
+            let listed = |names: Vec<String>| {
+                let n = names.len();
+                let mut s = names.into_iter().take(3).collect::<Vec<_>>().join(", ");
+                if n > 3 {
+                    s.push_str(&format!(" and {} more", n - 3));
+                }
+                s
+            };
+            return Err(invalid(
+                &class_dir,
+                format!(
+                    "holds both frames ({}) and sensor directories with frames ({}): a class directory is one sequence (<class>/*.png) or one per sensor (<class>/<serial>/*.png), not both; move what is not a recording out of it",
+                    listed(own.iter().map(|p| name(p)).collect()),
+                    listed(serials.iter().map(|e| format!("{}/", e.serial)).collect()),
+                ),
+            ));
+        }
         if !own.is_empty() {
             out.push(PytouchEntry {
                 class: class.clone(),
@@ -588,25 +635,7 @@ pub fn pytouch_index(root: &Path) -> Result<Vec<PytouchEntry>, RecordingError> {
                 files: own,
             });
         }
-        for serial_dir in sorted_dir(&class_dir)? {
-            if !serial_dir.is_dir() {
-                continue;
-            }
-            let files = frames(&serial_dir)?;
-            if !files.is_empty() {
-                out.push(PytouchEntry {
-                    class: class.clone(),
-                    serial: name(&serial_dir),
-                    files,
-                });
-            }
-        }
-    }
-    if out.is_empty() {
-        return Err(invalid(
-            root,
-            "no <class>/<serial>/*.png or <class>/*.png (or .jpg) frames found (PyTouch layout)",
-        ));
+        out.extend(serials);
     }
     Ok(out)
 }
@@ -725,20 +754,28 @@ pub fn find_recordings(root: &Path) -> Result<Vec<Recording>, RecordingError> {
         dirs.sort();
         return Ok(dirs.into_iter().map(Recording::Press).collect());
     }
-    find_recordings_pytouch(root).map_err(|_| {
-        invalid(
+    let entries = pytouch_entries(root)?;
+    if entries.is_empty() {
+        return Err(invalid(
             root,
             "no press.json found below it, and not a PyTouch layout (<class>/<serial>/*.png, <class>/*.png, or .jpg) either",
-        )
-    })
+        ));
+    }
+    Ok(recordings_of(entries))
 }
 
 fn find_recordings_pytouch(root: &Path) -> Result<Vec<Recording>, RecordingError> {
     let entries = pytouch_index(root)?;
+    Ok(recordings_of(entries))
+}
+
+/// PyTouch sequences as recordings, each with its serial's number among the
+/// dataset's serials in sorted order as its sensor unit.
+fn recordings_of(entries: Vec<PytouchEntry>) -> Vec<Recording> {
     let mut serials: Vec<String> = entries.iter().map(|e| e.serial.clone()).collect();
     serials.sort();
     serials.dedup();
-    Ok(entries
+    entries
         .into_iter()
         .map(|entry| {
             let unit = serials.iter().position(|s| *s == entry.serial).unwrap_or(0) as u32;
@@ -748,7 +785,7 @@ fn find_recordings_pytouch(root: &Path) -> Result<Vec<Recording>, RecordingError
                 fps: None,
             }
         })
-        .collect())
+        .collect()
 }
 
 /// [`find_recordings`], with `fps` (when given) as the frame rate of

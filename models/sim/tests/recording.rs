@@ -218,8 +218,8 @@ fn pytouch_layout_reads_and_names_bad_files() {
 }
 
 /// The image-folder layout `<class>/*.png` (no serial level): one sequence
-/// per class from a sensor not named, beside any `<class>/<serial>`
-/// sequences.
+/// per class from a sensor not named, beside other classes'
+/// `<class>/<serial>` sequences. A class directory with both is refused.
 #[test]
 fn frames_directly_under_a_class_are_one_sequence_of_an_unnamed_sensor() {
     let sim = Simulator::new().unwrap();
@@ -229,7 +229,7 @@ fn frames_directly_under_a_class_are_one_sequence_of_an_unnamed_sensor() {
     for dir in [
         root.join("cotton"),
         root.join("wool"),
-        root.join("wool/D20001"),
+        root.join("yak/D20001"),
     ] {
         std::fs::create_dir_all(&dir).unwrap();
         for (i, f) in p.frames.iter().take(2).enumerate() {
@@ -250,13 +250,32 @@ fn frames_directly_under_a_class_are_one_sequence_of_an_unnamed_sensor() {
             (root.join("cotton"), None, "cotton".to_string()),
             (root.join("wool"), None, "wool".to_string()),
             (
-                root.join("wool/D20001"),
+                root.join("yak/D20001"),
                 Some("D20001".to_string()),
-                "wool".to_string()
+                "yak".to_string()
             ),
         ]
     );
     assert_eq!(recs[0].load().unwrap().frames, p.frames[..2].to_vec());
+    // A stray image (a preview, a photo of the fabric) beside a class's
+    // sensor directories is not read as one more press of that class: the
+    // dataset is refused, naming the class directory, the image and the
+    // sensor directories, by every reader.
+    p.frames[0].save(root.join("yak/preview.png")).unwrap();
+    for e in [
+        recording::find_recordings(root).unwrap_err(),
+        recording::find_recordings_at(root, Some(30.0)).unwrap_err(),
+        recording::pytouch_index(root).unwrap_err(),
+        read_pytouch(root).unwrap_err(),
+    ] {
+        let e = e.to_string();
+        assert!(e.contains(&root.join("yak").display().to_string()), "{e}");
+        assert!(e.contains("holds both frames (preview.png)"), "{e}");
+        assert!(e.contains("(D20001/)"), "{e}");
+        assert!(e.contains("not both"), "{e}");
+    }
+    std::fs::remove_file(root.join("yak/preview.png")).unwrap();
+    assert_eq!(recording::find_recordings(root).unwrap(), recs);
     // A class directory holding neither frames nor sequences is no dataset.
     let empty = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(empty.path().join("cotton")).unwrap();
