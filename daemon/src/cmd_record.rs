@@ -27,7 +27,8 @@ use telextiles_progress::Progress;
 use telextiles_sensing::contact::{ContactConfig, ContactDetector};
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::record::{
-    PressSummary, RecordEvent, RecordLabel, RecordedPress, Recorder, RecorderConfig,
+    lead_with_reference, PressSummary, RecordEvent, RecordLabel, RecordedPress, Recorder,
+    RecorderConfig,
 };
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
@@ -105,6 +106,15 @@ pub struct Args {
     /// VGA].
     #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
     pub fps: Option<f32>,
+    /// With --sensor replay: the sensor's no-contact frame (an RGB PNG or
+    /// JPEG, taken with nothing touching the gel) for recordings that
+    /// carry no reference of their own (PyTouch data, often cut to the
+    /// press): `PNG` for every sensor, `SERIAL=PNG` for one (repeat it).
+    /// Each such recording is replayed against it, and each press saved
+    /// from it starts with the image as its no-contact frames, so it
+    /// carries its reference from then on.
+    #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
+    pub references: Vec<String>,
 }
 
 /// A source and what its presses are labelled with.
@@ -120,8 +130,12 @@ struct Opened {
 enum Frames {
     /// One endless stream (a DIGIT, the simulator), with a frame budget.
     Live(Box<dyn FrameSource>, Option<u64>),
-    /// Recordings, each replayed with its own reference.
-    Replay(Vec<telextiles_sim::recording::Recording>),
+    /// Recordings, each replayed with its own reference, else the one
+    /// given for its sensor.
+    Replay(
+        Vec<telextiles_sim::recording::Recording>,
+        telextiles_sensing::front::References,
+    ),
 }
 
 /// Frames between simulated presses: the contact detector's reference
@@ -131,6 +145,9 @@ const SIM_GAP_FRAMES: usize = 48;
 fn open(args: &Args, first_seed: u64) -> Result<Opened> {
     if args.fps.is_some() && !matches!(args.sensor, SensorArg::Replay(_)) {
         bail!("--fps is for --sensor replay:<dir> (recordings saved without timestamps); a live sensor's frames carry their own");
+    }
+    if !args.references.is_empty() && !matches!(args.sensor, SensorArg::Replay(_)) {
+        bail!("--reference is for --sensor replay:<dir> (recordings that carry no no-contact frames); a live sensor's is captured before each press");
     }
     match &args.sensor {
         SensorArg::Sim => {
@@ -162,13 +179,14 @@ fn open(args: &Args, first_seed: u64) -> Result<Opened> {
             // PyTouch-style dataset.
             let recordings = telextiles_sim::recording::find_recordings_at(dir, args.fps)
                 .with_context(|| format!("no recordings to replay under {}", dir.display()))?;
+            let references = telextiles_sensing::front::References::from_args(&args.references)?;
             let desc = format!(
                 "replay of {} recordings under {}",
                 recordings.len(),
                 dir.display()
             );
             Ok(Opened {
-                frames: Frames::Replay(recordings),
+                frames: Frames::Replay(recordings, references),
                 serial: None,
                 sensor_unit: 0,
                 jig: false,
@@ -664,7 +682,8 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 s.drain(&mut rec, false);
             }
         }
-        Frames::Replay(recordings) => {
+        Frames::Replay(recordings, references) => {
+            let cfg = RecorderConfig::default();
             for r in &recordings {
                 let d = &r.path();
                 if s.done() {
@@ -674,14 +693,31 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                     interrupted = true;
                     break;
                 }
-                let press = r
+                let mut press = r
                     .load()
                     .with_context(|| format!("cannot replay {}", d.display()))?;
-                let meta = press.meta.clone();
                 // Each recording with its own reference, as every reader
-                // takes it (`front::recording_reference`), else captured
+                // takes it (`front::recording_reference`), else the one
+                // given for its sensor, led in as its no-contact frames so
+                // that the presses saved from it carry it, else captured
                 // from its first frames.
+                if telextiles_sensing::front::recording_reference(&press).is_none() {
+                    if let Some(px) = references.given(press.meta.sensor_serial.as_deref()) {
+                        press = lead_with_reference(&press, px, cfg.min_quiet_frames);
+                    }
+                }
+                let meta = press.meta.clone();
                 let press_ref = telextiles_sensing::front::recording_reference(&press);
+                if press_ref.is_none() {
+                    // Its first frames become its reference, and the
+                    // quiet frames saved before each press with it: say
+                    // so, since they may be pressed.
+                    s.guide.line(&format!(
+                        "note: {}{}",
+                        d.display(),
+                        crate::cmd_classify::no_reference_hint(false)
+                    ));
+                }
                 let mut src = RecordedSource::from_press(
                     press,
                     Pace::AsFastAsPossible,
@@ -694,7 +730,7 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 let mut rec = Recorder::new(
                     RecorderConfig {
                         fps: Some(meta.fps),
-                        ..RecorderConfig::default()
+                        ..cfg.clone()
                     },
                     RecordLabel {
                         sensor_serial: meta.sensor_serial.clone(),

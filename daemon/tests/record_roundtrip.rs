@@ -384,6 +384,137 @@ fn record_replay_re_records_presses_with_their_own_reference() {
     assert!(err.contains("no recordings to replay under empty"), "{err}");
 }
 
+/// A PyTouch sequence cut to the press (its first frame already pressed,
+/// no reference of its own), re-recorded with `--reference` for its
+/// sensor: replayed against that frame, and saved as a press that starts
+/// with it as its no-contact frames, so it carries its reference from then
+/// on (`classify` finds the press with no `--reference`). Without one the
+/// command says that its first frames became its reference; with a live
+/// sensor the flag is refused.
+#[test]
+fn record_replay_gives_a_cut_sequence_the_reference_given_for_its_sensor() {
+    use telextiles_sim::{PressSpec, Simulator};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let model = model();
+    let model = model.to_str().expect("utf-8 path");
+    let sim = Simulator::new().expect("simulator");
+    let press = sim
+        .render_press(&PressSpec {
+            release: Some(true),
+            ..PressSpec::new("T050", 31)
+        })
+        .expect("press");
+    let hold = press.meta.params.as_ref().expect("params").hold_frame as usize;
+    let seq = d.join("cut/wool/D00001");
+    std::fs::create_dir_all(&seq).expect("mkdir");
+    for (i, f) in press.frames[hold..].iter().enumerate() {
+        f.save(seq.join(format!("{i:04}.png"))).expect("png");
+    }
+    press.frames[0].save(d.join("bg.png")).expect("png");
+    let record = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "record",
+            "--textile",
+            "wool",
+            "--presses",
+            "1",
+            "--out",
+            out,
+            "--sensor",
+            "replay:cut",
+        ];
+        args.extend_from_slice(extra);
+        run(d, &args)
+    };
+    // Without the reference its first, pressed frames become the
+    // reference (what it then sees is the fabric shifting and the
+    // release, not the press): said, with the way out.
+    let o = record("plain", &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("note: cut/wool/D00001 (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"),
+        "{err}"
+    );
+    // With it (for its serial, or for every sensor): one press, led by the
+    // given frame as its reference frames, bit-exact.
+    for (out, arg) in [("given", "D00001=bg.png"), ("any", "bg.png")] {
+        let o = record(out, &["--reference", arg]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let saved = d.join(out).join("wool/0001");
+        let m = meta(&saved);
+        assert_eq!(m["sensor_serial"], "D00001", "{m}");
+        let k = m["reference_frames"].as_u64().expect("reference frames");
+        assert_eq!(k, 8, "{m}");
+        let names = m["frames"].as_array().expect("frames");
+        for name in &names[..k as usize] {
+            let f =
+                telextiles_sim::recording::read_frame(&saved.join(name.as_str().expect("name")))
+                    .expect("frame");
+            assert!(f == press.frames[0], "{name} is the given frame");
+        }
+        let f = telextiles_sim::recording::read_frame(
+            &saved.join(names[k as usize].as_str().expect("name")),
+        )
+        .expect("frame");
+        assert!(f != press.frames[0], "the press follows its reference");
+    }
+    // The saved press needs no --reference any more.
+    for t in ["T030", "T080"] {
+        let p = sim.render_press(&PressSpec::new(t, 10)).expect("press");
+        telextiles_sim::recording::write_press(&d.join("index").join(t).join("0001"), &p)
+            .expect("write");
+    }
+    ok(
+        d,
+        &[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "index",
+            "-o",
+            "i.tlxi",
+        ],
+    );
+    let out = ok(
+        d,
+        &[
+            "classify", "--model", model, "--index", "i.tlxi", "--press", "given", "--json",
+        ],
+    );
+    let reports: Vec<serde_json::Value> = out
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).expect("json line"))
+        .collect();
+    assert_eq!(reports.len(), 1, "{out}");
+    assert!(reports[0]["frames"].as_u64().expect("frames") > 30, "{out}");
+    // A live sensor's reference is its own: the flag is refused.
+    let err = fails(
+        d,
+        &[
+            "record",
+            "--textile",
+            "T050",
+            "--presses",
+            "1",
+            "--out",
+            "live",
+            "--sensor",
+            "sim",
+            "--reference",
+            "bg.png",
+        ],
+    );
+    assert!(
+        err.contains("--reference is for --sensor replay:<dir>"),
+        "{err}"
+    );
+    assert!(!d.join("live").exists());
+}
+
 #[test]
 fn record_errors_say_what_to_do() {
     let tmp = tempfile::tempdir().expect("tempdir");

@@ -644,6 +644,52 @@ impl Recorder {
     }
 }
 
+/// `press` led by `n` frames of `reference` (a no-contact frame of its
+/// sensor given from outside, 240x320x3 RGB values 0..255 as
+/// [`crate::front::References`] holds them), declared as its reference
+/// frames (`meta.reference_frames`): how a recording that carries no
+/// reference of its own, and may start already pressed (PyTouch data cut
+/// to the press), is replayed into presses that carry one (`telextilesd
+/// record --sensor replay:<dir> --reference`). The lead-in frames come one
+/// frame period apart (`meta.fps`) and the recording's own frames follow
+/// the last of them one period on, their spacing kept.
+///
+/// # Panics
+/// If `reference` is not 240x320x3 long.
+pub fn lead_with_reference(press: &Press, reference: &[f32], n: usize) -> Press {
+    let image = RgbImage::from_raw(
+        crate::frame::FRAME_W,
+        crate::frame::FRAME_H,
+        reference
+            .iter()
+            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+            .collect(),
+    )
+    .expect("a 240x320 RGB reference");
+    let fps = if press.meta.fps.is_finite() && press.meta.fps > 0.0 {
+        press.meta.fps as f64
+    } else {
+        60.0
+    };
+    let period = (1e6 / fps).round() as u64;
+    let first = press.meta.timestamps_us.first().copied().unwrap_or(0);
+    let mut meta = press.meta.clone();
+    meta.timestamps_us = (0..n as u64)
+        .map(|i| i * period)
+        .chain(
+            press
+                .meta
+                .timestamps_us
+                .iter()
+                .map(|&t| n as u64 * period + t.saturating_sub(first)),
+        )
+        .collect();
+    meta.reference_frames = Some(n as u32);
+    let mut frames = vec![image; n];
+    frames.extend(press.frames.iter().cloned());
+    Press { meta, frames }
+}
+
 /// Frames per second from `n` frames spanning `span_us` (60 when it cannot
 /// be measured), rounded to 0.01.
 pub fn measured_fps(n: usize, span_us: u64) -> f32 {
@@ -730,6 +776,64 @@ mod tests {
         };
         let p = sim.render_press(&spec).expect("render");
         (sim, p)
+    }
+
+    #[test]
+    fn a_given_reference_leads_the_press_as_its_reference_frames() {
+        let sim = Simulator::new().unwrap();
+        let press = sim.render_press(&PressSpec::new("T030", 3)).unwrap();
+        let hold = press.meta.params.as_ref().unwrap().hold_frame as usize;
+        // Cut to the press, as shared datasets are, at 30 fps, with no
+        // reference of its own.
+        let mut cut = Press {
+            meta: press.meta.clone(),
+            frames: press.frames[hold..].to_vec(),
+        };
+        cut.meta.fps = 30.0;
+        cut.meta.reference_frames = None;
+        cut.meta.timestamps_us = (0..cut.frames.len() as u64)
+            .map(|i| 1_000 + i * 33_333)
+            .collect();
+        let bg = crate::front::pixels_of(&press.frames[0]);
+        let led = lead_with_reference(&cut, &bg, 8);
+        assert_eq!(led.frames.len(), cut.frames.len() + 8);
+        assert_eq!(led.meta.reference_frames, Some(8));
+        assert!(led.frames[..8].iter().all(|f| *f == press.frames[0]));
+        assert_eq!(led.frames[8..], cut.frames[..]);
+        // One period apart, the recording's own spacing kept after them.
+        assert_eq!(
+            &led.meta.timestamps_us[..9],
+            &[0, 33_333, 66_666, 99_999, 133_332, 166_665, 199_998, 233_331, 266_664]
+        );
+        assert_eq!(
+            led.meta.timestamps_us[9] - led.meta.timestamps_us[8],
+            33_333
+        );
+        // Every reader now takes the given frame as its reference, exactly.
+        assert_eq!(crate::front::recording_reference(&led), Some(bg.clone()));
+        // And the recorder keeps a press from it, led by those frames.
+        let mut det = ContactDetector::with_reference_pixels(ContactConfig::default(), &bg);
+        let mut rec = Recorder::new(
+            RecorderConfig {
+                fps: Some(30.0),
+                ..RecorderConfig::default()
+            },
+            RecordLabel::new("T030", "replay"),
+        );
+        for (i, (f, &t)) in led.frames.iter().zip(&led.meta.timestamps_us).enumerate() {
+            let u = det.update(f, t);
+            rec.push(&frame(f, t, i as u64), &u);
+        }
+        rec.finish();
+        let mut kept = None;
+        while let Some(e) = rec.poll() {
+            if let RecordEvent::PressComplete(p) = e {
+                kept = Some(p.press);
+            }
+        }
+        let kept = kept.expect("a press");
+        assert_eq!(kept.meta.reference_frames, Some(8));
+        assert!(kept.frames[..8].iter().all(|f| *f == press.frames[0]));
     }
 
     #[test]
