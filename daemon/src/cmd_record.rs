@@ -684,6 +684,7 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
         }
         Frames::Replay(recordings, references) => {
             let cfg = RecorderConfig::default();
+            let mut told_no_reference = false;
             for r in &recordings {
                 let d = &r.path();
                 if s.done() {
@@ -708,10 +709,12 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 }
                 let meta = press.meta.clone();
                 let press_ref = telextiles_sensing::front::recording_reference(&press);
-                if press_ref.is_none() {
+                if press_ref.is_none() && !told_no_reference {
                     // Its first frames become its reference, and the
                     // quiet frames saved before each press with it: say
-                    // so, since they may be pressed.
+                    // so (once, for the first such recording), since
+                    // they may be pressed.
+                    told_no_reference = true;
                     s.guide.line(&format!(
                         "note: {}{}",
                         d.display(),

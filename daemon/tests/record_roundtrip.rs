@@ -412,30 +412,40 @@ fn record_replay_gives_a_cut_sequence_the_reference_given_for_its_sensor() {
         f.save(seq.join(format!("{i:04}.png"))).expect("png");
     }
     press.frames[0].save(d.join("bg.png")).expect("png");
+    // A second sensor's sequence after it (the same frames).
+    let seq2 = d.join("cut/wool/D00002");
+    std::fs::create_dir_all(&seq2).expect("mkdir");
+    for e in std::fs::read_dir(&seq).expect("read") {
+        let p = e.expect("entry").path();
+        std::fs::copy(&p, seq2.join(p.file_name().expect("name"))).expect("copy");
+    }
     let record = |out: &str, extra: &[&str]| {
         let mut args = vec![
             "record",
             "--textile",
             "wool",
-            "--presses",
-            "1",
             "--out",
             out,
             "--sensor",
             "replay:cut",
         ];
+        if !extra.contains(&"--presses") {
+            args.extend(["--presses", "1"]);
+        }
         args.extend_from_slice(extra);
         run(d, &args)
     };
     // Without the reference its first, pressed frames become the
     // reference (what it then sees is the fabric shifting and the
     // release, not the press): said, with the way out.
-    let o = record("plain", &[]);
+    // Said once, naming the first such recording, however many follow.
+    let o = record("plain", &["--presses", "5"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         err.contains("note: cut/wool/D00001 (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"),
         "{err}"
     );
+    assert_eq!(err.matches("note: ").count(), 1, "{err}");
     // With it (for its serial, or for every sensor): one press, led by the
     // given frame as its reference frames, bit-exact.
     for (out, arg) in [("given", "D00001=bg.png"), ("any", "bg.png")] {
