@@ -47,12 +47,42 @@ fn meta(dir: &Path) -> serde_json::Value {
 
 /// The press reports of `classify --json` on one query press of T030 and
 /// one of T080: two, each decided as the fabric its path names.
-fn each_press_right(out: &str) -> Vec<serde_json::Value> {
-    let reports: Vec<serde_json::Value> = out
-        .lines()
+/// The objects `classify --json` printed, one per press.
+fn reports(out: &str) -> Vec<serde_json::Value> {
+    out.lines()
         .filter(|l| l.starts_with('{'))
         .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect();
+        .collect()
+}
+
+/// `index build` of one simulated press (seed 10) each of T030 and T080,
+/// saved as press directories under `d/index`, into `d/<out>`.
+fn two_textile_index(d: &Path, model: &str, out: &str) {
+    let sim = telextiles_sim::Simulator::new().expect("simulator");
+    for t in ["T030", "T080"] {
+        let p = sim
+            .render_press(&telextiles_sim::PressSpec::new(t, 10))
+            .expect("press");
+        telextiles_sim::recording::write_press(&d.join("index").join(t).join("0001"), &p)
+            .expect("write");
+    }
+    ok(
+        d,
+        &[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "index",
+            "-o",
+            out,
+        ],
+    );
+}
+
+fn each_press_right(out: &str) -> Vec<serde_json::Value> {
+    let reports = reports(out);
     assert_eq!(reports.len(), 2, "{out}");
     for r in &reports {
         let source = r["source"].as_str().expect("source");
@@ -470,35 +500,14 @@ fn record_replay_gives_a_cut_sequence_the_reference_given_for_its_sensor() {
         assert!(f != press.frames[0], "the press follows its reference");
     }
     // The saved press needs no --reference any more.
-    for t in ["T030", "T080"] {
-        let p = sim.render_press(&PressSpec::new(t, 10)).expect("press");
-        telextiles_sim::recording::write_press(&d.join("index").join(t).join("0001"), &p)
-            .expect("write");
-    }
-    ok(
-        d,
-        &[
-            "index",
-            "build",
-            "--model",
-            model,
-            "--presses",
-            "index",
-            "-o",
-            "i.tlxi",
-        ],
-    );
+    two_textile_index(d, model, "i.tlxi");
     let out = ok(
         d,
         &[
             "classify", "--model", model, "--index", "i.tlxi", "--press", "given", "--json",
         ],
     );
-    let reports: Vec<serde_json::Value> = out
-        .lines()
-        .filter(|l| l.starts_with('{'))
-        .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect();
+    let reports = reports(&out);
     assert_eq!(reports.len(), 1, "{out}");
     assert!(reports[0]["frames"].as_u64().expect("frames") > 30, "{out}");
     // A live sensor's reference is its own: the flag is refused.
@@ -804,35 +813,16 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
             img.save(dir.join(format!("frame_{i}.png"))).expect("png");
         }
     };
-    for t in ["T030", "T080"] {
-        write("index", t, 10, false);
-    }
+    two_textile_index(d, model, "p.tlxi");
     write("qvga", "T030", 100, false);
     write("vga", "T030", 100, true);
-    ok(
-        d,
-        &[
-            "index",
-            "build",
-            "--model",
-            model,
-            "--presses",
-            "index",
-            "-o",
-            "p.tlxi",
-        ],
-    );
     let classify = |set: &str, extra: &[&str]| -> serde_json::Value {
         let mut args = vec![
             "classify", "--model", model, "--index", "p.tlxi", "--press", set, "--json",
         ];
         args.extend_from_slice(extra);
         let out = ok(d, &args);
-        let reports: Vec<serde_json::Value> = out
-            .lines()
-            .filter(|l| l.starts_with('{'))
-            .map(|l| serde_json::from_str(l).expect("json line"))
-            .collect();
+        let reports = reports(&out);
         assert_eq!(reports.len(), 1, "{out}");
         assert_eq!(reports[0]["textile"], "T030", "{out}");
         reports[0].clone()
