@@ -7,14 +7,16 @@
 # index does not have".
 #
 #   bash models/lab/scripts/unknown-study.sh
+#   K=5 bash models/lab/scripts/unknown-study.sh   # 5 index presses per textile
 #
 # Each query press is decided twice: against the study's index (its
 # textile is known: a flag is a false alarm) and against the index of the
-# other textiles (a flag is a detection). Split: the first 3 presses of
-# each textile build the index. Reports go to
-# docs/bench-v2/unknown-recorded/<set>-k3-<distance>/. About 15 minutes on
-# 2 cores with the sets already written.
+# other textiles (a flag is a detection). Split: the first K presses
+# (default 3) of each textile build the index. Reports go to
+# docs/bench-v2/unknown-recorded/<set>-k<K>-<distance>/. About 15 minutes
+# on 2 cores with the sets already written.
 set -euo pipefail
+K=${K:-3}
 cd "$(dirname "$0")/../../.."
 # shellcheck source=recorded-sets.sh
 . models/lab/scripts/recorded-sets.sh
@@ -22,8 +24,8 @@ for set in c2hand c2g2hand simrec/recordings; do
     name=${set%%/*}
     for distance in ":cosine" "--index-metric:metric"; do
         # shellcheck disable=SC2086
-        study "docs/bench-v2/unknown-recorded/$name-k3-${distance##*:}" \
-            --source "presses:$T/$set" --index-presses 3 ${distance%%:*} \
+        study "docs/bench-v2/unknown-recorded/$name-k$K-${distance##*:}" \
+            --source "presses:$T/$set" --index-presses "$K" ${distance%%:*} \
             --unknown-quantiles 0.8,0.9,0.95,0.99,1
     done
 done
