@@ -416,6 +416,19 @@ pub fn pixels_of(image: &image::RgbImage) -> Vec<f32> {
     image.as_raw().iter().map(|&v| v as f32).collect()
 }
 
+/// The inverse of [`pixels_of`]: reference pixels (240x320x3 RGB, 0..255)
+/// as an image, each value rounded; None when they are not 240x320x3.
+pub fn image_of(pixels: &[f32]) -> Option<image::RgbImage> {
+    image::RgbImage::from_raw(
+        crate::frame::FRAME_W,
+        crate::frame::FRAME_H,
+        pixels
+            .iter()
+            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+            .collect(),
+    )
+}
+
 /// A frame of a recording seen in contact.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactFrame {

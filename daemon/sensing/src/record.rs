@@ -657,15 +657,7 @@ impl Recorder {
 /// # Panics
 /// If `reference` is not 240x320x3 long.
 pub fn lead_with_reference(press: &Press, reference: &[f32], n: usize) -> Press {
-    let image = RgbImage::from_raw(
-        crate::frame::FRAME_W,
-        crate::frame::FRAME_H,
-        reference
-            .iter()
-            .map(|&v| v.round().clamp(0.0, 255.0) as u8)
-            .collect(),
-    )
-    .expect("a 240x320 RGB reference");
+    let image = crate::front::image_of(reference).expect("a 240x320 RGB reference");
     let fps = if press.meta.fps.is_finite() && press.meta.fps > 0.0 {
         press.meta.fps as f64
     } else {

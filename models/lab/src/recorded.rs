@@ -278,12 +278,7 @@ pub struct Processor {
 
 /// Reference pixels (f32, 0..255) as an image.
 pub(crate) fn reference_image(px: &[f32]) -> Result<image::RgbImage> {
-    let bytes: Vec<u8> = px
-        .iter()
-        .map(|v| v.round().clamp(0.0, 255.0) as u8)
-        .collect();
-    image::RgbImage::from_raw(telextiles_sim::WIDTH, telextiles_sim::HEIGHT, bytes)
-        .context("reference of the wrong size")
+    telextiles_sensing::front::image_of(px).context("reference of the wrong size")
 }
 
 impl Processor {
