@@ -490,6 +490,16 @@ struct SplitArgs {
     /// 60 fps for 240x320 or 320x240, 30 for VGA].
     #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
     fps: Option<f32>,
+    /// The contact detector's `enter_ms` (a run of two or more frames over
+    /// its threshold that spans this long starts a press; 0: only its 3
+    /// frames) [default: the daemon's, 30].
+    #[arg(long, value_parser = contact_ms)]
+    contact_enter_ms: Option<f32>,
+    /// The contact detector's `exit_ms` (a run of two or more frames under
+    /// its threshold that spans this long ends a press; 0: only its 5
+    /// frames) [default: the daemon's, 60].
+    #[arg(long, value_parser = contact_ms)]
+    contact_exit_ms: Option<f32>,
     /// The decider's indexes learn a distance from their presses, with
     /// this shrinkage (within-fabric whitening, as `telextilesd index
     /// build --presses` does by default; without a value 0.5). Without
@@ -504,6 +514,15 @@ struct SplitArgs {
     /// e.g. 0.9,0.95,1.
     #[arg(long, value_delimiter = ',', value_parser = telextiles_index::build::parse_quantile)]
     unknown_quantiles: Vec<f32>,
+}
+
+fn contact_ms(s: &str) -> Result<f32, String> {
+    let ms: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if ms.is_finite() && ms >= 0.0 {
+        Ok(ms)
+    } else {
+        Err(format!("{s} ms: expected 0 or more"))
+    }
 }
 
 fn shrinkage(s: &str) -> Result<f32, String> {
@@ -536,13 +555,15 @@ impl SplitArgs {
             || !self.unknown_quantiles.is_empty()
             || !self.references.is_empty()
             || self.fps.is_some()
+            || self.contact_enter_ms.is_some()
+            || self.contact_exit_ms.is_some()
     }
 
     /// Refuse these options for a source that is not recordings.
     fn refuse_unless_presses(&self) -> Result<()> {
         ensure!(
             !self.given(),
-            "--index-presses/--split/--encode-run/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
+            "--index-presses/--split/--encode-run/--contact-enter-ms/--contact-exit-ms/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
         );
         Ok(())
     }
@@ -558,6 +579,12 @@ impl SplitArgs {
         cfg.unknown_quantiles = self.unknown_quantiles.clone();
         cfg.references = telextiles_sensing::front::References::from_args(&self.references)?;
         cfg.fps = self.fps;
+        if let Some(ms) = self.contact_enter_ms {
+            cfg.contact.enter_ms = ms;
+        }
+        if let Some(ms) = self.contact_exit_ms {
+            cfg.contact.exit_ms = ms;
+        }
         cfg.threads = 1;
         Ok(cfg)
     }
@@ -1408,6 +1435,59 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_contact_detectors_run_times_are_set_from_the_command_line() {
+        use clap::Parser;
+        let study = |extra: &[&str]| {
+            let mut args = vec![
+                "telextiles-lab",
+                "bench",
+                "--source",
+                "presses:x",
+                "--out",
+                "o",
+            ];
+            args.extend_from_slice(extra);
+            let super::Cmd::Bench(b) = super::Cli::try_parse_from(args).unwrap().cmd else {
+                panic!("bench")
+            };
+            b.recorded.study(std::path::Path::new("x")).unwrap().contact
+        };
+        let daemon = telextiles_sensing::contact::ContactConfig::default();
+        assert_eq!(study(&[]), daemon);
+        let c = study(&["--contact-enter-ms", "0", "--contact-exit-ms", "0"]);
+        assert_eq!((c.enter_ms, c.exit_ms), (0.0, 0.0));
+        assert_eq!(c.min_enter_frames, daemon.min_enter_frames);
+        let c = study(&["--contact-exit-ms", "0"]);
+        assert_eq!((c.enter_ms, c.exit_ms), (daemon.enter_ms, 0.0));
+        assert!(super::Cli::try_parse_from([
+            "telextiles-lab",
+            "bench",
+            "--source",
+            "presses:x",
+            "--out",
+            "o",
+            "--contact-enter-ms",
+            "-1",
+        ])
+        .is_err());
+        assert!(super::Cli::try_parse_from([
+            "telextiles-lab",
+            "bench",
+            "--source",
+            "sim",
+            "--out",
+            "o",
+            "--contact-enter-ms",
+            "0",
+        ])
+        .map(|c| match c.cmd {
+            super::Cmd::Bench(b) => b.recorded.refuse_unless_presses().is_err(),
+            _ => false,
+        })
+        .unwrap());
+    }
+
     #[test]
     fn decider_switch_reproduces_the_committed_pick_which_is_the_shipped_rule() {
         use std::path::Path;
