@@ -90,6 +90,9 @@ struct Counters {
     /// they could not be read, had no frames, or stopped being readable
     /// part-way (the rest of that one skipped).
     recordings_skipped: u64,
+    /// Messages from peers the receiver core refused (a latent of the
+    /// wrong dimension, not finite or zero; a press stop's final latent
+    /// likewise): each dropped, nothing else changed.
     refused: u64,
 }
 

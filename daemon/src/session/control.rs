@@ -43,7 +43,7 @@ impl Daemon {
                 "frames": c.frames, "bad_frames": c.bad_frames, "recordings_skipped": c.recordings_skipped,
                 "presses_sent": c.presses_sent, "latents_sent": c.latents_sent,
                 "presses_received": c.presses_received, "latents_received": c.latents_received,
-                "decisions": c.decisions,
+                "decisions": c.decisions, "refused": c.refused,
             },
         })
     }

@@ -81,7 +81,7 @@ pub struct Pair {
     stop: Arc<std::sync::atomic::AtomicBool>,
 }
 
-fn free_udp_port() -> u16 {
+pub fn free_udp_port() -> u16 {
     std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -89,7 +89,9 @@ fn free_udp_port() -> u16 {
         .port()
 }
 
-fn spawn(
+/// Starts one daemon `name` under `work/name` (whose `state/` holds its
+/// identity and trust store), listening at `listen`, dialling `connect`.
+pub fn spawn(
     name: &'static str,
     work: &Path,
     listen: SocketAddr,
@@ -167,7 +169,8 @@ fn proc_sample(pid: u32) -> Option<(f64, u64)> {
     Some((cpu, rss_kb * 1024))
 }
 
-async fn connect(side: &Side) -> Client {
+/// A control-socket client of `side`, once its socket is up (60 s at most).
+pub async fn connect(side: &Side) -> Client {
     let t0 = Instant::now();
     loop {
         match Client::connect(&side.socket).await {
@@ -182,6 +185,17 @@ async fn connect(side: &Side) -> Client {
     }
 }
 
+/// `dir/state` as `telextilesd pair` leaves it: `me`'s identity and a
+/// trust store holding `peer` under `peer_name`.
+pub fn paired_state(dir: &Path, me: &Identity, peer: &Identity, peer_name: &str) {
+    let state = dir.join("state");
+    std::fs::create_dir_all(&state).unwrap();
+    me.save(&state).unwrap();
+    let mut st = TrustStore::load(&state).unwrap();
+    st.insert(PeerRecord::new(peer.cert_der().clone(), peer_name, SystemTime::now()).unwrap());
+    st.save().unwrap();
+}
+
 impl Pair {
     /// Starts both daemons (already paired), waits until they are connected.
     pub async fn start(setup: &Setup) -> Pair {
@@ -189,14 +203,7 @@ impl Pair {
         let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
         for (name, me, peer, peer_name) in [("a", &ia, &ib, "bench-b"), ("b", &ib, &ia, "bench-a")]
         {
-            let state = work.path().join(name).join("state");
-            std::fs::create_dir_all(&state).unwrap();
-            me.save(&state).unwrap();
-            let mut st = TrustStore::load(&state).unwrap();
-            st.insert(
-                PeerRecord::new(peer.cert_der().clone(), peer_name, SystemTime::now()).unwrap(),
-            );
-            st.save().unwrap();
+            paired_state(&work.path().join(name), me, peer, peer_name);
         }
         let a_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
         let b_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
