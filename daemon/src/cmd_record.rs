@@ -13,7 +13,9 @@
 //! Sources: `digit[:SERIAL]` (a DIGIT over V4L2), `sim` (simulated presses
 //! of the catalogue textile `--textile`, one after another, as fast as they
 //! render: unattended, for tests), `replay:<dir>` (re-record every press
-//! found under `<dir>`, as fast as they read).
+//! found under `<dir>`, as fast as they read; without `--textile`, each
+//! under its recording's own textile, so a whole dataset converts in one
+//! command).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -76,15 +78,20 @@ impl FromStr for SensorArg {
 /// Options of `telextilesd record`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Textile id: the presses go into <out>/<id>/ and are labelled with it.
+    /// Textile id: the presses go into <out>/<id>/ and are labelled with
+    /// it. With --sensor replay:<dir> it may be left out: each recording's
+    /// presses then go under the recording's own textile (its press.json's,
+    /// or its PyTouch class), with its sensor serial, so a whole dataset
+    /// is converted in one command.
     #[arg(long)]
-    pub textile: String,
+    pub textile: Option<String>,
     /// Human-readable name of the textile, stored in <out>/<id>/textile.json.
     #[arg(long)]
     pub name: Option<String>,
-    /// Presses to record.
+    /// Presses to record (in all). With --sensor replay:<dir> it may be
+    /// left out: every press found.
     #[arg(long)]
-    pub presses: u32,
+    pub presses: Option<u32>,
     /// Directory of recordings (one sub-directory per textile).
     #[arg(long)]
     pub out: PathBuf,
@@ -142,7 +149,7 @@ enum Frames {
 /// capture, then enough quiet frames for the recorder's reference and ready.
 const SIM_GAP_FRAMES: usize = 48;
 
-fn open(args: &Args, first_seed: u64) -> Result<Opened> {
+fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Result<Opened> {
     if args.fps.is_some() && !matches!(args.sensor, SensorArg::Replay(_)) {
         bail!("--fps is for --sensor replay:<dir> (recordings saved without timestamps); a live sensor's frames carry their own");
     }
@@ -152,26 +159,26 @@ fn open(args: &Args, first_seed: u64) -> Result<Opened> {
     match &args.sensor {
         SensorArg::Sim => {
             let sim = Arc::new(Simulator::new()?);
-            if sim.catalogue().get(&args.textile).is_none() {
+            if sim.catalogue().get(textile).is_none() {
                 bail!(
                     "--sensor sim presses textiles of the built-in catalogue (T001..T119, U01..U20), not {:?}",
-                    args.textile
+                    textile
                 );
             }
-            let spec = PressSpec::new(args.textile.clone(), first_seed);
+            let spec = PressSpec::new(textile, first_seed);
             let per_press = (SIM_GAP_FRAMES + spec.frames) as u64;
             let (src, _handle) = SimSource::new(sim, spec, SIM_GAP_FRAMES, Pace::AsFastAsPossible)
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
             // Every simulated press is accepted in practice; a few spare
             // presses, then give up rather than loop for ever.
-            let budget = per_press * (args.presses as u64 * 2 + 2);
+            let budget = per_press * (presses.unwrap_or(1) as u64 * 2 + 2);
             Ok(Opened {
                 frames: Frames::Live(Box::new(src), Some(budget)),
                 serial: Some("SIM0000".into()),
                 sensor_unit: 0,
                 jig: true,
                 source: "sim",
-                desc: format!("simulated DIGIT pressing {}", args.textile),
+                desc: format!("simulated DIGIT pressing {textile}"),
             })
         }
         SensorArg::Replay(dir) => {
@@ -368,7 +375,8 @@ impl Writer {
 /// on a terminal, plain lines otherwise.
 struct Guide {
     progress: Progress,
-    total: u32,
+    /// Presses asked for (None: every press a replay holds).
+    total: Option<u32>,
     hold_ms: f64,
     said_release: bool,
     last_hold_line: f64,
@@ -376,6 +384,11 @@ struct Guide {
 }
 
 impl Guide {
+    /// "/N" of "press k/N", or nothing when every press is recorded.
+    fn of(&self) -> String {
+        self.total.map(|t| format!("/{t}")).unwrap_or_default()
+    }
+
     fn line(&self, s: &str) {
         self.progress.println(s);
     }
@@ -392,14 +405,14 @@ impl Guide {
                 self.say("waiting: do not touch the sensor");
             }
             RecordEvent::Ready if !replay => {
-                self.line(&format!("press now ({k}/{})", self.total));
-                self.say(&format!("press now ({k}/{})", self.total));
+                self.line(&format!("press now ({k}{})", self.of()));
+                self.say(&format!("press now ({k}{})", self.of()));
             }
             RecordEvent::PressStarted { .. } => {
                 self.said_release = false;
                 self.last_hold_line = 0.0;
                 if !replay {
-                    self.line(&format!("contact ({k}/{})", self.total));
+                    self.line(&format!("contact ({k}{})", self.of()));
                 }
             }
             RecordEvent::Holding {
@@ -445,8 +458,8 @@ impl Guide {
 
     fn saved(&self, k: u32, path: &Path, s: &PressSummary) {
         self.line(&format!(
-            "saved press {k}/{}: {} frames, {:.1} s, peak contact {:.1} ({}; reference {} frames, {:.1} fps)",
-            self.total,
+            "saved press {k}{}: {} frames, {:.1} s, peak contact {:.1} ({}; reference {} frames, {:.1} fps)",
+            self.of(),
             s.frames,
             s.duration_ms / 1000.0,
             s.peak,
@@ -489,7 +502,7 @@ impl Session {
             let k = self.submitted + 1;
             self.guide.event(&e, k, replay);
             if let RecordEvent::PressComplete(p) = e {
-                if self.submitted < self.guide.total {
+                if self.guide.total.is_none_or(|t| self.submitted < t) {
                     self.submitted += 1;
                     if let Some(w) = &self.writer {
                         w.submit(self.submitted, p);
@@ -510,7 +523,7 @@ impl Session {
     }
 
     fn done(&self) -> bool {
-        self.submitted >= self.guide.total
+        self.guide.total.is_some_and(|t| self.submitted >= t)
     }
 }
 
@@ -570,11 +583,68 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Run the command; the summary goes to `out`, the guide to standard error.
 pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
-    check_id(&args.textile)?;
-    if args.presses == 0 {
+    if args.presses == Some(0) {
         bail!("--presses must be at least 1");
     }
-    let dir = args.out.join(&args.textile);
+    let replay = matches!(args.sensor, SensorArg::Replay(_));
+    let Some(textile) = args.textile.clone() else {
+        if !replay {
+            bail!(
+                "--textile is needed with --sensor {}: its presses are labelled with it (only --sensor replay:<dir> can leave it out, to save each recording's presses under the recording's own textile)",
+                sensor_name(&args.sensor)
+            );
+        }
+        if args.name.is_some() {
+            bail!("--name names the --textile given; without --textile each recording keeps its own textile (name it in <out>/<id>/textile.json)");
+        }
+        return run_each_own_textile(&args, out, stop);
+    };
+    check_id(&textile)?;
+    if !replay && args.presses.is_none() {
+        bail!(
+            "--presses is needed with --sensor {}: how many presses to record",
+            sensor_name(&args.sensor)
+        );
+    }
+    record_one(&args, &textile, args.presses, out, stop)
+}
+
+fn sensor_name(s: &SensorArg) -> String {
+    match s {
+        SensorArg::Digit(None) => "digit".into(),
+        SensorArg::Digit(Some(serial)) => format!("digit:{serial}"),
+        SensorArg::Sim => "sim".into(),
+        SensorArg::Replay(d) => format!("replay:{}", d.display()),
+    }
+}
+
+/// `record` of one textile: `<out>/<textile>/` prepared, its source opened,
+/// at most `limit` presses (None: every press of a replay) recorded.
+fn record_one(
+    args: &Args,
+    textile: &str,
+    limit: Option<u32>,
+    out: &mut dyn Write,
+    stop: &AtomicBool,
+) -> Result<()> {
+    let dir = prepare_dir(&args.out, textile, args.name.as_deref())?;
+    let first = next_number(&dir)?;
+    let opened = open(args, textile, limit, args.sim_seed.unwrap_or(first as u64))?;
+    let job = Job {
+        textile,
+        dir: &dir,
+        first,
+        limit,
+        part_of_all: false,
+    };
+    let done = record_textile(args, job, opened, out, stop, &mut false)?;
+    done.check(limit)
+}
+
+/// `<out>/<textile>/`: temporaries of an interrupted run removed, and
+/// `textile.json` written when a name is given.
+fn prepare_dir(out: &Path, textile: &str, name: Option<&str>) -> Result<PathBuf> {
+    let dir = out.join(textile);
     let stale = remove_stale_temporaries(&dir);
     if stale > 0 {
         eprintln!(
@@ -582,30 +652,191 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
             dir.display()
         );
     }
-    let first = next_number(&dir)?;
-    if let Some(name) = &args.name {
+    if let Some(name) = name {
         write_textile_info(
             &dir,
             &TextileInfo {
-                id: args.textile.clone(),
-                name: name.clone(),
+                id: textile.to_string(),
+                name: name.to_string(),
             },
         )?;
     }
-    let opened = open(&args, args.sim_seed.unwrap_or(first as u64))?;
+    Ok(dir)
+}
+
+/// The textile a recording is labelled with: its `press.json`'s, or its
+/// PyTouch class.
+fn textile_of(r: &telextiles_sim::recording::Recording) -> Result<String> {
+    use telextiles_sim::recording::Recording;
+    Ok(match r {
+        Recording::Press(p) => {
+            telextiles_sim::recording::read_meta(p)
+                .with_context(|| format!("cannot replay {}", p.display()))?
+                .textile
+        }
+        Recording::Pytouch { entry, .. } => entry.class.clone(),
+    })
+}
+
+/// `record --sensor replay:<dir>` without `--textile`: the presses of each
+/// recording saved under the recording's own textile, one textile after
+/// another (in the order the walk finds them), each with its sensor's
+/// serial, at most `--presses` in all.
+fn run_each_own_textile(args: &Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
+    let opened = open(args, "", args.presses, 0)?;
+    let Frames::Replay(recordings, references) = opened.frames else {
+        unreachable!("only a replay records without --textile")
+    };
+    let mut groups: Vec<(String, Vec<telextiles_sim::recording::Recording>)> = Vec::new();
+    for r in recordings {
+        let t = textile_of(&r)?;
+        check_id(&t).with_context(|| {
+            format!(
+                "{} is labelled {t:?}: record it with --textile and an id of your choosing",
+                r.path().display()
+            )
+        })?;
+        match groups.iter_mut().find(|(g, _)| *g == t) {
+            Some((_, v)) => v.push(r),
+            None => groups.push((t, vec![r])),
+        }
+    }
+    eprintln!(
+        "{}: {} textile{} ({}), each press saved under its recording's own",
+        opened.desc,
+        groups.len(),
+        if groups.len() == 1 { "" } else { "s" },
+        groups
+            .iter()
+            .map(|(t, _)| t.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let started = std::time::Instant::now();
+    let mut saved = 0;
+    let mut textiles = 0;
+    let mut told_no_reference = false;
+    for (textile, recordings) in groups {
+        let left = args.presses.map(|p| p - saved);
+        if left == Some(0) {
+            break;
+        }
+        let dir = prepare_dir(&args.out, &textile, None)?;
+        let first = next_number(&dir)?;
+        let n = recordings.len();
+        let one = Opened {
+            frames: Frames::Replay(recordings, references.clone()),
+            serial: None,
+            sensor_unit: 0,
+            jig: false,
+            source: "replay",
+            desc: format!("{n} of its recordings"),
+        };
+        let job = Job {
+            textile: &textile,
+            dir: &dir,
+            first,
+            limit: left,
+            part_of_all: true,
+        };
+        let done = record_textile(args, job, one, out, stop, &mut told_no_reference)?;
+        saved += done.saved;
+        textiles += usize::from(done.saved > 0);
+        if done.interrupted {
+            bail!("interrupted: {saved} presses saved (the press in progress was dropped)");
+        }
+    }
+    writeln!(
+        out,
+        "recorded {saved} presses of {textiles} textiles into {} in {:.1} s",
+        args.out.display(),
+        started.elapsed().as_secs_f64()
+    )?;
+    if let Some(p) = args.presses {
+        if saved < p {
+            bail!("only {saved} of {p} presses recorded: the recordings are all replayed");
+        }
+    }
+    if saved == 0 {
+        bail!("no press found in the recordings");
+    }
+    Ok(())
+}
+
+/// How a textile's recording ended.
+struct Done {
+    saved: u32,
+    interrupted: bool,
+    /// Why it stopped before its presses were all recorded.
+    ran_out: Option<String>,
+}
+
+impl Done {
+    /// The error for a run that was interrupted, or stopped short of the
+    /// presses asked for.
+    fn check(self, limit: Option<u32>) -> Result<()> {
+        if self.interrupted {
+            bail!(
+                "interrupted: {} of {} presses saved (the press in progress was dropped)",
+                self.saved,
+                limit.map_or("the".into(), |l| l.to_string())
+            );
+        }
+        match (self.ran_out, limit) {
+            (Some(why), Some(l)) if self.saved < l => {
+                bail!("only {} of {l} presses recorded: {why}", self.saved)
+            }
+            (Some(_), None) if self.saved == 0 => bail!("no press found in the recordings"),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// One textile's share of a `record` run.
+struct Job<'a> {
+    textile: &'a str,
+    /// `<out>/<textile>/`.
+    dir: &'a Path,
+    /// The number of the first press saved.
+    first: u32,
+    /// At most this many presses (None: every one a replay holds).
+    limit: Option<u32>,
+    /// One textile of a run over several (`--presses` counts them all).
+    part_of_all: bool,
+}
+
+/// Records `job`'s presses from `opened`; the summary line goes to `out`.
+/// A press that could not be saved is an error. `told_no_reference`: a
+/// replayed recording without a reference was already pointed out.
+fn record_textile(
+    args: &Args,
+    job: Job<'_>,
+    opened: Opened,
+    out: &mut dyn Write,
+    stop: &AtomicBool,
+    told_no_reference: &mut bool,
+) -> Result<Done> {
+    let Job {
+        textile,
+        dir,
+        first,
+        limit,
+        part_of_all,
+    } = job;
     let label = RecordLabel {
-        textile: args.textile.clone(),
+        textile: textile.to_string(),
         source: opened.source.to_string(),
         sensor_serial: opened.serial.clone(),
         sensor: opened.sensor_unit,
         person: 0,
         jig: opened.jig,
     };
+    let asked = match limit {
+        Some(n) if !part_of_all => format!("{n} press{}", if n == 1 { "" } else { "es" }),
+        _ => "every press".into(),
+    };
     eprintln!(
-        "recording {} press{} of {}{} from {} into {} (from {first:04})",
-        args.presses,
-        if args.presses == 1 { "" } else { "es" },
-        args.textile,
+        "recording {asked} of {textile}{} from {} into {} (from {first:04})",
         args.name
             .as_deref()
             .map(|n| format!(" \"{n}\""))
@@ -613,17 +844,18 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
         opened.desc,
         dir.display()
     );
-    let progress = Progress::new(
-        &format!("record {}", args.textile),
-        args.presses as u64,
-        "presses",
-    );
+    let bar_len = match (&opened.frames, limit) {
+        (_, Some(n)) => n as u64,
+        (Frames::Replay(r, _), None) => r.len() as u64,
+        (Frames::Live(..), None) => 0,
+    };
+    let progress = Progress::new(&format!("record {textile}"), bar_len, "presses");
     let plain = !std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let writer = Writer::new(dir.clone(), first);
+    let writer = Writer::new(dir.to_path_buf(), first);
     let mut s = Session {
         guide: Guide {
             progress,
-            total: args.presses,
+            total: limit,
             hold_ms: args.hold * 1000.0,
             said_release: false,
             last_hold_line: 0.0,
@@ -684,7 +916,6 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
         }
         Frames::Replay(recordings, references) => {
             let cfg = RecorderConfig::default();
-            let mut told_no_reference = false;
             for r in &recordings {
                 let d = &r.path();
                 if s.done() {
@@ -709,12 +940,12 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
                 }
                 let meta = press.meta.clone();
                 let press_ref = telextiles_sensing::front::recording_reference(&press);
-                if press_ref.is_none() && !told_no_reference {
+                if press_ref.is_none() && !*told_no_reference {
                     // Its first frames become its reference, and the
                     // quiet frames saved before each press with it: say
                     // so (once, for the first such recording), since
                     // they may be pressed.
-                    told_no_reference = true;
+                    *told_no_reference = true;
                     s.guide.line(&format!(
                         "note: {}{}",
                         d.display(),
@@ -779,10 +1010,12 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
     let last = s.first_number + s.saved;
     writeln!(
         out,
-        "recorded {} of {} presses of {} into {} in {:.1} s{}",
+        "recorded {}{} presses of {textile} into {} in {:.1} s{}",
         s.saved,
-        args.presses,
-        args.textile,
+        match limit {
+            Some(l) if !part_of_all => format!(" of {l}"),
+            _ => String::new(),
+        },
         dir.display(),
         started.elapsed().as_secs_f64(),
         if s.saved > 0 {
@@ -794,23 +1027,11 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
     if let Some(e) = s.errors.into_iter().next() {
         return Err(e.context("a press could not be saved"));
     }
-    if interrupted {
-        bail!(
-            "interrupted: {} of {} presses saved (the press in progress was dropped)",
-            s.saved,
-            args.presses
-        );
-    }
-    if let Some(why) = ran_out {
-        if s.saved < args.presses {
-            bail!(
-                "only {} of {} presses recorded: {why}",
-                s.saved,
-                args.presses
-            );
-        }
-    }
-    Ok(())
+    Ok(Done {
+        saved: s.saved,
+        interrupted,
+        ran_out,
+    })
 }
 
 /// A recording started over the control socket (`record.start`): the

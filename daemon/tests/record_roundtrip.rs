@@ -534,6 +534,171 @@ fn record_replay_gives_a_cut_sequence_the_reference_given_for_its_sensor() {
     assert!(!d.join("live").exists());
 }
 
+/// A whole PyTouch dataset converted in one command, as a DIGIT owner
+/// would take in a shared one: `record --sensor replay:<dataset>` without
+/// `--textile` saves each sequence's press under its own class, with its
+/// sensor's serial and the reference given for that sensor, and without
+/// `--presses` takes every press. The converted presses are then read like
+/// the owner's own (`classify` with no `--reference` decides each as its
+/// class). `--presses` caps the total; asking for more than the dataset
+/// holds fails after saving what it found. Press directories are grouped
+/// by their own label; a label that is no textile id is refused before
+/// anything is written.
+#[test]
+fn record_replay_without_a_textile_converts_a_whole_dataset_under_its_classes() {
+    use telextiles_sim::{PressSpec, Simulator};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let model = model();
+    let model = model.to_str().expect("utf-8 path");
+    let sim = Simulator::new().expect("simulator");
+    // <class>/<serial>/*.png, cut to the press; two units, whose
+    // no-contact frames differ, each given as its serial's reference.
+    for (unit, serial) in [(0, "D00001"), (1, "D00002")] {
+        for (k, textile) in ["T030", "T080"].into_iter().enumerate() {
+            let press = sim
+                .render_press(&PressSpec {
+                    sensor: unit,
+                    release: Some(true),
+                    ..PressSpec::new(textile, 40 + k as u64 + 10 * unit as u64)
+                })
+                .expect("press");
+            let hold = press.meta.params.as_ref().expect("params").hold_frame as usize;
+            let seq = d.join("ds").join(textile).join(serial);
+            std::fs::create_dir_all(&seq).expect("mkdir");
+            for (i, f) in press.frames[hold..].iter().enumerate() {
+                f.save(seq.join(format!("{i:04}.png"))).expect("png");
+            }
+            press.frames[0]
+                .save(d.join(format!("bg-{serial}.png")))
+                .expect("png");
+        }
+    }
+    let refs = [
+        "--reference",
+        "D00001=bg-D00001.png",
+        "--reference",
+        "D00002=bg-D00002.png",
+    ];
+    let record = |out: &str, extra: &[&str]| {
+        let mut args = vec!["record", "--out", out, "--sensor", "replay:ds"];
+        args.extend_from_slice(&refs);
+        args.extend_from_slice(extra);
+        run(d, &args)
+    };
+    let o = record("conv", &[]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("recorded 4 presses of 2 textiles into conv"),
+        "{stdout}"
+    );
+    for textile in ["T030", "T080"] {
+        let mut serials = Vec::new();
+        for n in ["0001", "0002"] {
+            let m = meta(&d.join("conv").join(textile).join(n));
+            assert_eq!(m["textile"], textile, "{m}");
+            assert_eq!(m["reference_frames"], 8, "{m}");
+            serials.push(m["sensor_serial"].as_str().expect("serial").to_string());
+        }
+        assert_eq!(serials, ["D00001", "D00002"], "{textile}");
+        assert!(!d.join("conv").join(textile).join("0003").exists());
+    }
+    // Read like the owner's own presses: no --reference needed any more.
+    two_textile_index(d, model, "i.tlxi");
+    let out = ok(
+        d,
+        &[
+            "classify", "--model", model, "--index", "i.tlxi", "--press", "conv", "--json",
+        ],
+    );
+    let reports = reports(&out);
+    assert_eq!(reports.len(), 4, "{out}");
+    for r in &reports {
+        let source = r["source"].as_str().expect("source");
+        let truth = if source.contains("T030") {
+            "T030"
+        } else {
+            "T080"
+        };
+        assert_eq!(r["textile"], truth, "{r}");
+    }
+    // --presses caps the total: the first class's two, then one.
+    let o = record("three", &["--presses", "3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(d.join("three/T030/0002").exists() && d.join("three/T080/0001").exists());
+    assert!(!d.join("three/T080/0002").exists());
+    // More than the dataset holds: what it holds is saved, then it fails.
+    let o = record("nine", &["--presses", "9"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("only 4 of 9 presses recorded: the recordings are all replayed"),
+        "{err}"
+    );
+    assert!(d.join("nine/T080/0002").exists());
+    // --name names a --textile; a live sensor needs both flags.
+    let err = String::from_utf8_lossy(&record("named", &["--name", "Wool"]).stderr).into_owned();
+    assert!(err.contains("--name names the --textile given"), "{err}");
+    for (args, want) in [
+        (
+            vec![
+                "record",
+                "--presses",
+                "1",
+                "--out",
+                "live",
+                "--sensor",
+                "sim",
+            ],
+            "--textile is needed with --sensor sim",
+        ),
+        (
+            vec![
+                "record",
+                "--textile",
+                "T030",
+                "--out",
+                "live",
+                "--sensor",
+                "sim",
+            ],
+            "--presses is needed with --sensor sim",
+        ),
+    ] {
+        let err = fails(d, &args);
+        assert!(err.contains(want), "{err}");
+    }
+    assert!(!d.join("named").exists() && !d.join("live").exists());
+    // Press directories are grouped by their press.json's textile: the
+    // converted presses re-recorded land under the same ids.
+    let o = run(d, &["record", "--out", "again", "--sensor", "replay:conv"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for textile in ["T030", "T080"] {
+        assert_eq!(
+            meta(&d.join("again").join(textile).join("0002"))["textile"],
+            textile
+        );
+    }
+    // A label that cannot be a directory name: refused, naming the
+    // recording, before any press is written.
+    let bad = d.join("pd/x/0001");
+    std::fs::create_dir_all(d.join("pd/x")).expect("mkdir");
+    std::fs::rename(d.join("again/T080/0001"), &bad).expect("move");
+    let mut m = meta(&bad);
+    m["textile"] = "wool/felt".into();
+    std::fs::write(bad.join("press.json"), m.to_string()).expect("write");
+    std::fs::rename(d.join("again/T030/0001"), d.join("pd/x/0000")).expect("move");
+    let o = run(d, &["record", "--out", "bad", "--sensor", "replay:pd"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("pd/x/0001 is labelled \"wool/felt\": record it with --textile"),
+        "{err}"
+    );
+    assert!(!d.join("bad").exists(), "nothing written");
+}
+
 #[test]
 fn record_errors_say_what_to_do() {
     let tmp = tempfile::tempdir().expect("tempdir");
