@@ -6,8 +6,9 @@
 //! zero), press stops carrying such final latents, stops and starts out of
 //! order, and datagrams that do not decode at all. The daemon counts each
 //! refusal in `status` (`refused`), logs them rate-limited, reports the
-//! undecodable datagrams as link errors, keeps running, and decides the
-//! peer's next honest press as the fabric it is.
+//! undecodable datagrams as link errors and counts each (`bad_datagrams`),
+//! keeps running, and decides the peer's next honest press as the fabric
+//! it is.
 #[path = "harness/mod.rs"]
 mod harness;
 
@@ -186,9 +187,12 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
     let st = status_until(&daemon, "the refusals counted", |s| {
         let c = &s["counters"];
         let got = c["latents_received"].as_u64().unwrap_or(0);
-        got > 0 && c["refused"].as_u64() == Some(got + bad_stops)
+        got > 0
+            && c["refused"].as_u64() == Some(got + bad_stops)
+            && c["bad_datagrams"].as_u64() == Some(4)
     })
     .await;
+    assert_eq!(st["counters"]["latents_dropped"], 0, "{st:#}");
     let c = &st["counters"];
     assert!(
         c["latents_received"].as_u64().unwrap() <= bad_datagrams as u64,

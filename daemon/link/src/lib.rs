@@ -420,6 +420,9 @@ pub(crate) struct Shared {
     pub refusals: Mutex<RateLimit>,
     /// The mDNS advert, to withdraw its pairing flag when pairing ends.
     pub advert: Mutex<Option<std::sync::Weak<discovery::Discovery>>>,
+    /// What [`LinkHandle::stats`] reports.
+    pub bad_datagrams: AtomicU64,
+    pub latents_dropped: AtomicU64,
 }
 
 impl Shared {
@@ -427,8 +430,13 @@ impl Shared {
         let _ = self.events.send(ev).await;
     }
 
+    /// Emits without waiting: an event that finds the channel full is
+    /// dropped (a latent is counted in [`LinkStats::latents_dropped`]).
     pub(crate) fn emit_now(&self, ev: LinkEvent) {
-        let _ = self.events.try_send(ev);
+        if let Err(mpsc::error::TrySendError::Full(LinkEvent::Latent(_))) = self.events.try_send(ev)
+        {
+            self.latents_dropped.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     pub(crate) fn is_up(&self, id: &DeviceId) -> bool {
@@ -487,6 +495,20 @@ fn make_server_config(
         .incoming_buffer_size(limits::INCOMING_BUFFER)
         .incoming_buffer_size_total(limits::INCOMING_BUFFER_TOTAL);
     Ok(cfg)
+}
+
+/// What the link dropped from paired peers, counted since it started
+/// ([`LinkHandle::stats`]): the errors are reported rate-limited, these
+/// count every one.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Datagrams from a connected peer that did not decode as a latent
+    /// frame (each dropped; reported as rate-limited `Error` events).
+    pub bad_datagrams: u64,
+    /// Latents received and decoded but dropped because the event channel
+    /// was full (the application did not keep up; latest wins, so a later
+    /// latent of the press takes its place).
+    pub latents_dropped: u64,
 }
 
 /// The running link. Dropping every handle does not stop it; call
@@ -595,6 +617,8 @@ impl Link {
             stopped: AtomicBool::new(false),
             conns: Mutex::new(HashMap::new()),
             refusals: Mutex::new(RateLimit::new()),
+            bad_datagrams: AtomicU64::new(0),
+            latents_dropped: AtomicU64::new(0),
             advert: Mutex::new(None),
         });
         shared.emit(LinkEvent::Listening { addr: local_addr }).await;
@@ -723,6 +747,14 @@ impl LinkHandle {
     /// This device's ID.
     pub fn device_id(&self) -> DeviceId {
         self.shared.my_id
+    }
+
+    /// Counts since the link started.
+    pub fn stats(&self) -> LinkStats {
+        LinkStats {
+            bad_datagrams: self.shared.bad_datagrams.load(Ordering::Relaxed),
+            latents_dropped: self.shared.latents_dropped.load(Ordering::Relaxed),
+        }
     }
 
     /// Peers whose hello succeeded and whose connection is alive.

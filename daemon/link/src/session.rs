@@ -1232,6 +1232,7 @@ async fn stream(
             let frame = match LatentFrame::decode(&bytes) {
                 Ok(f) => f,
                 Err(e) => {
+                    dshared.bad_datagrams.fetch_add(1, Ordering::Relaxed);
                     let msg = format!("dropped a bad latent datagram: {e}");
                     if let Some(message) = errors.check(std::time::Instant::now(), msg) {
                         dshared.emit_now(LinkEvent::Error {

@@ -395,12 +395,67 @@ async fn bad_datagram_flood_is_rate_limited_and_names_are_sanitised() {
         .iter()
         .filter(|e| matches!(e, LinkEvent::Error { message, .. } if message.contains("bad latent datagram")))
         .count();
-    println!("bad datagram flood: {errors} error events for 5000 bad datagrams");
+    let counted = a.stats().bad_datagrams;
+    println!("bad datagram flood: {errors} error events for 5000 bad datagrams, {counted} counted");
     assert!(errors >= 1, "the first bad datagram is reported");
     assert!(
         errors <= limits::ERRORS_PER_WINDOW as usize,
         "{errors} error events"
     );
+    // Every one that arrived is counted, though few are reported (the
+    // flood may lose some on the way).
+    assert!(
+        counted > limits::ERRORS_PER_WINDOW as u64 && counted <= 5000,
+        "{counted} counted"
+    );
+    assert_eq!(a.stats().latents_dropped, 0);
+    conn.close(0u32.into(), b"bye");
+    a.shutdown().await;
+}
+
+/// Latents arriving faster than the application reads its events are
+/// dropped, not queued without bound, and every one dropped is counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn latents_the_application_does_not_read_are_dropped_and_counted() {
+    let (ia, peer) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (a, mut ra) = start(config("alice"), &ia, &[&peer]).await;
+    let (_ep, conn, _send, _recv) = paired_attacker(&peer, &ia, a.local_addr(), "bob").await;
+    wait_for(&mut ra, Duration::from_secs(5), "PeerUp", |e| {
+        matches!(e, LinkEvent::PeerUp { .. }).then_some(())
+    })
+    .await;
+    // Nobody reads `ra` while 3000 latents come in.
+    let v = vec![0.25f32; 64];
+    let sent = 3000u64;
+    for seq in 1..=sent {
+        let frame = telextiles_proto::peer::LatentFrame {
+            seq,
+            capture_us: seq,
+            press_id: 1,
+            flags: 0,
+            vector: telextiles_proto::peer::QuantVec::quantize_f16(&v),
+        };
+        let _ = conn.send_datagram(frame.encode().unwrap().into());
+        if seq % 100 == 0 {
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+    }
+    let t0 = Instant::now();
+    while a.stats().latents_dropped == 0 && t0.elapsed() < Duration::from_secs(10) {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let dropped = a.stats().latents_dropped;
+    let queued = drain(&mut ra, Duration::from_millis(500))
+        .await
+        .iter()
+        .filter(|e| matches!(e, LinkEvent::Latent(_)))
+        .count() as u64;
+    println!("{sent} latents unread: {queued} queued, {dropped} dropped and counted");
+    assert!(dropped > 0, "none dropped: {queued} queued");
+    assert!(queued <= 1024, "{queued} queued: the channel is bounded");
+    assert!(queued + dropped <= sent, "{queued} + {dropped} > {sent}");
+    assert_eq!(a.stats().bad_datagrams, 0);
     conn.close(0u32.into(), b"bye");
     a.shutdown().await;
 }

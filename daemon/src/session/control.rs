@@ -18,6 +18,7 @@ impl Daemon {
     fn status(&self) -> Value {
         let s = &self.0;
         let c = lock(&s.counters);
+        let link = s.link.stats();
         let roller = s.roller.as_ref().map(|r| {
             let st = r.state();
             json!({
@@ -44,6 +45,7 @@ impl Daemon {
                 "presses_sent": c.presses_sent, "latents_sent": c.latents_sent,
                 "presses_received": c.presses_received, "latents_received": c.latents_received,
                 "decisions": c.decisions, "refused": c.refused,
+                "bad_datagrams": link.bad_datagrams, "latents_dropped": link.latents_dropped,
             },
         })
     }
