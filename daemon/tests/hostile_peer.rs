@@ -4,7 +4,8 @@
 //! encoder and index, so everything it sends reaches the receiver core.
 //! It sends latents that decode but cannot be used (wrong dimension, all
 //! zero), press stops carrying such final latents, stops and starts out of
-//! order, and datagrams that do not decode at all. The daemon counts each
+//! order, a press whose capture times run from 0 to `u64::MAX`, and
+//! datagrams that do not decode at all. The daemon counts each
 //! refusal in `status` (`refused`), logs them rate-limited, reports the
 //! undecodable datagrams as link errors and counts each (`bad_datagrams`),
 //! keeps running, and decides the peer's next honest press as the fabric
@@ -26,9 +27,13 @@ use telextiles_proto::peer::{
 const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
 
 fn datagram(seq: u64, press_id: u32, flags: u8, v: &[f32]) -> bytes::Bytes {
+    datagram_at(seq, 1_000_000 + seq * 16_667, press_id, flags, v)
+}
+
+fn datagram_at(seq: u64, capture_us: u64, press_id: u32, flags: u8, v: &[f32]) -> bytes::Bytes {
     LatentFrame {
         seq,
-        capture_us: 1_000_000 + seq * 16_667,
+        capture_us,
         press_id,
         flags,
         vector: QuantVec::quantize_f16(v),
@@ -198,6 +203,20 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
         c["latents_received"].as_u64().unwrap() <= bad_datagrams as u64,
         "{c}"
     );
+    // A press on a wild clock (its capture times at the ends of u64, its
+    // stop before its start): usable latents, so decided as what they
+    // are, with no panic and no refusal.
+    send.write_all(&start(5, u64::MAX)).await.unwrap();
+    for k in 0..6u64 {
+        seq += 1;
+        let at = [0, u64::MAX, 1][k as usize % 3];
+        conn.send_datagram(datagram_at(seq, at, 5, 0, &query))
+            .unwrap();
+    }
+    seq += 1;
+    send.write_all(&stop(5, 0, Some((seq, &query))))
+        .await
+        .unwrap();
     let refused_before = c["refused"].as_u64().unwrap();
     eprintln!(
         "refused {refused_before} ({} of {bad_datagrams} latent datagrams arrived, {bad_stops} final latents)",
@@ -222,6 +241,7 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
     let t0 = Instant::now();
     let mut finals = Vec::new();
     let mut link_errors = Vec::new();
+    let mut wild = 0;
     while finals.is_empty() {
         let left = Duration::from_secs(30).saturating_sub(t0.elapsed());
         match tokio::time::timeout(left, events.next_event()).await {
@@ -237,6 +257,16 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
                     if final_decision {
                         finals.push(textile);
                     }
+                }
+                Event::Decision {
+                    press: Some(5),
+                    ref textile,
+                    latency_ms,
+                    ..
+                } => {
+                    assert_eq!(*textile, want, "{e:?}");
+                    assert!(latency_ms.is_finite(), "{e:?}");
+                    wild += 1;
                 }
                 Event::Decision { press, .. } if press != Some(10) && press.is_some() => {
                     panic!("a decision of a refused press: {e:?}")
@@ -261,6 +291,7 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
         "the honest press refused: {c}"
     );
     assert!(c["decisions"].as_u64().unwrap() > decisions_before, "{c}");
+    assert!(wild > 0, "the wild-clock press was not decided");
     assert!(
         st["peers"].as_array().is_some_and(|p| p.len() == 1),
         "the attacker is still connected: {st:#}"
