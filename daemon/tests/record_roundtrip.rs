@@ -999,14 +999,21 @@ fn sequences_saved_without_timestamps_are_timed_at_the_streams_rate_or_the_one_g
     // The detector's 30 ms to start a press take two frames at 30 fps and
     // three at 60, so the VGA press starts on its second frame over the
     // threshold (the same first frame, so the same start) and encodes one
-    // frame more; it is decided at 100 ms, the first frame 50 ms after
-    // that second one, where at 60 fps it is 83 ms.
+    // frame more. Its leader is clear (a lead over the runner-up beyond
+    // `commit_margin`), so it is decided on the second encoded frame: at
+    // 67 ms, one 30 fps frame after that second one, where at 60 fps it
+    // is 50 ms (the third frame, 33 ms, then one more).
     assert_eq!(
         vga["frames"].as_u64(),
         qvga["frames"].as_u64().map(|n| n + 1)
     );
-    assert_eq!(qvga["decision_ms"].as_f64().map(f64::round), Some(83.0));
-    assert_eq!(vga["decision_ms"].as_f64().map(f64::round), Some(100.0));
+    assert!(
+        qvga["margin"].as_f64().expect("margin")
+            >= telextiles_sensing::decide::DecideConfig::default().commit_margin as f64,
+        "{qvga}"
+    );
+    assert_eq!(qvga["decision_ms"].as_f64().map(f64::round), Some(50.0));
+    assert_eq!(vga["decision_ms"].as_f64().map(f64::round), Some(67.0));
     assert!(ms(&qvga) > 500.0, "{qvga}");
     assert!(
         (ms(&vga) - 2.0 * ms(&qvga)).abs() < 1.0,

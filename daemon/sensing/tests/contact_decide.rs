@@ -414,7 +414,13 @@ fn toy_index() -> FlatIndex {
 #[test]
 fn no_decision_outside_a_press() {
     let idx = toy_index();
-    let mut d = Decider::new(DecideConfig::default(), 8);
+    // The confirmation rules alone: no early commit on a clear lead
+    // (`a_clear_leader_commits_at_once...` below).
+    let cfg = DecideConfig {
+        commit_margin: f32::INFINITY,
+        ..DecideConfig::default()
+    };
+    let mut d = Decider::new(cfg.clone(), 8);
     let a = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
     const P: u64 = 16_667; // 60 fps
     for k in 0..50 {
@@ -432,7 +438,6 @@ fn no_decision_outside_a_press() {
     // Counting starts min_ms after the first embedding (at once with the
     // default 0), and the textile must stay nearest for confirm_ms (50 ms:
     // from frame 100 to 103 at 60 fps).
-    let cfg = DecideConfig::default();
     assert_eq!(cfg.min_ms, 0.0);
     assert_eq!(first, Some(103));
     let out = d.press_end(130 * P).unwrap();
@@ -468,6 +473,64 @@ fn no_decision_outside_a_press() {
     let first =
         (100..130u64).find(|&k| d.on_embedding(&idx, k * P, &a).unwrap().decision.is_some());
     assert_eq!(first, Some(106));
+}
+
+/// `commit_margin`: a first decision whose leader is clearly nearest
+/// commits on the second frame of its run; a close call still waits
+/// `confirm_ms`; `f32::INFINITY` always waits. Only the first decision:
+/// a change of decision keeps its own rule.
+#[test]
+fn a_clear_leader_commits_at_once_and_a_close_call_waits_for_confirmation() {
+    let idx = toy_index();
+    const P: u64 = 16_667; // 60 fps
+    let first_at = |margin: f32, v: &[f32]| {
+        let mut d = Decider::new(
+            DecideConfig {
+                commit_margin: margin,
+                ..DecideConfig::default()
+            },
+            8,
+        );
+        d.press_start(0);
+        (0..30u64).find(|&k| d.on_embedding(&idx, k * P, v).unwrap().decision.is_some())
+    };
+    // Clear: nearer A than B by about 1.2.
+    let clear = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // Close: nearer A than B by about 0.05.
+    let close = unit(&[1.0, 0.95, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let m = |v: &[f32]| {
+        let n = idx.nearest2(v).unwrap();
+        n.second_dist - n.best_dist
+    };
+    assert!(m(&clear) > 1.0 && (0.03..0.08).contains(&m(&close)));
+    // The second frame of the run (16 ms), not the fourth (50 ms).
+    assert_eq!(first_at(0.08, &clear), Some(1));
+    assert_eq!(first_at(0.08, &close), Some(3));
+    assert_eq!(first_at(0.04, &close), Some(1));
+    assert_eq!(first_at(f32::INFINITY, &clear), Some(3));
+    // Never on a single frame, however clear.
+    assert_eq!(first_at(0.0, &clear), Some(1));
+    // A later change of decision is not hurried by a clear lead: it
+    // still waits `switch_ms`.
+    let mut d = Decider::new(
+        DecideConfig {
+            commit_margin: 0.0,
+            ..DecideConfig::default()
+        },
+        8,
+    );
+    d.press_start(0);
+    let b = unit(&[0.0, 1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    for k in 0..5u64 {
+        d.on_embedding(&idx, k * P, &clear);
+    }
+    let switched = (5..60u64).find(|&k| {
+        let s = d.on_embedding(&idx, k * P, &b).unwrap();
+        s.changed && s.decision.is_some_and(|x| idx.id(x.entry) == "B")
+    });
+    let cfg = DecideConfig::default();
+    let after_ms = (switched.unwrap() - 5) as f32 * P as f32 / 1000.0;
+    assert!(after_ms >= cfg.switch_ms, "switched after {after_ms} ms");
 }
 
 /// Ten seconds of frames halfway between A and B (A very slightly nearer)

@@ -114,6 +114,9 @@ pub struct Timing {
     /// Each change in a press multiplies the next one's time by this.
     #[serde(default = "default_switch_backoff")]
     pub switch_backoff: f32,
+    /// `DecideConfig::commit_margin` (None: always confirm).
+    #[serde(default)]
+    pub commit_margin: Option<f32>,
 }
 
 fn default_switch_margin() -> f32 {
@@ -129,6 +132,17 @@ fn default_switch_backoff() -> f32 {
 }
 
 impl Timing {
+    /// The shipped timing rules (`DecideConfig::default()`: `min_ms`,
+    /// `confirm_ms`, `commit_margin`), the run not encoded, with the
+    /// baseline switching rule.
+    pub fn shipped() -> Timing {
+        let d = DecideConfig::default();
+        Timing {
+            commit_margin: d.commit_margin.is_finite().then_some(d.commit_margin),
+            ..Timing::pair(d.min_ms, d.confirm_ms, false)
+        }
+    }
+
     /// A timing pair with the baseline switching rule.
     pub fn pair(min_ms: f32, confirm_ms: f32, run: bool) -> Timing {
         Timing {
@@ -138,6 +152,7 @@ impl Timing {
             switch_margin: default_switch_margin(),
             switch_ms: default_switch_ms(),
             switch_backoff: default_switch_backoff(),
+            commit_margin: None,
         }
     }
 
@@ -155,9 +170,12 @@ impl Timing {
             )
         };
         format!(
-            "{:.0} / {:.0}{}{sw}",
+            "{:.0} / {:.0}{}{}{sw}",
             self.min_ms,
             self.confirm_ms,
+            self.commit_margin
+                .map(|m| format!(" or margin {m:.2}"))
+                .unwrap_or_default(),
             if self.run { " + run" } else { "" }
         )
     }
@@ -197,18 +215,36 @@ pub fn switch_candidates(timing: Timing) -> Vec<Timing> {
 }
 
 /// Every candidate: each of [`PAIRS`] without the run encoded (the front
-/// end as shipped), then each with it. The first, 50 / 50 without the run,
-/// is the baseline of [`choose`].
+/// end as shipped), then each with it, then 0 / 50 with each of
+/// [`COMMIT_MARGINS`], without the run and with it. The first, 50 / 50
+/// without the run, is the baseline of [`choose`].
 pub fn candidates() -> Vec<Timing> {
-    [false, true]
+    let mut v: Vec<Timing> = [false, true]
         .into_iter()
         .flat_map(|run| {
             PAIRS
                 .iter()
                 .map(move |&(min_ms, confirm_ms)| Timing::pair(min_ms, confirm_ms, run))
         })
-        .collect()
+        .collect();
+    for run in [false, true] {
+        for m in COMMIT_MARGINS {
+            v.push(Timing {
+                commit_margin: Some(m),
+                ..Timing::pair(0.0, 50.0, run)
+            });
+        }
+    }
+    v
 }
+
+/// Margins for an early first decision (`DecideConfig::commit_margin`),
+/// each with 0 / 50 without and with the run encoded: the leader commits
+/// on the second frame of its run when it is nearer than the runner-up by
+/// the margin (the index's distance), else after `confirm_ms`. Added
+/// after [`PAIRS`], doubling from 0.01 (a third of the switching rule's
+/// 0.02... up to where few presses qualify), before any was scored.
+pub const COMMIT_MARGINS: [f32; 5] = [0.01, 0.02, 0.04, 0.08, 0.16];
 
 /// One press as the daemon saw it.
 #[derive(Clone, Debug)]
@@ -276,6 +312,7 @@ pub fn config(t: &Timing) -> DecideConfig {
         switch_margin: t.switch_margin,
         switch_ms: t.switch_ms,
         switch_backoff: t.switch_backoff,
+        commit_margin: t.commit_margin.unwrap_or(f32::INFINITY),
         ..DecideConfig::default()
     }
 }
@@ -546,9 +583,48 @@ pub fn choose_switch_across(reports: &[TimingReport]) -> Result<(Vec<TimingScore
     Ok((scores, i))
 }
 
-/// The markdown of [`choose_switch_across`]: per candidate and group, the
-/// figures the rule reads, and its pick.
+/// The timing rule across several studies: [`choose`] over the union of
+/// their timing scores (groups named as in [`choose_switch_across`]), an
+/// index into the candidates. So the pick keeps first decisions and the
+/// presses right at the end within the bounds in every group of every
+/// study, and has the highest mean share right in the worst group of any.
+/// The studies must have scored the same candidates, with different
+/// sources.
+pub fn choose_timing_across(reports: &[TimingReport]) -> Result<(Vec<TimingScore>, usize)> {
+    let first = reports.first().context("no study to combine")?;
+    let cands = &first.candidates;
+    ensure!(
+        !cands.is_empty(),
+        "{}: no timing rules scored",
+        first.source
+    );
+    let mut sources = Vec::new();
+    let mut scores = Vec::new();
+    for r in reports {
+        ensure!(
+            &r.candidates == cands,
+            "{} scored other timing rules than {}",
+            r.source,
+            first.source
+        );
+        ensure!(!sources.contains(&&r.source), "{} given twice", r.source);
+        sources.push(&r.source);
+        scores.extend(r.scores.iter().map(|x| TimingScore {
+            group: format!("{}: {}", r.source, x.group),
+            ..x.clone()
+        }));
+    }
+    let i = choose(&scores, cands)?;
+    Ok((scores, i))
+}
+
+/// The markdown of [`choose_timing_across`] and [`choose_switch_across`]:
+/// per candidate and group, the figures each rule reads, and its pick.
 pub fn markdown_across(reports: &[TimingReport], command: &str) -> Result<String> {
+    let timing = match reports.first() {
+        Some(r) if !r.candidates.is_empty() => Some(choose_timing_across(reports)?),
+        _ => None,
+    };
     let (scores, i) = choose_switch_across(reports)?;
     let cands = &reports[0].switch_candidates;
     let mut s = format!(
@@ -580,6 +656,34 @@ pub fn markdown_across(reports: &[TimingReport], command: &str) -> Result<String
         100.0 * MAX_MEAN_LOSS,
         cands[0].switch_label(),
         cands[i].switch_label()
+    ));
+    let Some((tscores, ti)) = timing else {
+        return Ok(s);
+    };
+    let tc = &reports[0].candidates;
+    s.push_str("\n# Timing rules across studies\n\n| min_ms / confirm_ms | group | right at 100 ms | right at 150 ms | mean over 0-500 ms | first decision right | right at 750 ms | switches / 100 |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
+    for (k, c) in tc.iter().enumerate() {
+        let mark = if k == ti { "**" } else { "" };
+        for x in tscores.iter().filter(|x| x.timing == *c) {
+            s.push_str(&format!(
+                "| {mark}{}{mark} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                c.label(),
+                x.group,
+                100.0 * x.right(100.0),
+                100.0 * x.right(150.0),
+                100.0 * x.mean_right,
+                100.0 * x.first_right,
+                100.0 * x.final_right,
+                x.switches_per_100
+            ));
+        }
+    }
+    s.push_str(&format!(
+        "\nThe rule (first decisions right at most {:.1} points less often, and at most {:.1} points fewer presses right at 750 ms, than with {} in every group of every study; then the highest mean share right over the first {MEAN_OVER_MS:.0} ms in the worst group) picks **{}**.\n",
+        100.0 * MAX_FIRST_LOSS,
+        100.0 * MAX_FINAL_LOSS,
+        tc[0].label(),
+        tc[ti].label()
     ));
     Ok(s)
 }
@@ -797,8 +901,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
     let chosen = cands[choose(&scores, &cands)?];
     // The switching rules at the shipped timing (the front end as
     // shipped: the run that starts a press not encoded).
-    let d = DecideConfig::default();
-    let sw_cands = switch_candidates(Timing::pair(d.min_ms, d.confirm_ms, false));
+    let sw_cands = switch_candidates(Timing::shipped());
     let mut sw_scores = Vec::new();
     for (group, jig) in [("jig", true), ("hand-held", false)] {
         let g: Vec<&PressTrace> = traces.iter().filter(|t| t.jig == jig).collect();
@@ -1004,11 +1107,21 @@ mod tests {
 
     #[test]
     fn the_shipped_timing_rules_are_a_candidate_and_the_first_is_the_old_pair() {
-        let d = DecideConfig::default();
         // The shipped front end does not encode the run (off by default).
-        assert!(candidates().contains(&t(d.min_ms, d.confirm_ms, false)));
+        let shipped = Timing::shipped();
+        assert!(!shipped.run);
+        assert!(candidates().contains(&shipped), "{}", shipped.label());
         assert_eq!(candidates()[0], t(50.0, 50.0, false));
-        assert_eq!(candidates().len(), 2 * PAIRS.len());
+        assert_eq!(
+            candidates().len(),
+            2 * PAIRS.len() + 2 * COMMIT_MARGINS.len()
+        );
+        assert_eq!(
+            config(&shipped).commit_margin,
+            DecideConfig::default().commit_margin
+        );
+        assert_eq!(t(0.0, 50.0, false).commit_margin, None);
+        assert_eq!(config(&t(0.0, 50.0, false)).commit_margin, f32::INFINITY);
     }
 
     #[test]
@@ -1280,6 +1393,74 @@ mod tests {
         assert!(choose_switch_across(&[a.clone(), c]).is_err());
         assert!(choose_switch_across(&[a.clone(), a]).is_err());
         assert!(choose_switch_across(&[]).is_err());
+    }
+
+    #[test]
+    fn across_studies_the_timing_rule_must_hold_in_every_group_of_each() {
+        let cands = vec![
+            t(50.0, 50.0, false),
+            t(0.0, 50.0, true),
+            Timing {
+                commit_margin: Some(0.08),
+                ..t(0.0, 50.0, false)
+            },
+        ];
+        // Means [base, run, margin]; first decisions right: the run loses
+        // 3 points in `first1`'s study, within the bounds elsewhere.
+        let study = |source: &str, mean: [f64; 3], first1: f64| {
+            let mut sc = Vec::new();
+            for g in ["jig", "hand-held"] {
+                for (i, &c) in cands.iter().enumerate() {
+                    let first = if i == 1 && g == "hand-held" {
+                        first1
+                    } else {
+                        0.9
+                    };
+                    sc.push(s(c, g, mean[i], first, 0.9));
+                }
+            }
+            TimingReport {
+                machine: String::new(),
+                date: String::new(),
+                command: format!("decider-timing {source}"),
+                source: source.into(),
+                model: String::new(),
+                candidates: cands.clone(),
+                scores: sc,
+                chosen: cands[0],
+                switch_candidates: switch_candidates(cands[0]),
+                switch_scores: switch_candidates(cands[0])
+                    .into_iter()
+                    .flat_map(|c| ["jig", "hand-held"].map(|g| s(c, g, 0.5, 0.5, 0.5)))
+                    .collect(),
+                switch_chosen: None,
+                detect_ms_p50: vec![],
+                undetected: vec![],
+                seconds: 0.0,
+            }
+        };
+        // Alone, catalogue 1 picks the run (the best mean, no loss); on
+        // catalogue 2 the run loses 3 points of first decisions, so across
+        // both the pick is the margin.
+        let a = study("cat 1", [0.5, 0.7, 0.6], 0.9);
+        let b = study("cat 2", [0.2, 0.3, 0.25], 0.87);
+        assert_eq!(choose(&a.scores, &cands).unwrap(), 1);
+        assert_eq!(choose(&b.scores, &cands).unwrap(), 2);
+        let (scores, i) = choose_timing_across(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(i, 2);
+        assert_eq!(scores.len(), 4 * cands.len());
+        let md = markdown_across(&[a.clone(), b.clone()], "decider-switch").unwrap();
+        assert!(md.contains("# Timing rules across studies"), "{md}");
+        assert!(
+            md.contains(&format!("picks **{}**", cands[2].label())),
+            "{md}"
+        );
+        assert!(cands[2].label().contains("or margin 0.08"));
+        let mut c = b.clone();
+        c.candidates.pop();
+        assert!(choose_timing_across(&[a.clone(), c]).is_err());
+        assert!(choose_timing_across(&[a.clone(), a]).is_err());
+        assert!(choose_timing_across(&[]).is_err());
     }
 
     #[test]

@@ -2244,16 +2244,14 @@ mod tests {
         assert_eq!(m.confusion, vec![vec![1, 0], vec![0, 0]]);
         assert_eq!(m.per_class[1].query_presses, 1);
         assert_eq!(m.per_class[1].presses_correct, 0);
-        // The decider decides a's query once the nearest has stayed for
-        // `confirm_ms` from the first frame (`min_ms` is 0): at frame
-        // times, 40 ms apart.
+        // The decider decides a's query on its second frame (frames 40 ms
+        // apart): a leads b by more than `commit_margin`, so it does not
+        // wait `confirm_ms` (`min_ms` is 0).
         assert_eq!(m.decisions[0].decider, "a");
         let t = m.decisions[0].first_decision_ms.unwrap();
         let c = DecideConfig::default();
-        assert!(
-            t >= (c.min_ms + c.confirm_ms) as f64 && (t / 40.0).fract() == 0.0,
-            "{t}"
-        );
+        assert!(c.min_ms == 0.0 && c.confirm_ms > 40.0 && c.commit_margin < 0.5);
+        assert_eq!(t, 40.0);
         assert_eq!(m.decisions[1].decider, "-");
         assert_eq!(m.decided_presses, 1);
         assert_eq!(m.press_top1_decider, 0.5);

@@ -55,13 +55,22 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
         let run = get(0.0, 50.0, true, g);
         assert!(run.first_ms_p50 <= new.first_ms_p50, "{g}: {run:?} {new:?}");
         assert!(run.first_ms_p50 >= detect + 50.0 - 1.0, "{g}: {run:?}");
+        // An early commit on a clear lead never decides later than the
+        // confirmation alone, and never before the second encoded frame
+        // (the detector's start + 17 ms).
+        let early = r
+            .scores
+            .iter()
+            .find(|s| s.timing == Timing::shipped() && s.group == g)
+            .unwrap();
+        assert!(early.first_ms_p50 <= new.first_ms_p50, "{g}: {early:?}");
+        assert!(early.first_ms_p50 >= detect + 16.0, "{g}: {early:?}");
     }
     // Three textiles in the jig: the shipped model tells them apart.
     assert!(get(0.0, 50.0, true, "jig").final_right >= 2.0 / 3.0);
     // The switching rules, scored at the shipped timing, the shipped one
     // first.
-    let d = telextiles_sensing::decide::DecideConfig::default();
-    let sw = decider_timing::switch_candidates(Timing::pair(d.min_ms, d.confirm_ms, false));
+    let sw = decider_timing::switch_candidates(Timing::shipped());
     assert_eq!(r.switch_candidates, sw);
     assert_eq!(r.switch_scores.len(), 2 * sw.len());
     assert!(sw.contains(&r.switch_chosen.unwrap()));
