@@ -82,8 +82,14 @@ fn two_textile_index(d: &Path, model: &str, out: &str) {
 }
 
 fn each_press_right(out: &str) -> Vec<serde_json::Value> {
+    each_of_n_presses_right(out, 2)
+}
+
+/// The press reports of `classify --json` on `n` query presses of T030
+/// and T080: `n`, each decided as the fabric its path names.
+fn each_of_n_presses_right(out: &str, n: usize) -> Vec<serde_json::Value> {
     let reports = reports(out);
-    assert_eq!(reports.len(), 2, "{out}");
+    assert_eq!(reports.len(), n, "{out}");
     for r in &reports {
         let source = r["source"].as_str().expect("source");
         let truth = if source.contains("T030") {
@@ -612,17 +618,7 @@ fn record_replay_without_a_textile_converts_a_whole_dataset_under_its_classes() 
             "classify", "--model", model, "--index", "i.tlxi", "--press", "conv", "--json",
         ],
     );
-    let reports = reports(&out);
-    assert_eq!(reports.len(), 4, "{out}");
-    for r in &reports {
-        let source = r["source"].as_str().expect("source");
-        let truth = if source.contains("T030") {
-            "T030"
-        } else {
-            "T080"
-        };
-        assert_eq!(r["textile"], truth, "{r}");
-    }
+    each_of_n_presses_right(&out, 4);
     // --presses caps the total: the first class's two, then one.
     let o = record("three", &["--presses", "3"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

@@ -556,31 +556,49 @@ pub fn choose_switch(scores: &[TimingScore], cands: &[Timing]) -> Result<usize> 
 /// fewest switches in the worst group of any. The studies must have scored
 /// the same candidates, with different sources.
 pub fn choose_switch_across(reports: &[TimingReport]) -> Result<(Vec<TimingScore>, usize)> {
+    let (scores, cands) = union_across(reports, "switching", |r| {
+        (&r.switch_candidates, &r.switch_scores)
+    })?;
+    let i = choose_switch(&scores, cands)?;
+    Ok((scores, i))
+}
+
+/// The scores of the same candidates in several studies, as one list
+/// whose groups are named after their study's source (`"sim, catalogue 2
+/// (generator 1): hand-held"`), and the candidates. `part` picks the
+/// candidates and scores of a study (the timing or the switching rules).
+/// An error for no study, no candidates, studies that scored other
+/// candidates, or a source given twice.
+fn union_across<'a>(
+    reports: &'a [TimingReport],
+    what: &str,
+    part: impl Fn(&'a TimingReport) -> (&'a Vec<Timing>, &'a Vec<TimingScore>),
+) -> Result<(Vec<TimingScore>, &'a [Timing])> {
     let first = reports.first().context("no study to combine")?;
-    let cands = &first.switch_candidates;
+    let cands = part(first).0;
     ensure!(
         !cands.is_empty(),
-        "{}: no switching rules scored",
+        "{}: no {what} rules scored",
         first.source
     );
     let mut sources = Vec::new();
     let mut scores = Vec::new();
     for r in reports {
+        let (c, sc) = part(r);
         ensure!(
-            &r.switch_candidates == cands,
-            "{} scored other switching rules than {}",
+            c == cands,
+            "{} scored other {what} rules than {}",
             r.source,
             first.source
         );
         ensure!(!sources.contains(&&r.source), "{} given twice", r.source);
         sources.push(&r.source);
-        scores.extend(r.switch_scores.iter().map(|x| TimingScore {
+        scores.extend(sc.iter().map(|x| TimingScore {
             group: format!("{}: {}", r.source, x.group),
             ..x.clone()
         }));
     }
-    let i = choose_switch(&scores, cands)?;
-    Ok((scores, i))
+    Ok((scores, cands))
 }
 
 /// The timing rule across several studies: [`choose`] over the union of
@@ -591,29 +609,7 @@ pub fn choose_switch_across(reports: &[TimingReport]) -> Result<(Vec<TimingScore
 /// The studies must have scored the same candidates, with different
 /// sources.
 pub fn choose_timing_across(reports: &[TimingReport]) -> Result<(Vec<TimingScore>, usize)> {
-    let first = reports.first().context("no study to combine")?;
-    let cands = &first.candidates;
-    ensure!(
-        !cands.is_empty(),
-        "{}: no timing rules scored",
-        first.source
-    );
-    let mut sources = Vec::new();
-    let mut scores = Vec::new();
-    for r in reports {
-        ensure!(
-            &r.candidates == cands,
-            "{} scored other timing rules than {}",
-            r.source,
-            first.source
-        );
-        ensure!(!sources.contains(&&r.source), "{} given twice", r.source);
-        sources.push(&r.source);
-        scores.extend(r.scores.iter().map(|x| TimingScore {
-            group: format!("{}: {}", r.source, x.group),
-            ..x.clone()
-        }));
-    }
+    let (scores, cands) = union_across(reports, "timing", |r| (&r.candidates, &r.scores))?;
     let i = choose(&scores, cands)?;
     Ok((scores, i))
 }
