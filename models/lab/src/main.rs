@@ -1535,6 +1535,41 @@ mod tests {
         }
     }
 
+    /// The studies with the early-commit margins (docs/benchmarks.md "An
+    /// early first decision when the leader is clear"): `decider-switch`
+    /// reproduces the committed `across.md`, and both rules across the
+    /// two catalogues pick what the daemon ships.
+    #[test]
+    fn decider_switch_reproduces_the_committed_timing_pick_which_is_the_shipped_timing() {
+        use std::path::Path;
+        use telextiles_lab::decider_timing as dt;
+        let docs =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/bench-v2/decider-commit-margin");
+        let studies = vec![docs.join("v1/timing.json"), docs.join("v2/timing.json")];
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("across.md");
+        super::decider_switch(super::DeciderSwitchArgs {
+            timing: studies.clone(),
+            out: Some(out.clone()),
+        })
+        .unwrap();
+        let body = |p: &Path| {
+            let s = std::fs::read_to_string(p).unwrap();
+            s.lines().skip(3).collect::<Vec<_>>().join("\n")
+        };
+        assert_eq!(body(&out), body(&docs.join("across.md")));
+        let reports: Vec<dt::TimingReport> = studies.iter().map(|p| dt::read(p).unwrap()).collect();
+        let (_, i) = dt::choose_timing_across(&reports).unwrap();
+        assert_eq!(reports[0].candidates[i], dt::Timing::shipped());
+        let (_, i) = dt::choose_switch_across(&reports).unwrap();
+        let pick = reports[0].switch_candidates[i];
+        let d = telextiles_sensing::decide::DecideConfig::default();
+        assert_eq!(
+            (pick.switch_margin, pick.switch_ms, pick.switch_backoff),
+            (d.switch_margin, d.switch_ms, d.switch_backoff)
+        );
+    }
+
     #[test]
     fn rust_descriptors_are_named_kind_bg_at_crop() {
         use telextiles_lab::baselines::{Baseline, BaselineKind};
