@@ -1497,19 +1497,8 @@ mod tests {
             docs.join("decider-v1/timing.json"),
             docs.join("decider-v2/timing.json"),
         ];
+        assert_decider_switch_reproduces(&studies, &docs.join("decider-switch.md"));
         let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("switch.md");
-        super::decider_switch(super::DeciderSwitchArgs {
-            timing: studies.clone(),
-            out: Some(out.clone()),
-        })
-        .unwrap();
-        // The committed markdown, but for its first line (the command).
-        let body = |p: &Path| {
-            let s = std::fs::read_to_string(p).unwrap();
-            s.lines().skip(3).collect::<Vec<_>>().join("\n")
-        };
-        assert_eq!(body(&out), body(&docs.join("decider-switch.md")));
         // The pick is what the daemon ships.
         let reports: Vec<dt::TimingReport> = studies.iter().map(|p| dt::read(p).unwrap()).collect();
         let (_, i) = dt::choose_switch_across(&reports).unwrap();
@@ -1535,6 +1524,26 @@ mod tests {
         }
     }
 
+    /// `decider-switch` over `studies` writes `committed`, but for its
+    /// first lines (the command).
+    fn assert_decider_switch_reproduces(
+        studies: &[std::path::PathBuf],
+        committed: &std::path::Path,
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("across.md");
+        super::decider_switch(super::DeciderSwitchArgs {
+            timing: studies.to_vec(),
+            out: Some(out.clone()),
+        })
+        .unwrap();
+        let body = |p: &std::path::Path| {
+            let s = std::fs::read_to_string(p).unwrap();
+            s.lines().skip(3).collect::<Vec<_>>().join("\n")
+        };
+        assert_eq!(body(&out), body(committed));
+    }
+
     /// The studies with the early-commit margins (docs/benchmarks.md "An
     /// early first decision when the leader is clear"): `decider-switch`
     /// reproduces the committed `across.md`, and both rules across the
@@ -1546,18 +1555,7 @@ mod tests {
         let docs =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/bench-v2/decider-commit-margin");
         let studies = vec![docs.join("v1/timing.json"), docs.join("v2/timing.json")];
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("across.md");
-        super::decider_switch(super::DeciderSwitchArgs {
-            timing: studies.clone(),
-            out: Some(out.clone()),
-        })
-        .unwrap();
-        let body = |p: &Path| {
-            let s = std::fs::read_to_string(p).unwrap();
-            s.lines().skip(3).collect::<Vec<_>>().join("\n")
-        };
-        assert_eq!(body(&out), body(&docs.join("across.md")));
+        assert_decider_switch_reproduces(&studies, &docs.join("across.md"));
         let reports: Vec<dt::TimingReport> = studies.iter().map(|p| dt::read(p).unwrap()).collect();
         let (_, i) = dt::choose_timing_across(&reports).unwrap();
         assert_eq!(reports[0].candidates[i], dt::Timing::shipped());
