@@ -165,9 +165,12 @@ struct Tally {
     /// unknown.
     foreign: usize,
     foreign_flagged: usize,
-    /// Recordings read, and those in which no press was detected.
+    /// Recordings read, those in which no press was detected, and those in
+    /// which more than one was (the sensor released and touched again
+    /// within one recording).
     recordings: usize,
     silent: usize,
+    split: usize,
 }
 
 impl Tally {
@@ -223,6 +226,12 @@ impl Tally {
             text += &format!(
                 "; no press detected in {} of {} recordings",
                 self.silent, self.recordings
+            );
+        }
+        if self.split > 0 {
+            text += &format!(
+                "; more than one press in {} of {} recordings",
+                self.split, self.recordings
             );
         }
         text
@@ -337,6 +346,14 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         if n == before {
             tally.silent += 1;
             progress.println(&format!("warning: {name}: no press detected{hint}"));
+        } else if n - before > 1 {
+            // Each is decided on its own, as the live daemon would: the
+            // contact was released and made again within the recording.
+            tally.split += 1;
+            progress.println(&format!(
+                "note: {name}: {} presses (the contact was released and made again within the recording; each is decided on its own)",
+                n - before
+            ));
         }
         progress.inc(1);
     }
@@ -583,6 +600,91 @@ mod tests {
             .line(&index),
             "summary: no press of a fabric the index holds was decided; 1 press of fabrics the index does not hold (0 flagged unknown); no press detected in 2 of 3 recordings"
         );
+        assert_eq!(
+            Tally {
+                decided: vec![(t("T030"), t("T030")); 3],
+                split: 1,
+                recordings: 2,
+                ..Tally::default()
+            }
+            .line(&index),
+            "summary: 3 of 3 presses (100.0 %) decided as the fabric they are labelled with; more than one press in 1 of 2 recordings"
+        );
+    }
+
+    /// A recording in which the sensor was pressed, released and pressed
+    /// again: two presses, each decided on its own (as the live daemon
+    /// decides them), and the summary says which recordings held more
+    /// than one.
+    #[test]
+    fn a_recording_pressed_twice_is_two_presses_and_the_summary_says_so() {
+        let dir = tempfile::tempdir().unwrap();
+        let index = index_file(dir.path());
+        let sim = Simulator::new().unwrap();
+        let press = |seed| {
+            sim.render_press(&PressSpec {
+                release: Some(true),
+                ..PressSpec::new("T030", seed)
+            })
+            .unwrap()
+        };
+        let (once, second) = (press(5), press(6));
+        assert!(once.meta.params.as_ref().unwrap().release_frame.is_some());
+        let mut twice = once.clone();
+        let ts = &once.meta.timestamps_us;
+        let (last, step) = (ts[ts.len() - 1], ts[1] - ts[0]);
+        let t0 = second.meta.timestamps_us[0];
+        twice.meta.timestamps_us.extend(
+            second
+                .meta
+                .timestamps_us
+                .iter()
+                .map(|t| t - t0 + last + step),
+        );
+        twice.frames.extend(second.frames.iter().cloned());
+        let root = dir.path().join("presses");
+        telextiles_sim::recording::write_press(&root.join("once"), &once).unwrap();
+        telextiles_sim::recording::write_press(&root.join("twice"), &twice).unwrap();
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                press: vec![root.clone()],
+                ..args(fixture_model(), index.clone())
+            },
+            &mut out,
+        )
+        .unwrap();
+        let lines = json_lines(&out);
+        let from = |name: &str| {
+            lines
+                .iter()
+                .filter(|v| v["source"].as_str().unwrap().ends_with(name))
+                .map(|v| v["textile"].as_str().map(str::to_string))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(from("once").len(), 1, "{lines:?}");
+        let parts = from("twice");
+        assert_eq!(parts.len(), 2, "{lines:?}");
+        assert!(parts.iter().all(Option::is_some), "{lines:?}");
+        // The same presses, as text: the summary names the split recording.
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                press: vec![root],
+                json: false,
+                ..args(fixture_model(), index)
+            },
+            &mut out,
+        )
+        .unwrap();
+        let text = String::from_utf8(out).unwrap();
+        let summary = text.lines().last().unwrap();
+        assert!(summary.starts_with("summary: "), "{text}");
+        assert!(
+            summary.ends_with("; more than one press in 1 of 2 recordings"),
+            "{summary}"
+        );
+        assert!(!summary.contains("without a decision"), "{summary}");
     }
 
     #[test]
