@@ -1546,26 +1546,38 @@ mod tests {
 
     /// The studies with the early-commit margins (docs/benchmarks.md "An
     /// early first decision when the leader is clear"): `decider-switch`
-    /// reproduces the committed `across.md`, and both rules across the
-    /// two catalogues pick what the daemon ships.
+    /// reproduces the committed `across.md` (both catalogues, generator 1:
+    /// the rule's choice) and `across-generators.md` (with generator 2's
+    /// presses, the check), and both rules pick what the daemon ships in
+    /// each.
     #[test]
     fn decider_switch_reproduces_the_committed_timing_pick_which_is_the_shipped_timing() {
         use std::path::Path;
         use telextiles_lab::decider_timing as dt;
         let docs =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/bench-v2/decider-commit-margin");
-        let studies = vec![docs.join("v1/timing.json"), docs.join("v2/timing.json")];
-        assert_decider_switch_reproduces(&studies, &docs.join("across.md"));
-        let reports: Vec<dt::TimingReport> = studies.iter().map(|p| dt::read(p).unwrap()).collect();
-        let (_, i) = dt::choose_timing_across(&reports).unwrap();
-        assert_eq!(reports[0].candidates[i], dt::Timing::shipped());
-        let (_, i) = dt::choose_switch_across(&reports).unwrap();
-        let pick = reports[0].switch_candidates[i];
-        let d = telextiles_sensing::decide::DecideConfig::default();
-        assert_eq!(
-            (pick.switch_margin, pick.switch_ms, pick.switch_backoff),
-            (d.switch_margin, d.switch_ms, d.switch_backoff)
-        );
+        let choice = vec![docs.join("v1/timing.json"), docs.join("v2/timing.json")];
+        let mut check = choice.clone();
+        check.push(docs.join("v2-generator2/timing.json"));
+        for (studies, committed) in [(choice, "across.md"), (check, "across-generators.md")] {
+            assert_decider_switch_reproduces(&studies, &docs.join(committed));
+            let reports: Vec<dt::TimingReport> =
+                studies.iter().map(|p| dt::read(p).unwrap()).collect();
+            let (_, i) = dt::choose_timing_across(&reports).unwrap();
+            assert_eq!(
+                reports[0].candidates[i],
+                dt::Timing::shipped(),
+                "{committed}"
+            );
+            let (_, i) = dt::choose_switch_across(&reports).unwrap();
+            let pick = reports[0].switch_candidates[i];
+            let d = telextiles_sensing::decide::DecideConfig::default();
+            assert_eq!(
+                (pick.switch_margin, pick.switch_ms, pick.switch_backoff),
+                (d.switch_margin, d.switch_ms, d.switch_backoff),
+                "{committed}"
+            );
+        }
     }
 
     #[test]
