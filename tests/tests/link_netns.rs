@@ -491,10 +491,17 @@ fn link_loss_delay_reorder_decisions_stay_right() {
     );
     assert!(f[3] > 0, "the relay reordered nothing: {stats}");
     assert!(got < 240, "10% loss dropped no latent?");
+    // The one-way latency comes from the link's clock-offset estimate,
+    // which is right only to within half the asymmetry of the round trip
+    // it was taken on: up to the relay's 20 ms jitter, plus scheduling on
+    // a loaded machine. So the median of a 50 ms delay reads between about
+    // 30 and 70 ms, and once (CI, 2026-11-29) 26.7 ms: the bounds below
+    // allow the jitter and 10 ms more either way, and still fail on a
+    // missing delay (under a millisecond through the veth) or a doubled one.
     let m = median(&mut lat);
     assert!(
-        (30_000..90_000).contains(&m),
-        "one-way latency {m} us should be about 50 ms"
+        (20_000..90_000).contains(&m),
+        "one-way latency {m} us should be about 50 ms (± the 20 ms of the relay's jitter that the clock estimate may carry)"
     );
 }
 
