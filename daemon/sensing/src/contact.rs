@@ -1,21 +1,27 @@
 //! Contact detection: compare each frame with a no-contact reference.
 //!
 //! The score is the mean absolute difference (0..255) between the frame and
-//! the reference, both averaged over 4x4 blocks (60x80 blocks x 3 channels).
-//! Thresholds are relative to the noise floor (the score of untouched frames,
-//! mostly camera noise, about 0.4 on a DIGIT), which is tracked while idle.
+//! the reference, both averaged over 4x4 blocks (60x80 blocks x 3 channels),
+//! after the best per-channel gain has been taken out of the frame
+//! (`gain_compensated`, least squares over the blocks): a wander of the
+//! LEDs' brightness or the camera's exposure changes every block of a
+//! channel by the same factor and scores as noise, while contact changes
+//! the gel's shading from place to place. Thresholds are relative to the
+//! noise floor (the score of untouched frames, mostly camera noise, about
+//! 0.4 on a DIGIT), which is tracked while idle.
 //! Hysteresis: contact starts after a run of consecutive frames with
 //! score >= floor + `enter` and ends after a run of consecutive frames with
 //! score < floor + `exit` (`exit` < `enter`). A run counts in frames and in
 //! capture time: it starts a press at `min_enter_frames` frames, or sooner
 //! once it spans `enter_ms` (never on one frame), and ends one at
-//! `min_exit_frames` frames, or sooner once it spans `exit_ms`. At the
-//! DIGIT's 60 fps both come to the same frame (3 to start, 5 to end); at
-//! its 30 fps (VGA) the time comes first (2 and 3 frames), so a press
-//! starts and ends as soon after its first frame as at 60 fps, rather than
-//! twice as late. Timestamps that do not advance (a clock that is not
-//! there) leave the frame counts in force. Press-start carries the
-//! timestamp of the first frame of the run that crossed `enter`.
+//! `min_exit_frames` frames, or sooner once it spans `exit_ms`. The
+//! defaults start a press on the second frame in a row at any frame rate
+//! and end one on the fifth at 60 fps, or once the run spans 60 ms (the
+//! third at 30 fps), so a press ends as soon after its last contact at
+//! 30 fps as at 60 rather than twice as late. Timestamps that do not
+//! advance (a clock that is not there) leave the frame counts in force.
+//! Press-start carries the timestamp of the first frame of the run that
+//! crossed `enter`.
 //!
 //! The reference is the mean of the first `reference_frames` frames (the
 //! sensor must not be touched at start), or of the frames after
@@ -114,8 +120,15 @@ pub struct ContactConfig {
     /// fabric can be mostly a brightness shift, and losing it would be
     /// worse than a rare false press after an unannounced LED step (which
     /// the stale-reference rule ends); LED changes the daemon makes itself
-    /// re-capture the reference.
+    /// re-capture the reference. With `gain_compensated` a gain change
+    /// already scores as noise, and the check never fires.
     pub lighting_check: bool,
+    /// Score what is left of the change after the best per-channel gain
+    /// (least squares over the blocks) has been taken out: a brightness
+    /// wander of the LEDs or the camera's exposure, which changes every
+    /// block by the same factor, scores as noise, while contact, which
+    /// changes the gel's shading from place to place, still scores.
+    pub gain_compensated: bool,
 }
 
 impl Default for ContactConfig {
@@ -126,10 +139,16 @@ impl Default for ContactConfig {
             exit: 0.2,
             initial_floor: 0.5,
             max_floor: 2.0,
-            min_enter_frames: 3,
-            // 3 frames at 60 fps span 33 ms, 5 span 67 ms: the margin keeps
-            // a live camera's jitter from deciding one frame early.
-            enter_ms: 30.0,
+            // Two frames in a row (`telextiles-lab contact-choose`,
+            // docs/benchmarks.md "The contact detector"): with the gain
+            // taken out, no press started on 0.29 h of simulated idle
+            // footage of 7 units, as rendered and with +0.25 % LED
+            // flicker per channel. (The span is then
+            // moot: a run of two frames always starts a press; kept at a
+            // frame at 60 fps less the jitter margin, for a config that
+            // asks for more frames.)
+            min_enter_frames: 2,
+            enter_ms: 1000.0 / 60.0 - 3.0,
             min_exit_frames: 5,
             exit_ms: 60.0,
             background_alpha: 0.01,
@@ -144,6 +163,9 @@ impl Default for ContactConfig {
             // Off: a weak press of a soft fabric can look like a brightness
             // step; the daemon re-captures after the LED changes it makes.
             lighting_check: false,
+            // On: without it, the exposure wander of catalogue 2's
+            // simulated units starts hundreds of presses an hour at rest.
+            gain_compensated: true,
         }
     }
 }
@@ -454,7 +476,16 @@ impl ContactDetector {
     /// Score a frame against the reference without changing state.
     pub fn score(&mut self, image: &RgbImage) -> f32 {
         sample(image, &mut self.samples);
-        mad(&self.samples, &self.reference)
+        self.score_samples()
+    }
+
+    /// The score of the sampled frame (see [`ContactConfig::gain_compensated`]).
+    fn score_samples(&self) -> f32 {
+        if self.cfg.gain_compensated {
+            gain_residual(&self.samples, &self.reference)
+        } else {
+            mad(&self.samples, &self.reference)
+        }
     }
 
     /// Feed one frame (must be 240x320; smaller images are sampled where they
@@ -507,7 +538,7 @@ impl ContactDetector {
                 quiet: true,
             };
         }
-        let score = mad(&self.samples, &self.reference);
+        let score = self.score_samples();
         let cfg = &self.cfg;
         let (enter, exit) = (self.floor + cfg.enter, self.floor + cfg.exit);
         let mut event = None;

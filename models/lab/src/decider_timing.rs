@@ -696,6 +696,8 @@ pub struct StudyConfig {
     pub people: usize,
     /// Worker threads (one ONNX Runtime thread each).
     pub threads: usize,
+    /// The contact detector that starts the presses.
+    pub contact: telextiles_sensing::contact::ContactConfig,
 }
 
 /// Everything the study measured.
@@ -727,6 +729,10 @@ pub struct TimingReport {
     /// as never right).
     pub undetected: Vec<(String, usize)>,
     pub seconds: f64,
+    /// The contact detector that started the presses (None: the shipped
+    /// one of the study's date; studies before 2026-11-29 do not say).
+    #[serde(default)]
+    pub contact: Option<crate::contact_idle::Detector>,
 }
 
 /// Frames of a simulated press from a few quiet frames before its first
@@ -836,7 +842,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
                     let mut proc = crate::recorded::Processor::new(
                         std::slice::from_ref(model),
                         1,
-                        telextiles_sensing::contact::ContactConfig::default(),
+                        cfg.contact.clone(),
                     )?;
                     // Every candidate from one pass: those without the run
                     // skip its rows.
@@ -919,6 +925,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         detect_ms_p50: detect,
         undetected,
         seconds: t0.elapsed().as_secs_f64(),
+        contact: Some(crate::contact_idle::Detector::of(&cfg.contact)),
     })
 }
 
@@ -1251,6 +1258,7 @@ mod tests {
             detect_ms_p50: vec![("jig".into(), 33.3)],
             undetected: vec![("jig".into(), 0), ("hand-held".into(), 0)],
             seconds: 0.0,
+            contact: None,
         };
         let dir = tempfile::tempdir().unwrap();
         write(&r, dir.path()).unwrap();
@@ -1367,6 +1375,7 @@ mod tests {
                 detect_ms_p50: vec![],
                 undetected: vec![],
                 seconds: 0.0,
+                contact: None,
             }
         };
         // Alone, each study picks candidate 1 (fewest switches, no loss);
@@ -1433,6 +1442,7 @@ mod tests {
                 detect_ms_p50: vec![],
                 undetected: vec![],
                 seconds: 0.0,
+                contact: None,
             }
         };
         // Alone, catalogue 1 picks the run (the best mean, no loss); on

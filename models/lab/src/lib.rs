@@ -7,6 +7,7 @@
 pub mod augment;
 pub mod baselines;
 pub mod bench;
+pub mod contact_idle;
 pub mod data;
 pub mod decider_timing;
 pub mod graph;

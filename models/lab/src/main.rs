@@ -71,6 +71,12 @@ enum Cmd {
     /// timing rules (min_ms, confirm_ms); committed decisions right against
     /// time after first contact, switches, and the written rule's pick.
     DeciderTiming(DeciderTimingArgs),
+    /// False presses of candidate contact detectors on simulated idle
+    /// footage (no contact), with extra LED flicker as a margin.
+    ContactIdle(ContactIdleArgs),
+    /// The contact detector by the written rule, from a `contact-idle`
+    /// study and `decider-timing` studies run with each detector.
+    ContactChoose(ContactChooseArgs),
     /// The switching rule across several `decider-timing` studies (e.g.
     /// both catalogues): the written rule over every group of every study.
     DeciderSwitch(DeciderSwitchArgs),
@@ -88,6 +94,40 @@ struct MstatsScaleArgs {
     /// Every how many frames in contact to take one.
     #[arg(long, default_value_t = 4)]
     every: usize,
+}
+
+#[derive(Args)]
+struct ContactIdleArgs {
+    /// Sensor units to render, CATALOGUE:UNIT,UNIT,... (repeat per catalogue).
+    #[arg(long, default_value = "1:0,4,5", num_args = 1)]
+    units: Vec<String>,
+    /// Seconds of footage per unit.
+    #[arg(long, default_value_t = 300.0)]
+    seconds: f64,
+    /// Extra LED flicker levels, % gain per channel per frame (0 = as rendered).
+    #[arg(long, value_delimiter = ',', default_value = "0,0.5,1")]
+    stress: Vec<f32>,
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+    /// Where idle.json and idle.md go.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct ContactChooseArgs {
+    /// A `contact-idle` study's idle.json.
+    #[arg(long)]
+    idle: PathBuf,
+    /// `decider-timing` studies' timing.json, one per detector and source
+    /// (those without a detector are the shipped one's).
+    #[arg(long, required = true, num_args = 1)]
+    timing: Vec<PathBuf>,
+    /// Where choice.md and right-at-100ms.svg go.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -112,6 +152,23 @@ struct DeciderTimingArgs {
     /// protocol's list (--heldout-people sets the list and the index).
     #[arg(long, default_value_t = 3)]
     people: usize,
+    /// The contact detector's entry threshold (score above the noise
+    /// floor; default: the shipped detector's).
+    #[arg(long)]
+    contact_enter: Option<f32>,
+    /// Its exit threshold (default: the shipped one, or 0.6 x the entry
+    /// threshold when that is lower).
+    #[arg(long)]
+    contact_exit: Option<f32>,
+    /// Frames in a row over the entry threshold that start a press (and
+    /// the time they span at 60 fps: (n - 1) x 16.7 ms, less 3 ms).
+    #[arg(long)]
+    contact_frames: Option<u32>,
+    /// Score contact after the best per-channel gain (`true`) or plainly
+    /// (`false`): the detector's `gain_compensated` (default: the shipped
+    /// detector's).
+    #[arg(long)]
+    contact_gain: Option<bool>,
     /// Where timing.json, report.md and the charts go.
     #[arg(long)]
     out: PathBuf,
@@ -747,6 +804,8 @@ fn main() -> Result<()> {
         Cmd::Quantize(a) => quantize_cmd(a),
         Cmd::SimPresses(a) => sim_presses(a),
         Cmd::DeciderTiming(a) => decider_timing(a),
+        Cmd::ContactIdle(a) => contact_idle(a),
+        Cmd::ContactChoose(a) => contact_choose(a),
         Cmd::DeciderSwitch(a) => decider_switch(a),
         Cmd::MstatsScale(a) => mstats_scale(a),
         Cmd::Export(a) => export(a),
@@ -1232,12 +1291,104 @@ fn decider_timing(a: DeciderTimingArgs) -> Result<()> {
         cache_dir: a.data.cache_dir.clone(),
         people: a.people,
         threads: a.data.threads,
+        contact: contact_config(
+            a.contact_enter,
+            a.contact_exit,
+            a.contact_frames,
+            a.contact_gain,
+        )?,
     };
     let r = dt::run(&cfg, &m)?;
     dt::write(&r, &a.out)?;
     println!("{}", dt::markdown(&r));
     eprintln!(
         "wrote timing.json, report.md and the charts in {}",
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// The shipped contact detector with the given entry threshold, exit
+/// threshold and run length.
+fn contact_config(
+    enter: Option<f32>,
+    exit: Option<f32>,
+    frames: Option<u32>,
+    gain: Option<bool>,
+) -> Result<telextiles_sensing::contact::ContactConfig> {
+    let shipped = telextiles_lab::contact_idle::Detector::shipped();
+    let mut c = telextiles_lab::contact_idle::Detector {
+        enter: enter.unwrap_or(shipped.enter),
+        frames: frames.unwrap_or(shipped.frames),
+        gain: gain.unwrap_or(shipped.gain),
+    }
+    .config()?;
+    if let Some(x) = exit {
+        ensure!(
+            x > 0.0 && x < c.enter,
+            "--contact-exit needs 0 < exit < enter ({})",
+            c.enter
+        );
+        c.exit = x;
+    }
+    Ok(c)
+}
+
+fn contact_idle(a: ContactIdleArgs) -> Result<()> {
+    use telextiles_lab::contact_idle as ci;
+    let mut units = Vec::new();
+    for spec in &a.units {
+        let (c, list) = spec
+            .split_once(':')
+            .with_context(|| format!("--units {spec}: expected CATALOGUE:UNIT,UNIT,..."))?;
+        let c: u32 = c
+            .parse()
+            .with_context(|| format!("--units {spec}: catalogue"))?;
+        ensure!(c == 1 || c == 2, "--units {spec}: catalogue 1 or 2");
+        for u in list.split(',') {
+            units.push((
+                c,
+                u.trim()
+                    .parse::<u32>()
+                    .with_context(|| format!("--units {spec}: unit {u}"))?,
+            ));
+        }
+    }
+    let r = ci::run(&ci::IdleConfig {
+        units,
+        seconds: a.seconds,
+        stress: a.stress.clone(),
+        threads: a.threads,
+        seed: a.seed,
+    })?;
+    ci::write(&r, &a.out)?;
+    println!("{}", ci::markdown(&r));
+    eprintln!("wrote idle.json and idle.md in {}", a.out.display());
+    Ok(())
+}
+
+fn contact_choose(a: ContactChooseArgs) -> Result<()> {
+    use telextiles_lab::contact_idle as ci;
+    let idle = ci::read(&a.idle)?;
+    let timings = a
+        .timing
+        .iter()
+        .map(|p| telextiles_lab::decider_timing::read(p))
+        .collect::<Result<Vec<_>>>()?;
+    let rows = ci::rows(&idle, &timings)?;
+    let chosen = ci::choose(&rows)?;
+    let md = ci::markdown_choice(
+        &rows,
+        chosen,
+        &std::env::args().collect::<Vec<_>>().join(" "),
+    );
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    write_atomic(&a.out.join("choice.md"), md.as_bytes())?;
+    ci::chart(&rows, &a.out.join("right-at-100ms.svg"))?;
+    println!("{md}");
+    eprintln!(
+        "wrote choice.md and right-at-100ms.svg in {}",
         a.out.display()
     );
     Ok(())

@@ -19,6 +19,7 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
         cache_dir: dir.path().join("cache"),
         people: 1,
         threads: 2,
+        contact: Default::default(),
     };
     let r = decider_timing::run(&cfg, &m).unwrap();
     assert_eq!(r.scores.len(), 2 * candidates().len());

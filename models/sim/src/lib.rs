@@ -23,7 +23,7 @@ pub mod stats;
 
 pub use catalogue::{Book, Catalogue, Textile};
 pub use image::{ImageFormat, RgbImage};
-pub use render::{person_style, sensor_model, PersonStyle, SensorModel, Simulator};
+pub use render::{person_style, sensor_model, IdleClip, PersonStyle, SensorModel, Simulator};
 pub use render2::{sensor_model_v2, swatch_of, SensorModelV2, FPS_CHOICES, SWATCHES, V2_UNITS};
 
 use serde::{Deserialize, Serialize};

@@ -151,6 +151,24 @@ pub(crate) struct Setup {
     pub(crate) v2: Option<crate::render2::Camera>,
 }
 
+/// No-contact footage from [`Simulator::idle_clip`].
+pub struct IdleClip {
+    setup: Setup,
+    /// Capture time of each frame, microseconds from the first.
+    pub timestamps_us: Vec<u64>,
+}
+
+impl IdleClip {
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.setup.frames
+    }
+    /// Whether the clip has no frames.
+    pub fn is_empty(&self) -> bool {
+        self.setup.frames == 0
+    }
+}
+
 /// The DIGIT press simulator. Cheap to share between threads (`Sync`).
 pub struct Simulator {
     catalogue: Catalogue,
@@ -380,6 +398,41 @@ impl Simulator {
             });
         }
         Ok(self.frame_from(&setup, frame_index))
+    }
+
+    /// Continuous no-contact footage of the sensor unit, camera and frame
+    /// rate a press spec describes, `spec.frames` frames long (at most
+    /// 100,000): the same background, camera noise, LED flicker and (in
+    /// catalogue 2) exposure drift as the press, with nothing touching the
+    /// gel. What a sensor shows while it rests; contact detectors are
+    /// measured on it for false presses.
+    pub fn idle_clip(&self, spec: &PressSpec) -> Result<IdleClip, SimError> {
+        let (version, generator) = self.resolve(spec)?;
+        let mut setup = if version == 2 {
+            self.solve_v2(spec, generator)?
+        } else {
+            self.solve(spec)?
+        };
+        setup.depth.iter_mut().for_each(|d| *d = 0.0);
+        setup.slip.iter_mut().for_each(|d| *d = 0.0);
+        setup.slipped = None;
+        setup.keys.iter_mut().skip(2).for_each(Vec::clear);
+        let timestamps_us = self.meta(spec, &setup).timestamps_us;
+        Ok(IdleClip {
+            setup,
+            timestamps_us,
+        })
+    }
+
+    /// Frame `i` of an idle clip.
+    pub fn idle_frame(&self, clip: &IdleClip, i: usize) -> Result<image::RgbImage, SimError> {
+        if i >= clip.setup.frames {
+            return Err(SimError::FrameOutOfRange {
+                index: i,
+                frames: clip.setup.frames,
+            });
+        }
+        Ok(self.frame_from(&clip.setup, i))
     }
 
     /// The metadata `render_press` would attach, without rendering frames.

@@ -207,3 +207,53 @@ fn sensors_differ_and_sensor0_is_the_real_background() {
     let b2 = sim.background(2);
     assert!(mean_abs_diff(&b1, &b2) > 2.0);
 }
+
+/// Mean absolute difference of two frames.
+fn mad(a: &telextiles_sim::RgbImage, b: &telextiles_sim::RgbImage) -> f64 {
+    let s: u64 = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64)
+        .sum();
+    s as f64 / a.as_raw().len() as f64
+}
+
+#[test]
+fn an_idle_clip_is_the_press_without_its_contact() {
+    for catalogue in [1, 2] {
+        let sim = Simulator::with_catalogue(catalogue).unwrap();
+        let spec = PressSpec {
+            sensor: 4,
+            frames: 400,
+            ..PressSpec::new("T012", 31)
+        };
+        let press = sim.render_press(&spec).unwrap();
+        let params = press.meta.params.clone().unwrap();
+        let clip = sim.idle_clip(&spec).unwrap();
+        assert_eq!(clip.len(), 400);
+        assert_eq!(clip.timestamps_us, press.meta.timestamps_us);
+        // Before its first contact the press is the idle clip, frame for
+        // frame (same noise, flicker and exposure).
+        for i in 0..params.contact_frame as usize {
+            assert_eq!(sim.idle_frame(&clip, i).unwrap(), press.frames[i], "{i}");
+        }
+        // In the hold the press shows the fabric; the clip stays as close
+        // to the untouched sensor as the camera noise lets it.
+        let bg = sim.background_for(&spec).unwrap();
+        let h = params.hold_frame as usize + 5;
+        let idle = sim.idle_frame(&clip, h).unwrap();
+        let (d_idle, d_press) = (mad(&idle, &bg), mad(&press.frames[h], &bg));
+        assert!(
+            d_idle < 3.0,
+            "catalogue {catalogue}: idle frame {d_idle} from background"
+        );
+        assert!(
+            d_press > 2.0 * d_idle,
+            "catalogue {catalogue}: press {d_press} against idle {d_idle}"
+        );
+        assert!(sim.idle_frame(&clip, 400).is_err());
+        // Frames differ from one another (the camera's noise is live).
+        assert_ne!(sim.idle_frame(&clip, 300).unwrap(), idle);
+    }
+}
