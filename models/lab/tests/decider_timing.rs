@@ -43,10 +43,10 @@ fn the_timing_study_runs_end_to_end_on_simulated_presses() {
         // confirms after a 50 ms minimum confirms without it too.
         assert!(new.first_ms_p50 <= old.first_ms_p50, "{g}: {new:?} {old:?}");
         // The earliest possible first decision: the detector's start, its
-        // third frame (33 ms), then 100 ms with the old pair.
+        // second frame (17 ms), then 100 ms with the old pair.
         let detect = r.detect_ms_p50.iter().find(|x| x.0 == g).unwrap().1;
         assert!(
-            old.first_ms_p50 >= detect + 33.0 + 100.0 - 1.0,
+            old.first_ms_p50 >= detect + 17.0 + 100.0 - 1.0,
             "{g}: {old:?}"
         );
         assert_eq!(old.right(100.0), 0.0, "{g}: nothing commits within 100 ms");

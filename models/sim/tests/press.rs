@@ -209,14 +209,26 @@ fn sensors_differ_and_sensor0_is_the_real_background() {
 }
 
 /// Mean absolute difference of two frames.
-fn mad(a: &telextiles_sim::RgbImage, b: &telextiles_sim::RgbImage) -> f64 {
-    let s: u64 = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| (x as i32 - y as i32).unsigned_abs() as u64)
-        .sum();
-    s as f64 / a.as_raw().len() as f64
+/// Mean absolute difference of 8x8 block means: the camera's per-pixel
+/// noise averages out, the picture's content does not.
+fn block_mad(a: &telextiles_sim::RgbImage, b: &telextiles_sim::RgbImage) -> f64 {
+    let (w, h) = a.dimensions();
+    let (bw, bh) = (w / 8, h / 8);
+    let mut total = 0.0;
+    for by in 0..bh {
+        for bx in 0..bw {
+            for c in 0..3 {
+                let mut d = 0.0;
+                for y in by * 8..by * 8 + 8 {
+                    for x in bx * 8..bx * 8 + 8 {
+                        d += a.get_pixel(x, y)[c] as f64 - b.get_pixel(x, y)[c] as f64;
+                    }
+                }
+                total += (d / 64.0).abs();
+            }
+        }
+    }
+    total / (bw * bh * 3) as f64
 }
 
 #[test]
@@ -239,17 +251,19 @@ fn an_idle_clip_is_the_press_without_its_contact() {
             assert_eq!(sim.idle_frame(&clip, i).unwrap(), press.frames[i], "{i}");
         }
         // In the hold the press shows the fabric; the clip stays as close
-        // to the untouched sensor as the camera noise lets it.
+        // to the untouched sensor as the camera noise lets it (compared on
+        // 8x8 block means, where the per-pixel noise averages out: catalogue
+        // 1 reads about 0.3 idle against 2.2 pressed).
         let bg = sim.background_for(&spec).unwrap();
         let h = params.hold_frame as usize + 5;
         let idle = sim.idle_frame(&clip, h).unwrap();
-        let (d_idle, d_press) = (mad(&idle, &bg), mad(&press.frames[h], &bg));
+        let (d_idle, d_press) = (block_mad(&idle, &bg), block_mad(&press.frames[h], &bg));
         assert!(
-            d_idle < 3.0,
+            d_idle < 1.0,
             "catalogue {catalogue}: idle frame {d_idle} from background"
         );
         assert!(
-            d_press > 2.0 * d_idle,
+            d_press > 4.0 * d_idle,
             "catalogue {catalogue}: press {d_press} against idle {d_idle}"
         );
         assert!(sim.idle_frame(&clip, 400).is_err());
