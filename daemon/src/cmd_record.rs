@@ -16,6 +16,14 @@
 //! found under `<dir>`, as fast as they read; without `--textile`, each
 //! under its recording's own textile, so a whole dataset converts in one
 //! command).
+//!
+//! `--idle SECONDS` records the untouched sensor instead: one continuous
+//! recording `<out>/idle/NNNN/` (textile "idle", written frame by frame so
+//! minutes fit in no memory), while the daemon's contact detector runs on
+//! every frame ([`telextiles_sensing::idle::IdleCheck`]); the summary says
+//! whether it started presses that nobody made, and how close its score
+//! came. The detector's defaults were chosen on simulated idle footage;
+//! this is the check on a real sensor.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -28,6 +36,7 @@ use anyhow::{bail, Context, Result};
 use telextiles_progress::Progress;
 use telextiles_sensing::contact::{ContactConfig, ContactDetector};
 use telextiles_sensing::frame::Frame;
+use telextiles_sensing::idle::{IdleCheck, IdleSummary};
 use telextiles_sensing::record::{
     lead_with_reference, PressSummary, RecordEvent, RecordLabel, RecordedPress, Recorder,
     RecorderConfig,
@@ -122,6 +131,16 @@ pub struct Args {
     /// carries its reference from then on.
     #[arg(long = "reference", value_name = "[SERIAL=]PNG")]
     pub references: Vec<String>,
+    /// Record this many seconds (up to 600) of the sensor resting
+    /// untouched, into <out>/idle/NNNN/, and check the contact detector on
+    /// them: presses it started (each false), and how close its score came
+    /// to starting one. Fails if it started any. About 10 MB per second of
+    /// PNG frames. With --sensor digit[:SERIAL] or sim.
+    #[arg(long, value_name = "SECONDS")]
+    pub idle: Option<f64>,
+    /// With --idle: the summary as one JSON object on the last line.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// A source and what its presses are labelled with.
@@ -583,6 +602,12 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Run the command; the summary goes to `out`, the guide to standard error.
 pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
+    if let Some(seconds) = args.idle {
+        return record_idle(&args, seconds, out, stop);
+    }
+    if args.json {
+        bail!("--json is for --idle (the idle check's summary)");
+    }
     if args.presses == Some(0) {
         bail!("--presses must be at least 1");
     }
@@ -1347,6 +1372,272 @@ impl LiveRecording {
     }
 }
 
+/// The longest `--idle` recording, seconds.
+pub const MAX_IDLE_S: f64 = 600.0;
+
+/// Where idle footage comes from.
+enum IdleFrames {
+    Live(Box<dyn FrameSource>),
+    Sim {
+        sim: Simulator,
+        clip: telextiles_sim::IdleClip,
+        next: usize,
+    },
+}
+
+impl IdleFrames {
+    /// The next frame and its capture time (µs), or None when a finite
+    /// source has no more.
+    fn next(&mut self, frame: &mut Frame) -> Result<Option<()>> {
+        match self {
+            IdleFrames::Live(src) => loop {
+                match src.next_frame(frame) {
+                    Ok(()) => return Ok(Some(())),
+                    Err(SourceError::BadFrame(e)) => tracing::warn!("bad frame skipped: {e}"),
+                    Err(SourceError::Ended) => return Ok(None),
+                    Err(e) => return Err(anyhow::anyhow!("{e}")),
+                }
+            },
+            IdleFrames::Sim { sim, clip, next } => {
+                if *next >= clip.len() {
+                    return Ok(None);
+                }
+                frame.image = sim
+                    .idle_frame(clip, *next)
+                    .map_err(|e| anyhow::anyhow!("simulator: {e}"))?;
+                frame.timestamp_us = clip.timestamps_us[*next];
+                frame.seq = *next as u64;
+                *next += 1;
+                Ok(Some(()))
+            }
+        }
+    }
+}
+
+/// `record --idle SECONDS`: the resting sensor recorded and the contact
+/// detector checked on it (see the module docs).
+fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= MAX_IDLE_S) {
+        bail!("--idle takes 0 < SECONDS <= {MAX_IDLE_S} (the footage is about 10 MB a second)");
+    }
+    if args.textile.is_some() || args.presses.is_some() || args.name.is_some() {
+        bail!("--idle records the sensor untouched, not presses of a textile: leave out --textile, --name and --presses");
+    }
+    if args.fps.is_some() || !args.references.is_empty() {
+        bail!("--fps and --reference are for --sensor replay:<dir>; --idle records a live sensor");
+    }
+    // Idle footage is not a textile: keep it out of a directory of presses,
+    // where `index build --presses` would take "idle" for one.
+    if let Ok(rd) = std::fs::read_dir(&args.out) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if e.file_name() != "idle"
+                && p.is_dir()
+                && !telextiles_sim::recording::find_presses(&p)
+                    .unwrap_or_default()
+                    .is_empty()
+            {
+                bail!(
+                    "{} holds presses of textiles ({}); give the idle footage a directory of its own (`index build --presses` would take it for a textile)",
+                    args.out.display(),
+                    p.display()
+                );
+            }
+        }
+    }
+    let src = match &args.sensor {
+        SensorArg::Replay(_) => bail!(
+            "--idle records a live sensor (--sensor digit[:SERIAL], or sim): footage of a resting sensor, not presses to replay"
+        ),
+        SensorArg::Sim => {
+            let sim = Simulator::new()?;
+            let spec = PressSpec::new("T001", args.sim_seed.unwrap_or(1));
+            let fps = sim.press_meta(&spec)?.fps as f64;
+            let n = ((seconds * fps).round() as usize).max(1);
+            let clip = sim.idle_clip(&PressSpec { frames: n, ..spec })?;
+            IdleSource {
+                frames: IdleFrames::Sim { sim, clip, next: 0 },
+                serial: "SIM0000".to_string(),
+                source: "sim",
+                desc: "the simulated DIGIT (unit 0), untouched".to_string(),
+            }
+        }
+        SensorArg::Digit(serial) => {
+            let opened = open_digit(serial.clone())?;
+            let Frames::Live(src, _) = opened.frames else {
+                bail!("a DIGIT is a live source");
+            };
+            IdleSource {
+                frames: IdleFrames::Live(src),
+                serial: opened.serial.unwrap_or_default(),
+                source: "digit",
+                desc: opened.desc,
+            }
+        }
+    };
+    run_idle(args, seconds, src, out, stop)
+}
+
+/// An opened source of idle footage and what it is.
+struct IdleSource {
+    frames: IdleFrames,
+    serial: String,
+    source: &'static str,
+    desc: String,
+}
+
+/// Record `seconds` of `src` into `<out>/idle/NNNN/` with the idle check.
+fn run_idle(
+    args: &Args,
+    seconds: f64,
+    src: IdleSource,
+    out: &mut dyn Write,
+    stop: &AtomicBool,
+) -> Result<()> {
+    let IdleSource {
+        mut frames,
+        serial,
+        source,
+        desc,
+    } = src;
+    let dir = args.out.join("idle");
+    remove_stale_temporaries(&dir);
+    let number = next_number(&dir)?;
+    let path = dir.join(format!("{number:04}"));
+    eprintln!(
+        "recording {seconds} s of {desc} into {}: do not touch the sensor",
+        path.display()
+    );
+    let mut writer = telextiles_sim::recording::PressWriter::create(&path)?;
+    let mut check = IdleCheck::new(ContactConfig::default());
+    let progress = Progress::new("idle", seconds.ceil() as u64, "s");
+    let mut frame = Frame::blank();
+    let mut timestamps = Vec::new();
+    let mut first = None;
+    let mut shown = 0u64;
+    let mut interrupted = false;
+    loop {
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+        match frames.next(&mut frame) {
+            Ok(Some(())) => {}
+            Ok(None) => break,
+            Err(e) => bail!(
+                "{e}: the sensor stopped after {} frames; nothing saved",
+                timestamps.len()
+            ),
+        }
+        let t0 = *first.get_or_insert(frame.timestamp_us);
+        let t = frame.timestamp_us.saturating_sub(t0);
+        if t as f64 >= seconds * 1e6 {
+            break;
+        }
+        let u = check.push(&frame.image, t);
+        if let Some(telextiles_sensing::contact::ContactEvent::PressStart { t_us }) = u.event {
+            progress.println(&format!(
+                "a press started at {:.2} s on the untouched sensor",
+                t_us as f64 / 1e6
+            ));
+        }
+        writer
+            .push(&frame.image)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        timestamps.push(t);
+        let s = t / 1_000_000;
+        if s > shown {
+            progress.inc(s - shown);
+            shown = s;
+        }
+    }
+    progress.finish();
+    if timestamps.is_empty() {
+        bail!("no frame was recorded (interrupted at once); nothing saved");
+    }
+    let summary = check.summary();
+    let meta = telextiles_sim::PressMeta {
+        textile: "idle".into(),
+        person: 0,
+        sensor: 0,
+        jig: false,
+        fps: summary.fps as f32,
+        timestamps_us: timestamps,
+        seed: (source == "sim").then(|| args.sim_seed.unwrap_or(1)),
+        source: source.into(),
+        sensor_serial: Some(serial),
+        params: None,
+        // The whole clip is untouched.
+        reference_frames: None,
+    };
+    writer
+        .finish(&meta)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    write_idle_summary(out, &summary, &path, interrupted)?;
+    if args.json {
+        writeln!(out, "{}", serde_json::to_string(&summary)?)?;
+    }
+    if !summary.ok() {
+        bail!(
+            "the contact detector started {} press(es) on the untouched sensor: check that nothing touched it and that the LEDs are steady, and keep {} for a report",
+            summary.false_presses,
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+fn write_idle_summary(
+    out: &mut dyn Write,
+    s: &IdleSummary,
+    path: &Path,
+    interrupted: bool,
+) -> Result<()> {
+    writeln!(
+        out,
+        "saved {} frames ({:.1} s at {:.1} fps{}) in {}",
+        s.frames,
+        s.seconds,
+        s.fps,
+        if interrupted { ", interrupted" } else { "" },
+        path.display()
+    )?;
+    let starts = if s.press_starts_s.is_empty() {
+        String::new()
+    } else {
+        format!(
+            " (at {} s)",
+            s.press_starts_s
+                .iter()
+                .map(|t| format!("{t:.2}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    writeln!(
+        out,
+        "contact detector at rest: {} false press(es){starts}, {:.1} % of the time in contact, {:.1} % re-capturing the reference",
+        s.false_presses,
+        100.0 * s.in_contact_share,
+        100.0 * s.capturing_share
+    )?;
+    writeln!(
+        out,
+        "noise floor {:.2}; highest score above it held {} frames in a row: {:.3}, against {:.2} to start a press (margin {:.3})",
+        s.floor, s.run_frames, s.peak_run, s.enter, s.margin
+    )?;
+    writeln!(
+        out,
+        "{}",
+        if s.ok() {
+            "ok: no press started at rest"
+        } else {
+            "FAILED: the detector started presses on the untouched sensor"
+        }
+    )?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1400,6 +1691,240 @@ mod tests {
         assert!(!d.path().join("0003.tmp-0-0").exists());
         assert!(d.path().join(&mine).exists());
         assert!(d.path().join("0002").exists());
+    }
+
+    /// `record --idle` arguments into `out`.
+    fn idle_args(out: &Path) -> Args {
+        Args {
+            textile: None,
+            name: None,
+            presses: None,
+            out: out.to_path_buf(),
+            sensor: SensorArg::Sim,
+            sim_seed: None,
+            hold: 1.5,
+            fps: None,
+            references: Vec::new(),
+            idle: Some(10.0),
+            json: false,
+        }
+    }
+
+    /// Idle footage of the simulator's unit 0 with, from frame `touch_at`,
+    /// `touch_len` frames of a press's hold between (a hand on the sensor),
+    /// as a live source.
+    fn touched_idle(frames: usize, touch_at: usize, touch_len: usize) -> IdleSource {
+        let sim = Simulator::new().expect("simulator");
+        let spec = PressSpec {
+            frames,
+            ..PressSpec::new("T030", 3)
+        };
+        let clip = sim.idle_clip(&spec).expect("clip");
+        let press = sim.render_press(&PressSpec::new("T030", 3)).expect("press");
+        let hold = press.meta.params.as_ref().expect("params").hold_frame as usize;
+        let images = (0..frames)
+            .map(|i| {
+                if (touch_at..touch_at + touch_len).contains(&i) {
+                    press.frames[hold + i - touch_at].clone()
+                } else {
+                    sim.idle_frame(&clip, i).expect("frame")
+                }
+            })
+            .collect();
+        let footage = telextiles_sim::Press {
+            meta: telextiles_sim::PressMeta {
+                timestamps_us: clip.timestamps_us.clone(),
+                params: None,
+                ..press.meta.clone()
+            },
+            frames: images,
+        };
+        IdleSource {
+            frames: IdleFrames::Live(Box::new(RecordedSource::from_press(
+                footage,
+                Pace::AsFastAsPossible,
+                "test",
+            ))),
+            serial: "D00001".into(),
+            source: "digit",
+            desc: "a test DIGIT".into(),
+        }
+    }
+
+    #[test]
+    fn idle_footage_with_a_touch_fails_the_check_and_is_kept_whole() {
+        let d = tempfile::tempdir().expect("tempdir");
+        let mut out = Vec::new();
+        let stop = AtomicBool::new(false);
+        // 4 s at 60 fps, touched for half a second from 2 s.
+        let err = run_idle(
+            &idle_args(d.path()),
+            10.0,
+            touched_idle(240, 120, 30),
+            &mut out,
+            &stop,
+        )
+        .expect_err("a touch is a press");
+        let text = String::from_utf8(out).expect("utf-8");
+        assert!(
+            err.to_string().contains("started 1 press(es)"),
+            "{err}\n{text}"
+        );
+        assert!(text.contains("1 false press(es) (at 2."), "{text}");
+        assert!(text.contains("FAILED"), "{text}");
+        // The footage is kept, every frame, for a report.
+        let kept =
+            telextiles_sim::recording::read_press(&d.path().join("idle/0001")).expect("kept");
+        assert_eq!(kept.frames.len(), 240);
+        assert_eq!(kept.meta.textile, "idle");
+        assert_eq!(kept.meta.sensor_serial.as_deref(), Some("D00001"));
+        assert_eq!(kept.meta.timestamps_us[0], 0);
+        // A second run goes next to it, and untouched footage passes.
+        let mut out = Vec::new();
+        run_idle(
+            &idle_args(d.path()),
+            2.0,
+            touched_idle(240, 1000, 0),
+            &mut out,
+            &stop,
+        )
+        .expect("untouched passes");
+        let text = String::from_utf8(out).expect("utf-8");
+        assert!(
+            text.contains("saved 120 frames (2.0 s at 60.0 fps)"),
+            "{text}"
+        );
+        assert!(
+            text.contains("0 false press(es)") && text.contains("ok:"),
+            "{text}"
+        );
+        assert!(d.path().join("idle/0002/press.json").is_file());
+    }
+
+    /// A source that delivers `n` frames, then is unplugged.
+    struct Unplugged(IdleFrames, usize);
+    impl FrameSource for Unplugged {
+        fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+            if self.1 == 0 {
+                return Err(SourceError::Unavailable("DIGIT unplugged".into()));
+            }
+            self.1 -= 1;
+            self.0.next(out).expect("frame").expect("more frames");
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "unplugged".into()
+        }
+    }
+
+    #[test]
+    fn idle_recording_cut_short_by_the_sensor_or_at_once_leaves_nothing() {
+        let d = tempfile::tempdir().expect("tempdir");
+        let stop = AtomicBool::new(false);
+        let src = IdleSource {
+            frames: IdleFrames::Live(Box::new(Unplugged(touched_idle(60, 100, 0).frames, 30))),
+            serial: "D00001".into(),
+            source: "digit",
+            desc: "a test DIGIT".into(),
+        };
+        let err = run_idle(&idle_args(d.path()), 5.0, src, &mut Vec::new(), &stop)
+            .expect_err("unplugged");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("unplugged") && msg.contains("after 30 frames; nothing saved"),
+            "{msg}"
+        );
+        // Interrupted before the first frame: nothing either.
+        let stop = AtomicBool::new(true);
+        let err = run_idle(
+            &idle_args(d.path()),
+            5.0,
+            touched_idle(60, 100, 0),
+            &mut Vec::new(),
+            &stop,
+        )
+        .expect_err("interrupted");
+        assert!(err.to_string().contains("nothing saved"), "{err}");
+        let left: Vec<_> = std::fs::read_dir(d.path().join("idle"))
+            .expect("idle dir")
+            .collect();
+        assert!(left.is_empty(), "{left:?}");
+    }
+
+    /// A source that presses Ctrl-C (sets `STOP`) after `n` frames.
+    static STOP: AtomicBool = AtomicBool::new(false);
+    struct CtrlC(IdleFrames, usize);
+    impl FrameSource for CtrlC {
+        fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+            if self.1 == 0 {
+                STOP.store(true, Ordering::SeqCst);
+            } else {
+                self.1 -= 1;
+            }
+            self.0.next(out).expect("frame").expect("more frames");
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "ctrl-c".into()
+        }
+    }
+
+    #[test]
+    fn idle_recording_interrupted_keeps_and_checks_what_it_recorded() {
+        let d = tempfile::tempdir().expect("tempdir");
+        let src = IdleSource {
+            frames: IdleFrames::Live(Box::new(CtrlC(touched_idle(200, 1000, 0).frames, 90))),
+            serial: "D00001".into(),
+            source: "digit",
+            desc: "a test DIGIT".into(),
+        };
+        let mut out = Vec::new();
+        run_idle(&idle_args(d.path()), 10.0, src, &mut out, &STOP).expect("saved");
+        let text = String::from_utf8(out).expect("utf-8");
+        assert!(
+            text.contains("saved 91 frames (1.5 s at 60.0 fps, interrupted)"),
+            "{text}"
+        );
+        assert!(text.contains("ok:"), "{text}");
+        let kept =
+            telextiles_sim::recording::read_press(&d.path().join("idle/0001")).expect("kept");
+        assert_eq!(kept.frames.len(), 91);
+    }
+
+    #[test]
+    fn idle_arguments_are_checked_before_anything_is_opened() {
+        let d = tempfile::tempdir().expect("tempdir");
+        let run = |f: &dyn Fn(&mut Args)| {
+            let mut a = idle_args(d.path());
+            f(&mut a);
+            run_to(a, &mut Vec::new(), &AtomicBool::new(false))
+                .expect_err("refused")
+                .to_string()
+        };
+        assert!(run(&|a| a.idle = Some(0.0)).contains("0 < SECONDS <= 600"));
+        assert!(run(&|a| a.idle = Some(601.0)).contains("0 < SECONDS <= 600"));
+        assert!(run(&|a| a.idle = Some(f64::NAN)).contains("0 < SECONDS"));
+        assert!(run(&|a| a.textile = Some("T001".into())).contains("leave out --textile"));
+        assert!(run(&|a| a.presses = Some(3)).contains("leave out --textile"));
+        assert!(run(&|a| a.sensor = SensorArg::Replay("x".into())).contains("live sensor"));
+        assert!(run(&|a| {
+            a.idle = None;
+            a.textile = Some("T001".into());
+            a.presses = Some(1);
+            a.json = true;
+        })
+        .contains("--json is for --idle"));
+        // A directory of presses is refused: "idle" would become a textile.
+        let p = telextiles_sim::Simulator::new()
+            .expect("sim")
+            .render_press(&PressSpec {
+                frames: 5,
+                ..PressSpec::new("T001", 1)
+            })
+            .expect("press");
+        telextiles_sim::recording::write_press(&d.path().join("T001/0001"), &p).expect("write");
+        assert!(run(&|_| {}).contains("holds presses of textiles"));
+        assert!(!d.path().join("idle").exists());
     }
 
     fn sim_frames(textile: &str) -> SimSource {

@@ -1211,3 +1211,72 @@ fn index_check_compares_the_shipped_models_on_the_owners_presses() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("cannot load the encoder nope.onnx"), "{err}");
 }
+
+/// `record --idle` through the binary, as an owner checks a resting
+/// sensor: the footage saved as a recording, the check's summary (and its
+/// JSON), and `classify` on the footage finding no press either.
+#[test]
+fn record_idle_checks_the_contact_detector_on_a_resting_sensor() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let d = tmp.path();
+    let out = ok(
+        d,
+        &[
+            "record", "--idle", "2", "--sensor", "sim", "--out", "rest", "--json",
+        ],
+    );
+    assert!(
+        out.contains("saved 120 frames (2.0 s at 60.0 fps) in rest/idle/0001"),
+        "{out}"
+    );
+    assert!(out.contains("0 false press(es)"), "{out}");
+    assert!(out.contains("ok: no press started at rest"), "{out}");
+    let json: serde_json::Value =
+        serde_json::from_str(out.lines().last().expect("json line")).expect("json");
+    assert_eq!(json["frames"], 120);
+    assert_eq!(json["false_presses"], 0);
+    assert_eq!(json["run_frames"], 2);
+    assert!(json["margin"].as_f64().expect("margin") > 0.0, "{json}");
+    let m = meta(&d.join("rest/idle/0001"));
+    assert_eq!(m["textile"], "idle");
+    assert_eq!(m["frames"].as_array().map(Vec::len), Some(120));
+    let model = model();
+    let model = model.to_str().expect("utf-8");
+    two_textile_index(d, model, "p.tlxi");
+    let out = run(
+        d,
+        &[
+            "classify",
+            "--press",
+            "rest/idle/0001",
+            "--model",
+            model,
+            "--index",
+            "p.tlxi",
+            "--json",
+        ],
+    );
+    assert!(out.status.success());
+    assert!(reports(&String::from_utf8_lossy(&out.stdout)).is_empty());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no press detected"), "{err}");
+    // Errors a user meets.
+    let err = fails(
+        d,
+        &["record", "--idle", "0", "--sensor", "sim", "--out", "rest"],
+    );
+    assert!(err.contains("0 < SECONDS <= 600"), "{err}");
+    let err = fails(
+        d,
+        &[
+            "record",
+            "--idle",
+            "2",
+            "--sensor",
+            "replay:rest",
+            "--out",
+            "x",
+        ],
+    );
+    assert!(err.contains("--idle records a live sensor"), "{err}");
+}

@@ -83,9 +83,6 @@ static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
 /// Write a press to `dir` (which must not exist yet), atomically.
 pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
-    if dir.exists() {
-        return Err(invalid(dir, "already exists; refusing to overwrite"));
-    }
     if press.frames.len() != press.meta.timestamps_us.len() {
         return Err(invalid(
             dir,
@@ -96,10 +93,71 @@ pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
             ),
         ));
     }
-    for (i, f) in press.frames.iter().enumerate() {
+    let mut w = PressWriter::create(dir)?;
+    for f in &press.frames {
+        w.push(f)?;
+    }
+    w.finish(&press.meta)
+}
+
+/// A press written frame by frame, for footage too long to hold in memory
+/// (`telextilesd record --idle`): frames go to a temporary directory as
+/// they come, and [`PressWriter::finish`] writes `press.json` and renames
+/// it to the press's directory. Dropped unfinished (an error, Ctrl-C), the
+/// temporary directory is removed: a press is there whole or not at all.
+pub struct PressWriter {
+    dir: PathBuf,
+    tmp: PathBuf,
+    names: Vec<String>,
+    done: bool,
+}
+
+impl PressWriter {
+    /// Start writing the press `dir` (which must not exist yet).
+    pub fn create(dir: &Path) -> Result<PressWriter, RecordingError> {
+        if dir.exists() {
+            return Err(invalid(dir, "already exists; refusing to overwrite"));
+        }
+        let name = dir
+            .file_name()
+            .ok_or_else(|| invalid(dir, "not a directory name"))?
+            .to_string_lossy()
+            .into_owned();
+        let parent = match dir.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+        let tmp = parent.join(format!(
+            "{name}.tmp-{}-{}",
+            std::process::id(),
+            TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
+        Ok(PressWriter {
+            dir: dir.to_path_buf(),
+            tmp,
+            names: Vec::new(),
+            done: false,
+        })
+    }
+
+    /// Frames written so far.
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+
+    /// Whether no frame has been written.
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+
+    /// Write the next frame (240 wide x 320 tall).
+    pub fn push(&mut self, f: &image::RgbImage) -> Result<(), RecordingError> {
+        let i = self.names.len();
         if f.width() != WIDTH || f.height() != HEIGHT {
             return Err(invalid(
-                dir,
+                &self.dir,
                 format!(
                     "frame {i} is {}x{}, expected {WIDTH}x{HEIGHT}",
                     f.width(),
@@ -107,49 +165,50 @@ pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
                 ),
             ));
         }
+        let n = frame_name(i);
+        let p = self.tmp.join(&n);
+        f.save_with_format(&p, image::ImageFormat::Png)
+            .map_err(|e| invalid(&p, format!("cannot write PNG: {e}")))?;
+        self.names.push(n);
+        Ok(())
     }
-    let name = dir
-        .file_name()
-        .ok_or_else(|| invalid(dir, "not a directory name"))?
-        .to_string_lossy()
-        .into_owned();
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
-    let tmp = parent.join(format!(
-        "{name}.tmp-{}-{}",
-        std::process::id(),
-        TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let result = (|| {
-        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
-        let mut names = Vec::with_capacity(press.frames.len());
-        for (i, f) in press.frames.iter().enumerate() {
-            let n = frame_name(i);
-            let p = tmp.join(&n);
-            f.save_with_format(&p, image::ImageFormat::Png)
-                .map_err(|e| invalid(&p, format!("cannot write PNG: {e}")))?;
-            names.push(n);
+
+    /// Write `press.json` with `meta` (one timestamp per frame written) and
+    /// put the press in place.
+    pub fn finish(mut self, meta: &PressMeta) -> Result<(), RecordingError> {
+        if meta.timestamps_us.len() != self.names.len() {
+            return Err(invalid(
+                &self.dir,
+                format!(
+                    "{} frames but {} timestamps",
+                    self.names.len(),
+                    meta.timestamps_us.len()
+                ),
+            ));
         }
         let file = PressFile {
             format: FORMAT.into(),
             format_version: FORMAT_VERSION,
             width: WIDTH,
             height: HEIGHT,
-            frames: names,
-            meta: press.meta.clone(),
+            frames: std::mem::take(&mut self.names),
+            meta: meta.clone(),
         };
-        let p = tmp.join(META_FILE);
+        let p = self.tmp.join(META_FILE);
         let json = serde_json::to_vec_pretty(&file).map_err(|e| invalid(&p, e.to_string()))?;
         std::fs::write(&p, json).map_err(io_err(&p))?;
-        std::fs::rename(&tmp, dir).map_err(io_err(dir))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::rename(&self.tmp, &self.dir).map_err(io_err(&self.dir))?;
+        self.done = true;
+        Ok(())
     }
-    result
+}
+
+impl Drop for PressWriter {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_dir_all(&self.tmp);
+        }
+    }
 }
 
 /// Every press directory (one holding `press.json`) at or under `root`,
