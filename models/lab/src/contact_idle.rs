@@ -13,7 +13,10 @@
 //! each starts, at the footage as rendered and with extra LED flicker
 //! (each channel's gain varying from frame to frame by a further
 //! `stress` %, independently): a margin for what the simulator does not
-//! model. Real idle footage would replace it; the project has none.
+//! model. Real idle footage replaces it: `--footage DIR` reads recordings
+//! of a resting sensor (`telextilesd record --idle` writes them; catalogue
+//! 0 in the report), alone or beside the simulated units; the project has
+//! none of its own yet.
 
 use anyhow::{ensure, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -123,6 +126,9 @@ pub fn candidates() -> Vec<Detector> {
 pub struct IdleConfig {
     /// (catalogue, unit) pairs, one clip each.
     pub units: Vec<(u32, u32)>,
+    /// Recordings of a resting sensor (the press format), one clip each,
+    /// read whole (`seconds` does not cut them); scored as catalogue 0.
+    pub footage: Vec<std::path::PathBuf>,
     /// Length of each clip, seconds.
     pub seconds: f64,
     /// Extra LED flicker levels, % per channel per frame (0 = as rendered).
@@ -156,6 +162,12 @@ pub struct IdleReport {
     pub date: String,
     pub command: String,
     pub units: Vec<(u32, u32)>,
+    /// Recorded footage read (catalogue 0 in `scores` and `run_peaks`).
+    #[serde(default)]
+    pub footage: Vec<String>,
+    /// Hours of recorded footage.
+    #[serde(default)]
+    pub footage_hours: f64,
     pub seconds_per_clip: f64,
     pub detectors: Vec<Detector>,
     pub stress: Vec<f32>,
@@ -215,13 +227,71 @@ struct ClipResult {
     peaks: Vec<(f32, f32)>,
 }
 
-fn run_clip(
-    sim: &telextiles_sim::Simulator,
+/// Where a clip's frames come from.
+enum Clip<'a> {
+    Sim {
+        sim: &'a telextiles_sim::Simulator,
+        clip: telextiles_sim::IdleClip,
+        /// The unit's nominal frame rate.
+        fps: f64,
+    },
+    /// A recording in the press format, read frame by frame.
+    Recorded {
+        dir: std::path::PathBuf,
+        timestamps_us: Vec<u64>,
+    },
+}
+
+impl Clip<'_> {
+    fn len(&self) -> usize {
+        self.timestamps().len()
+    }
+    fn timestamps(&self) -> &[u64] {
+        match self {
+            Clip::Sim { clip, .. } => &clip.timestamps_us,
+            Clip::Recorded { timestamps_us, .. } => timestamps_us,
+        }
+    }
+    fn frame(&self, i: usize) -> Result<image::RgbImage> {
+        match self {
+            Clip::Sim { sim, clip, .. } => sim
+                .idle_frame(clip, i)
+                .map_err(|e| anyhow::anyhow!("simulator: {e}")),
+            Clip::Recorded { dir, .. } => {
+                let p = dir.join(telextiles_sim::recording::frame_name(i));
+                Ok(telextiles_sim::recording::read_frame(&p)?)
+            }
+        }
+    }
+}
+
+/// A recording of a resting sensor, as a clip.
+fn recorded_clip(dir: &std::path::Path) -> Result<Clip<'static>> {
+    let meta = telextiles_sim::recording::read_meta(dir)
+        .with_context(|| format!("--footage {}", dir.display()))?;
+    ensure!(
+        meta.timestamps_us.len() >= 2,
+        "--footage {}: {} frames; idle footage needs many",
+        dir.display(),
+        meta.timestamps_us.len()
+    );
+    ensure!(
+        meta.params.is_none(),
+        "--footage {}: a simulated press, not footage of a resting sensor",
+        dir.display()
+    );
+    Ok(Clip::Recorded {
+        dir: dir.to_path_buf(),
+        timestamps_us: meta.timestamps_us,
+    })
+}
+
+fn sim_clip<'a>(
+    sim: &'a telextiles_sim::Simulator,
     catalogue: u32,
     unit: u32,
     cfg: &IdleConfig,
-    dets: &[Detector],
-) -> Result<ClipResult> {
+) -> Result<Clip<'a>> {
     let spec = telextiles_sim::PressSpec {
         sensor: unit,
         catalogue: Some(catalogue),
@@ -234,6 +304,25 @@ fn run_clip(
     let clip = sim
         .idle_clip(&telextiles_sim::PressSpec { frames, ..spec })
         .map_err(sim_err)?;
+    Ok(Clip::Sim { sim, clip, fps })
+}
+
+fn run_clip(
+    clip: &Clip<'_>,
+    catalogue: u32,
+    unit: u32,
+    cfg: &IdleConfig,
+    dets: &[Detector],
+) -> Result<ClipResult> {
+    let ts = clip.timestamps();
+    // The simulated unit's nominal rate; a recording's mean, by its own clock.
+    let fps = match clip {
+        Clip::Sim { fps, .. } => *fps,
+        Clip::Recorded { .. } if ts.len() > 1 && ts[ts.len() - 1] > ts[0] => {
+            (ts.len() - 1) as f64 * 1e6 / (ts[ts.len() - 1] - ts[0]) as f64
+        }
+        Clip::Recorded { .. } => 60.0,
+    };
     let configs = dets
         .iter()
         .map(|d| d.config())
@@ -254,13 +343,14 @@ fn run_clip(
         .position(|d| *d == Detector::shipped())
         .context("the shipped detector is a candidate")?;
     let mut last: Vec<[f32; 3]> = vec![[0.0; 3]; cfg.stress.len()];
+    let t0 = ts.first().copied().unwrap_or(0);
     for i in 0..clip.len() {
-        let base = sim.idle_frame(&clip, i).map_err(sim_err)?;
-        let t = clip.timestamps_us[i];
+        let base = clip.frame(i)?;
+        let t = ts[i] - t0;
         for (s, &pct) in cfg.stress.iter().enumerate() {
             // The reference is captured on calm footage (the first 2 s);
             // the flicker comes after.
-            let calm = (clip.timestamps_us[i] as f64) < 2e6;
+            let calm = (t as f64) < 2e6;
             let pct = if calm { 0.0 } else { pct };
             let f = flicker(&base, pct, cfg.seed ^ (unit as u64) << 32 ^ i as u64);
             for (k, det) in detectors[s].iter_mut().enumerate() {
@@ -287,7 +377,7 @@ fn run_clip(
         }
     }
     let duration_s =
-        (clip.timestamps_us.last().copied().unwrap_or(0) as f64 / 1e6) + 1.0 / fps.max(1.0);
+        (ts.last().copied().unwrap_or(0).saturating_sub(t0) as f64 / 1e6) + 1.0 / fps.max(1.0);
     Ok(ClipResult {
         catalogue,
         frames_hours: duration_s / 3600.0,
@@ -300,7 +390,15 @@ fn run_clip(
 
 /// Runs every candidate on every clip.
 pub fn run(cfg: &IdleConfig) -> Result<IdleReport> {
-    ensure!(!cfg.units.is_empty(), "no sensor unit to render");
+    ensure!(
+        !cfg.units.is_empty() || !cfg.footage.is_empty(),
+        "no sensor unit to render and no footage"
+    );
+    let recorded = cfg
+        .footage
+        .iter()
+        .map(|d| recorded_clip(d))
+        .collect::<Result<Vec<_>>>()?;
     ensure!(
         cfg.seconds > 0.0 && cfg.seconds * 60.0 <= 100_000.0,
         "clips of 0 < seconds <= 1,666"
@@ -320,26 +418,39 @@ pub fn run(cfg: &IdleConfig) -> Result<IdleReport> {
             .collect::<Result<_>>()?
     };
     let dets = candidates();
-    let bar = telextiles_progress::Progress::new("idle footage", cfg.units.len() as u64, "clips");
+    let bar = telextiles_progress::Progress::new(
+        "idle footage",
+        (cfg.units.len() + recorded.len()) as u64,
+        "clips",
+    );
     let threads = cfg.threads.max(1);
     let parts: Vec<Result<Vec<ClipResult>>> = std::thread::scope(|s| {
-        let hs: Vec<_> = (0..threads)
-            .map(|w| {
-                let (sims, bar, dets) = (&sims, &bar, &dets);
-                s.spawn(move || -> Result<Vec<ClipResult>> {
-                    let mut out = Vec::new();
-                    for &(c, u) in cfg.units.iter().skip(w).step_by(threads) {
-                        let sim = &sims.iter().find(|x| x.0 == c).context("catalogue")?.1;
-                        out.push(
-                            run_clip(sim, c, u, cfg, dets)
-                                .with_context(|| format!("catalogue {c}, unit {u}"))?,
-                        );
-                        bar.inc(1);
-                    }
-                    Ok(out)
+        let hs: Vec<_> =
+            (0..threads)
+                .map(|w| {
+                    let (sims, bar, dets) = (&sims, &bar, &dets);
+                    let recorded = &recorded;
+                    s.spawn(move || -> Result<Vec<ClipResult>> {
+                        let mut out = Vec::new();
+                        for &(c, u) in cfg.units.iter().skip(w).step_by(threads) {
+                            let sim = &sims.iter().find(|x| x.0 == c).context("catalogue")?.1;
+                            let clip = sim_clip(sim, c, u, cfg)?;
+                            out.push(
+                                run_clip(&clip, c, u, cfg, dets)
+                                    .with_context(|| format!("catalogue {c}, unit {u}"))?,
+                            );
+                            bar.inc(1);
+                        }
+                        for (k, clip) in recorded.iter().enumerate().skip(w).step_by(threads) {
+                            out.push(run_clip(clip, 0, k as u32, cfg, dets).with_context(
+                                || format!("--footage {}", cfg.footage[k].display()),
+                            )?);
+                            bar.inc(1);
+                        }
+                        Ok(out)
+                    })
                 })
-            })
-            .collect();
+                .collect();
         hs.into_iter()
             .map(|h| h.join().expect("worker panicked"))
             .collect()
@@ -379,6 +490,16 @@ pub fn run(cfg: &IdleConfig) -> Result<IdleReport> {
         date: crate::report::today(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
         units: cfg.units.clone(),
+        footage: cfg
+            .footage
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        footage_hours: clips
+            .iter()
+            .filter(|c| c.catalogue == 0)
+            .map(|c| c.frames_hours)
+            .sum(),
         seconds_per_clip: cfg.seconds,
         detectors: dets,
         stress: cfg.stress.clone(),
@@ -431,18 +552,33 @@ pub fn markdown(r: &IdleReport) -> String {
         "# False presses on idle footage\n\n{} · {} · `{}` · {:.0} s\n\n",
         r.date, r.machine, r.command, r.seconds
     ));
-    let hours: f64 = r.seconds_per_clip * r.units.len() as f64 / 3600.0;
-    s.push_str(&format!(
-        "{} clips of {:.0} s ({:.2} h of footage per stress level; units: {}).\n\n",
-        r.units.len(),
-        r.seconds_per_clip,
-        hours,
-        r.units
-            .iter()
-            .map(|(c, u)| format!("catalogue {c} unit {u}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    ));
+    if !r.units.is_empty() {
+        let hours: f64 = r.seconds_per_clip * r.units.len() as f64 / 3600.0;
+        s.push_str(&format!(
+            "{} simulated clips of {:.0} s ({:.2} h of footage per stress level; units: {}).\n\n",
+            r.units.len(),
+            r.seconds_per_clip,
+            hours,
+            r.units
+                .iter()
+                .map(|(c, u)| format!("catalogue {c} unit {u}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    if !r.footage.is_empty() {
+        s.push_str(&format!(
+            "{} recorded clip{} ({:.3} h per stress level, \"catalogue 0\" below): {}.\n\n",
+            r.footage.len(),
+            if r.footage.len() == 1 { "" } else { "s" },
+            r.footage_hours,
+            r.footage
+                .iter()
+                .map(|f| format!("`{f}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
     s.push_str("| detector |");
     for st in &r.stress {
         s.push_str(&format!(" +{st} % flicker |"));
@@ -472,6 +608,11 @@ pub fn markdown(r: &IdleReport) -> String {
          (the shipped detector's, while idle):\n\n| catalogue | extra flicker | 2 frames | 3 frames |\n|---:|---:|---:|---:|\n",
     );
     for (c, st, p2, p3) in &r.run_peaks {
+        let c = if *c == 0 {
+            "0 (recorded)".to_string()
+        } else {
+            c.to_string()
+        };
         s.push_str(&format!("| {c} | {st} % | {p2:.3} | {p3:.3} |\n"));
     }
     s
@@ -870,6 +1011,7 @@ mod tests {
         // drifts by about 1 % over seconds).
         let cfg = IdleConfig {
             units: vec![(2, 9)],
+            footage: Vec::new(),
             seconds: 10.0,
             stress: vec![0.0, 1.0],
             threads: 1,
@@ -908,6 +1050,82 @@ mod tests {
         );
     }
 
+    #[test]
+    fn recorded_footage_is_read_frame_by_frame_and_reported_as_catalogue_0() {
+        // 4 s of the simulator's idle footage of unit 0, as `telextilesd
+        // record --idle` saves it, with a touch (a press's hold) from 3 s.
+        let sim = telextiles_sim::Simulator::new().unwrap();
+        let spec = telextiles_sim::PressSpec {
+            frames: 240,
+            ..telextiles_sim::PressSpec::new("T030", 3)
+        };
+        let clip = sim.idle_clip(&spec).unwrap();
+        let press = sim
+            .render_press(&telextiles_sim::PressSpec::new("T030", 3))
+            .unwrap();
+        let hold = press.meta.params.as_ref().unwrap().hold_frame as usize;
+        let frames = (0..240)
+            .map(|i| {
+                if (180..210).contains(&i) {
+                    press.frames[hold + i - 180].clone()
+                } else {
+                    sim.idle_frame(&clip, i).unwrap()
+                }
+            })
+            .collect();
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().join("idle/0001");
+        let footage = telextiles_sim::Press {
+            meta: telextiles_sim::PressMeta {
+                textile: "idle".into(),
+                // A real sensor's clock: the first frame is not at 0.
+                timestamps_us: clip.timestamps_us.iter().map(|t| t + 5_000_000).collect(),
+                params: None,
+                ..press.meta.clone()
+            },
+            frames,
+        };
+        telextiles_sim::recording::write_press(&dir, &footage).unwrap();
+        let cfg = IdleConfig {
+            units: Vec::new(),
+            footage: vec![dir.clone()],
+            seconds: 1.0,
+            stress: vec![0.0],
+            threads: 2,
+            seed: 1,
+        };
+        let r = run(&cfg).unwrap();
+        assert_eq!(r.footage, [dir.display().to_string()]);
+        assert!(
+            (r.footage_hours - 4.0 / 3600.0).abs() < 1e-5,
+            "{}",
+            r.footage_hours
+        );
+        // The touch is the one press every detector starts (whole footage
+        // read: `seconds` does not cut it).
+        for det in [Detector::shipped(), Detector::before()] {
+            let (n, h) = false_per_hour(&r, det, 0.0).unwrap();
+            assert_eq!(n, 1, "{}", det.label());
+            assert!((h - 4.0 / 3600.0).abs() < 1e-5);
+        }
+        assert!(r.scores.iter().all(|s| s.catalogue == 0));
+        let md = markdown(&r);
+        assert!(md.contains("1 recorded clip (0.001 h"), "{md}");
+        assert!(md.contains("| 0 (recorded) | 0 % |"), "{md}");
+        // A simulated press is not idle footage.
+        let p = d.path().join("press");
+        telextiles_sim::recording::write_press(&p, &press).unwrap();
+        let err = run(&IdleConfig {
+            footage: vec![p],
+            ..cfg
+        })
+        .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("not footage of a resting sensor"),
+            "{err:#}"
+        );
+    }
+
     fn idle_of(counts: &[(Detector, [u64; 3])]) -> IdleReport {
         // (no time spent capturing)
         let stress = vec![0.0, MARGIN_STRESS, 0.5];
@@ -930,6 +1148,8 @@ mod tests {
             date: String::new(),
             command: String::new(),
             units: vec![(1, 0)],
+            footage: Vec::new(),
+            footage_hours: 0.0,
             seconds_per_clip: 1800.0,
             detectors: counts.iter().map(|x| x.0).collect(),
             stress,

@@ -98,9 +98,15 @@ struct MstatsScaleArgs {
 
 #[derive(Args)]
 struct ContactIdleArgs {
-    /// Sensor units to render, CATALOGUE:UNIT,UNIT,... (repeat per catalogue).
-    #[arg(long, default_value = "1:0,4,5", num_args = 1)]
+    /// Sensor units to render, CATALOGUE:UNIT,UNIT,... (repeat per
+    /// catalogue) [default: 1:0,4,5, unless --footage is given].
+    #[arg(long, num_args = 1)]
     units: Vec<String>,
+    /// A recording of the sensor resting untouched (`telextilesd record
+    /// --idle` writes them), or a directory of them; repeat for more. Read
+    /// whole, beside the units rendered, and reported as catalogue 0.
+    #[arg(long, num_args = 1)]
+    footage: Vec<PathBuf>,
     /// Seconds of footage per unit.
     #[arg(long, default_value_t = 300.0)]
     seconds: f64,
@@ -1337,7 +1343,24 @@ fn contact_config(
 fn contact_idle(a: ContactIdleArgs) -> Result<()> {
     use telextiles_lab::contact_idle as ci;
     let mut units = Vec::new();
-    for spec in &a.units {
+    let default_units = ["1:0,4,5".to_string()];
+    let unit_specs: &[String] = if a.units.is_empty() && a.footage.is_empty() {
+        &default_units
+    } else {
+        &a.units
+    };
+    let mut footage = Vec::new();
+    for f in &a.footage {
+        let found = telextiles_sim::recording::find_presses(f)
+            .with_context(|| format!("--footage {}", f.display()))?;
+        ensure!(
+            !found.is_empty(),
+            "--footage {}: no recording (a directory holding press.json) there",
+            f.display()
+        );
+        footage.extend(found);
+    }
+    for spec in unit_specs {
         let (c, list) = spec
             .split_once(':')
             .with_context(|| format!("--units {spec}: expected CATALOGUE:UNIT,UNIT,..."))?;
@@ -1356,6 +1379,7 @@ fn contact_idle(a: ContactIdleArgs) -> Result<()> {
     }
     let r = ci::run(&ci::IdleConfig {
         units,
+        footage,
         seconds: a.seconds,
         stress: a.stress.clone(),
         threads: a.threads,
