@@ -76,6 +76,8 @@ pub struct Args {
     /// One JSON object per press on its own line.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub contact: crate::config::ContactArgs,
 }
 
 fn print(
@@ -292,8 +294,12 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         let gap = 20;
         let (mut src, _handle) =
             SimSource::new(sim, spec, gap, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
-        let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None)
-            .map_err(anyhow::Error::msg)?;
+        let pcfg = PipelineConfig {
+            contact: args.contact.contact()?,
+            ..Default::default()
+        };
+        let mut pipeline =
+            Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
         let total = (gap + frames) as u64 * args.presses as u64;
         let mut err = Ok(());
         let mut tally = Tally::default();
@@ -316,8 +322,11 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     // One pipeline, reset for every recording with the recording's own
     // reference (else the one given for its sensor): nothing carries over
     // from one recording to the next.
-    let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None)
-        .map_err(anyhow::Error::msg)?;
+    let pcfg = PipelineConfig {
+        contact: args.contact.contact()?,
+        ..Default::default()
+    };
+    let mut pipeline = Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
     let progress =
         telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
     let mut tally = Tally::default();
@@ -452,6 +461,7 @@ mod tests {
             allow_encoder_mismatch: false,
             threads: 1,
             json: true,
+            contact: Default::default(),
         }
     }
 

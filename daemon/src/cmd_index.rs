@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use telextiles_index::build::{Paired, SelfCheck};
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
-use telextiles_sensing::contact::ContactConfig;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::front::{recording_reference, FrontEnd, References};
 use telextiles_sim::catalogue::{Book, Catalogue};
@@ -68,6 +67,8 @@ pub struct CheckArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub contact: crate::config::ContactArgs,
 }
 
 /// `telextilesd index build`
@@ -172,6 +173,8 @@ pub struct BuildArgs {
     /// Output file.
     #[arg(long, short, default_value = "models/index.tlxi")]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub contact: crate::config::ContactArgs,
 }
 
 /// `telextilesd index inspect`
@@ -217,7 +220,7 @@ fn check(a: CheckArgs) -> Result<()> {
     for m in &a.models {
         fronts.push(FrontEnd::new(
             open_encoder(m, a.threads)?,
-            ContactConfig::default(),
+            a.contact.contact()?,
             None,
         ));
     }
@@ -577,7 +580,7 @@ fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
 fn build(a: BuildArgs) -> Result<()> {
     let enc = open_encoder(&a.model, a.threads)?;
     let info = enc.info().clone();
-    let mut front = FrontEnd::new(enc, ContactConfig::default(), None);
+    let mut front = FrontEnd::new(enc, a.contact.contact()?, None);
     let cat = Catalogue::version(a.catalogue)
         .with_context(|| format!("no simulator catalogue {}", a.catalogue))?;
     // textile id -> (frame embeddings, per-press means)

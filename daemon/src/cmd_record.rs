@@ -34,7 +34,7 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use telextiles_progress::Progress;
-use telextiles_sensing::contact::{ContactConfig, ContactDetector};
+use telextiles_sensing::contact::ContactDetector;
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::idle::{IdleCheck, IdleSummary};
 use telextiles_sensing::record::{
@@ -141,6 +141,8 @@ pub struct Args {
     /// With --idle: the summary as one JSON object on the last line.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub contact: crate::config::ContactArgs,
 }
 
 /// A source and what its presses are labelled with.
@@ -898,7 +900,7 @@ fn record_textile(
     let mut ran_out = None;
     match opened.frames {
         Frames::Live(mut src, budget) => {
-            let mut det = ContactDetector::new(ContactConfig::default());
+            let mut det = ContactDetector::new(args.contact.contact()?);
             let mut rec = Recorder::new(RecorderConfig::default(), label);
             let mut n = 0u64;
             while !s.done() {
@@ -983,8 +985,8 @@ fn record_textile(
                     d.display().to_string(),
                 );
                 let mut det = match &press_ref {
-                    Some(r) => ContactDetector::with_reference_pixels(ContactConfig::default(), r),
-                    None => ContactDetector::new(ContactConfig::default()),
+                    Some(r) => ContactDetector::with_reference_pixels(args.contact.contact()?, r),
+                    None => ContactDetector::new(args.contact.contact()?),
                 };
                 let mut rec = Recorder::new(
                     RecorderConfig {
@@ -1509,7 +1511,7 @@ fn run_idle(
         path.display()
     );
     let mut writer = telextiles_sim::recording::PressWriter::create(&path)?;
-    let mut check = IdleCheck::new(ContactConfig::default());
+    let mut check = IdleCheck::new(args.contact.contact()?);
     let progress = Progress::new("idle", seconds.ceil() as u64, "s");
     let mut frame = Frame::blank();
     let mut timestamps = Vec::new();
@@ -1641,6 +1643,7 @@ fn write_idle_summary(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use telextiles_sensing::contact::ContactConfig;
 
     #[test]
     fn sensor_argument_parses() {
@@ -1707,6 +1710,7 @@ mod tests {
             references: Vec::new(),
             idle: Some(10.0),
             json: false,
+            contact: Default::default(),
         }
     }
 

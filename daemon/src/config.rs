@@ -40,6 +40,8 @@ pub const KEYS: &[&str] = &[
     "sensor",
     "reference",
     "replay_fps",
+    "contact_enter",
+    "contact_frames",
     "model",
     "index",
     "roller",
@@ -52,6 +54,47 @@ pub const KEYS: &[&str] = &[
     "map_bind",
     "log",
 ];
+
+impl Config {
+    /// The contact detector these settings ask for.
+    pub fn contact(&self) -> telextiles_sensing::contact::ContactConfig {
+        // Checked when the configuration was resolved.
+        telextiles_sensing::contact::ContactConfig::with_entry(
+            self.contact_enter,
+            self.contact_frames,
+        )
+        .unwrap_or_default()
+    }
+}
+
+/// The contact detector's two settings for the offline tools (`record`,
+/// `classify`, `index build`, `index check`), as the daemon takes them from
+/// its configuration (`contact_enter`, `contact_frames`): give the same to
+/// both, so that presses are cut as the live session cuts them.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct ContactArgs {
+    /// Contact detector: score above the noise floor (grey levels) at which
+    /// a frame counts towards a press, as the daemon's `contact_enter`
+    /// [default: 0.35]
+    #[arg(long, value_name = "SCORE", value_parser = parse_contact_enter)]
+    pub contact_enter: Option<f32>,
+    /// Contact detector: frames in a row over it that start a press, as
+    /// the daemon's `contact_frames` [default: 2]
+    #[arg(long, value_name = "N", value_parser = parse_contact_frames)]
+    pub contact_frames: Option<u32>,
+}
+
+impl ContactArgs {
+    /// The contact detector asked for (the shipped one by default).
+    pub fn contact(&self) -> anyhow::Result<telextiles_sensing::contact::ContactConfig> {
+        let shipped = telextiles_sensing::contact::ContactConfig::default();
+        telextiles_sensing::contact::ContactConfig::with_entry(
+            self.contact_enter.unwrap_or(shipped.enter),
+            self.contact_frames.unwrap_or(shipped.min_enter_frames),
+        )
+        .map_err(anyhow::Error::msg)
+    }
+}
 
 /// Default QUIC listen address.
 pub const DEFAULT_LISTEN: &str = "[::]:47800";
@@ -184,6 +227,12 @@ pub struct ConfigArgs {
     /// Frame rate of replayed recordings saved without timestamps (PyTouch data) [env: TELEXTILESD_REPLAY_FPS] [default: the DIGIT's stream rate at the frames' size: 60 fps QVGA, 30 VGA]
     #[arg(long, value_name = "FPS", value_parser = telextiles_sim::recording::parse_fps)]
     pub replay_fps: Option<f32>,
+    /// Contact detector: score above the noise floor (grey levels) at which a frame counts towards a press; raise it if `record --idle` finds presses on your resting sensor [env: TELEXTILESD_CONTACT_ENTER] [default: 0.35]
+    #[arg(long, value_name = "SCORE", value_parser = parse_contact_enter)]
+    pub contact_enter: Option<f32>,
+    /// Contact detector: frames in a row over contact_enter that start a press [env: TELEXTILESD_CONTACT_FRAMES] [default: 2]
+    #[arg(long, value_name = "N", value_parser = parse_contact_frames)]
+    pub contact_frames: Option<u32>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -233,6 +282,8 @@ struct FileConfig {
     sensor: Option<String>,
     reference: Option<Vec<String>>,
     replay_fps: Option<f32>,
+    contact_enter: Option<f32>,
+    contact_frames: Option<u32>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -266,6 +317,10 @@ pub struct Config {
     /// Frame rate of replayed recordings saved without timestamps (None:
     /// by their frames' size, `telextiles_sim::recording::default_fps`).
     pub replay_fps: Option<f32>,
+    /// The contact detector's entry threshold (`ContactConfig::with_entry`).
+    pub contact_enter: f32,
+    /// Frames in a row over it that start a press.
+    pub contact_frames: u32,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -451,6 +506,27 @@ impl Config {
             e.get("REPLAY_FPS", telextiles_sim::recording::parse_fps)?,
             file_replay_fps,
         );
+        let shipped = telextiles_sensing::contact::ContactConfig::default();
+        let file_contact_enter = file
+            .contact_enter
+            .map(|v| check_contact_enter(v).map_err(|m| file_err("contact_enter", m)))
+            .transpose()?;
+        let contact_enter = pick(
+            args.contact_enter,
+            e.get("CONTACT_ENTER", parse_contact_enter)?,
+            file_contact_enter,
+        )
+        .unwrap_or(shipped.enter);
+        let file_contact_frames = file
+            .contact_frames
+            .map(|v| check_contact_frames(v).map_err(|m| file_err("contact_frames", m)))
+            .transpose()?;
+        let contact_frames = pick(
+            args.contact_frames,
+            e.get("CONTACT_FRAMES", parse_contact_frames)?,
+            file_contact_frames,
+        )
+        .unwrap_or(shipped.min_enter_frames);
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -528,6 +604,8 @@ impl Config {
             sensor,
             reference,
             replay_fps,
+            contact_enter,
+            contact_frames,
             model,
             index,
             roller,
@@ -599,7 +677,7 @@ impl Config {
             .map(|f| format!("replay_fps = {f:?}\n"))
             .unwrap_or_default();
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}model = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -610,6 +688,8 @@ impl Config {
             q(&self.sensor.to_string()),
             list(&self.reference),
             replay_fps,
+            self.contact_enter,
+            self.contact_frames,
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -679,6 +759,28 @@ impl Env<'_> {
 
 fn parse_string(s: &str) -> Result<String, String> {
     Ok(s.to_string())
+}
+fn check_contact_enter(v: f32) -> Result<f32, String> {
+    telextiles_sensing::contact::ContactConfig::with_entry(v, 2).map(|_| v)
+}
+fn check_contact_frames(n: u32) -> Result<u32, String> {
+    telextiles_sensing::contact::ContactConfig::with_entry(0.35, n).map(|_| n)
+}
+/// A contact threshold (`contact_enter`).
+pub fn parse_contact_enter(s: &str) -> Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    check_contact_enter(v)
+}
+/// Frames in a row that start a press (`contact_frames`).
+pub fn parse_contact_frames(s: &str) -> Result<u32, String> {
+    let n: u32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a whole number"))?;
+    check_contact_frames(n)
 }
 fn parse_path(s: &str) -> Result<PathBuf, String> {
     Ok(PathBuf::from(s))
@@ -1081,6 +1183,83 @@ mod tests {
     }
 
     #[test]
+    fn the_contact_detector_is_set_from_flag_env_or_file_and_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        let base = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        // Unset: the shipped detector.
+        std::fs::write(&cfg, "").unwrap();
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!((c.contact_enter, c.contact_frames), (0.35, 2));
+        assert_eq!(
+            c.contact(),
+            telextiles_sensing::contact::ContactConfig::default()
+        );
+        // The file, then the variable, then the flag.
+        std::fs::write(&cfg, "contact_enter = 0.5\ncontact_frames = 3\n").unwrap();
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!((c.contact_enter, c.contact_frames), (0.5, 3));
+        assert_eq!(c.contact().enter, 0.5);
+        assert_eq!(c.contact().min_enter_frames, 3);
+        let mut with_var = env.clone();
+        with_var.push(("TELEXTILESD_CONTACT_ENTER", "0.6"));
+        assert_eq!(resolve(&[], &with_var).unwrap().contact_enter, 0.6);
+        let c = resolve(
+            &["--contact-enter", "0.7", "--contact-frames", "4"],
+            &with_var,
+        )
+        .unwrap();
+        assert_eq!((c.contact_enter, c.contact_frames), (0.7, 4));
+        // A threshold under the shipped exit (0.2) brings the exit down.
+        let c = resolve(&["--contact-enter", "0.1"], &env)
+            .unwrap()
+            .contact();
+        assert!(c.exit < c.enter && c.exit > 0.0, "{c:?}");
+        // Out of range anywhere: a clear error naming where.
+        std::fs::write(&cfg, "contact_enter = 0\n").unwrap();
+        let e = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            e.contains("contact_enter") && e.contains("out of range"),
+            "{e}"
+        );
+        std::fs::write(&cfg, "contact_frames = 0\n").unwrap();
+        let e = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            e.contains("contact_frames") && e.contains("out of range"),
+            "{e}"
+        );
+        std::fs::write(&cfg, "").unwrap();
+        let mut bad_var = env.clone();
+        bad_var.push(("TELEXTILESD_CONTACT_ENTER", "high"));
+        let e = resolve(&[], &bad_var).unwrap_err().to_string();
+        assert!(
+            e.contains("TELEXTILESD_CONTACT_ENTER") && e.contains("not a number"),
+            "{e}"
+        );
+        let e = T::try_parse_from(["t", "--contact-frames", "31"])
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("out of range"), "{e}");
+        // The offline tools' flags make the same detector.
+        let a = ContactArgs {
+            contact_enter: Some(0.5),
+            contact_frames: Some(3),
+        };
+        let mut c = resolve(&[], &env).unwrap();
+        (c.contact_enter, c.contact_frames) = (0.5, 3);
+        assert_eq!(a.contact().unwrap(), c.contact());
+        assert_eq!(
+            ContactArgs::default().contact().unwrap(),
+            telextiles_sensing::contact::ContactConfig::default()
+        );
+    }
+
+    #[test]
     fn replay_fps_is_a_positive_rate_from_flag_env_or_file() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = dir.path().join("t.toml");
@@ -1181,6 +1360,8 @@ mod tests {
             "connect" | "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
             "reference" => "[\"/x.png\"]",
             "replay_fps" => "30",
+            "contact_enter" => "0.5",
+            "contact_frames" => "3",
             "listen" | "map_bind" => "\"127.0.0.1:9\"",
             "sensor" => "\"sim\"",
             "roller" => "\"sim\"",
@@ -1196,6 +1377,8 @@ mod tests {
             "connect" | "mdns_allow" | "mdns_deny" => "x:1",
             "reference" => "D1=/x.png",
             "replay_fps" => "29.97",
+            "contact_enter" => "0.45",
+            "contact_frames" => "4",
             "listen" | "map_bind" => "127.0.0.1:9",
             "sensor" => "sim",
             "roller" => "sim",

@@ -244,11 +244,12 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     let sensing = {
         let state = state.clone();
         let ended = ended_tx.clone();
+        let contact = cfg.contact();
         std::thread::Builder::new()
             .name("sensing".into())
             .spawn(move || {
                 let guard = EndGuard::new("sensing thread", ended);
-                let r = sensing::sensing_thread(state, source, encoder, sensor_rx);
+                let r = sensing::sensing_thread(state, source, encoder, contact, sensor_rx);
                 guard.done(r.err());
             })?
     };

@@ -1260,7 +1260,41 @@ fn record_idle_checks_the_contact_detector_on_a_resting_sensor() {
     assert!(reports(&String::from_utf8_lossy(&out.stdout)).is_empty());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no press detected"), "{err}");
+    // A threshold far too low for this sensor (as a user may set it, the
+    // same flag as the daemon's `contact_enter`): presses on nothing, a
+    // failed check, and the footage kept for a report.
+    let err = fails(
+        d,
+        &[
+            "record",
+            "--idle",
+            "3",
+            "--sensor",
+            "sim",
+            "--out",
+            "rest",
+            "--contact-enter",
+            "0.0005",
+        ],
+    );
+    assert!(err.contains("press(es) on the untouched sensor"), "{err}");
+    assert!(d.join("rest/idle/0002/press.json").is_file());
     // Errors a user meets.
+    let err = fails(
+        d,
+        &[
+            "record",
+            "--idle",
+            "2",
+            "--sensor",
+            "sim",
+            "--out",
+            "rest",
+            "--contact-frames",
+            "0",
+        ],
+    );
+    assert!(err.contains("out of range"), "{err}");
     let err = fails(
         d,
         &["record", "--idle", "0", "--sensor", "sim", "--out", "rest"],

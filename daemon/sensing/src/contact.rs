@@ -170,6 +170,33 @@ impl Default for ContactConfig {
     }
 }
 
+impl ContactConfig {
+    /// The shipped detector with another entry threshold and run, as a
+    /// user sets them (`contact_enter`, `contact_frames`): the exit
+    /// threshold is the shipped one, or 0.6 × the entry threshold when
+    /// that is lower; a run of `frames` also starts a press once it spans
+    /// (`frames` - 1) frames at 60 fps less 3 ms of capture time, so that
+    /// at 30 fps it takes as long as at 60.
+    pub fn with_entry(enter: f32, frames: u32) -> Result<ContactConfig, String> {
+        if !(enter.is_finite() && enter > 0.0 && enter <= 50.0) {
+            return Err(format!(
+                "the contact threshold {enter} is out of range: 0 < enter <= 50 (score above the noise floor, 0..255 grey levels; shipped 0.35)"
+            ));
+        }
+        if !(1..=30).contains(&frames) {
+            return Err(format!(
+                "{frames} frames in a row to start a press is out of range: 1 to 30 (shipped 2)"
+            ));
+        }
+        let mut c = ContactConfig::default();
+        c.enter = enter;
+        c.exit = c.exit.min(0.6 * enter);
+        c.min_enter_frames = frames;
+        c.enter_ms = (frames.saturating_sub(1) as f32 * 1000.0 / 60.0 - 3.0).max(0.0);
+        Ok(c)
+    }
+}
+
 /// Why a press ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum EndReason {

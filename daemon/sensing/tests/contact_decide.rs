@@ -259,6 +259,33 @@ fn an_exposure_wander_starts_no_press_once_the_gain_is_taken_out() {
 }
 
 #[test]
+fn a_user_set_threshold_and_run_keep_the_rest_of_the_shipped_detector() {
+    // The shipped detector is its own threshold and run.
+    assert_eq!(
+        ContactConfig::with_entry(0.35, 2).unwrap(),
+        ContactConfig::default()
+    );
+    let c = ContactConfig::with_entry(0.5, 3).unwrap();
+    assert_eq!((c.enter, c.exit, c.min_enter_frames), (0.5, 0.2, 3));
+    // Three frames span 30 ms at 60 fps: two at 30 fps.
+    assert!((c.enter_ms - 30.333).abs() < 0.01, "{}", c.enter_ms);
+    // Under the shipped exit threshold, the exit comes down with it.
+    let c = ContactConfig::with_entry(0.1, 2).unwrap();
+    assert!((c.exit - 0.06).abs() < 1e-6, "{c:?}");
+    for (enter, frames) in [
+        (0.0, 2),
+        (-1.0, 2),
+        (f32::NAN, 2),
+        (51.0, 2),
+        (0.35, 0),
+        (0.35, 31),
+    ] {
+        let e = ContactConfig::with_entry(enter, frames).unwrap_err();
+        assert!(e.contains("out of range"), "{enter} {frames}: {e}");
+    }
+}
+
+#[test]
 fn hysteresis_needs_consecutive_frames_to_enter_and_leave() {
     let base = RgbImage::from_pixel(240, 320, Rgb([100, 100, 100]));
     let touched = RgbImage::from_pixel(240, 320, Rgb([104, 104, 104]));

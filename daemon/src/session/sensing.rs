@@ -161,10 +161,13 @@ pub(crate) fn sensing_thread(
     state: Arc<State>,
     mut source: Box<dyn FrameSource>,
     encoder: Encoder,
+    contact: ContactConfig,
     cmds: std_mpsc::Receiver<SensorCmd>,
 ) -> Result<(), String> {
-    // The one per-frame path (as `classify` and `index build` run it).
-    let mut front = FrontEnd::new(encoder, ContactConfig::default(), None);
+    // The one per-frame path (as `classify` and `index build` run it),
+    // with the configured contact detector (`contact_enter`,
+    // `contact_frames`).
+    let mut front = FrontEnd::new(encoder, contact, None);
     let mut sender = SenderCore::new(front.encoder().dim());
     let mut frame = Frame::blank();
     let mut actions = Vec::new();

@@ -74,23 +74,15 @@ impl Detector {
         )
     }
 
-    /// The shipped detector with this threshold and run: the exit
-    /// threshold is the shipped one, or 0.6 × the entry threshold when that
-    /// is lower; the run spans (n - 1) frames at 60 fps less 3 ms in time,
-    /// as the shipped 3 frames span 30 ms.
+    /// The shipped detector with this threshold and run
+    /// ([`ContactConfig::with_entry`], as a user sets them in the daemon)
+    /// and score.
     pub fn config(&self) -> Result<ContactConfig> {
-        let mut c = ContactConfig::default();
-        c.enter = self.enter;
-        c.exit = c.exit.min(0.6 * self.enter);
-        ensure!(
-            self.frames >= 1,
-            "a run of at least one frame starts a press"
-        );
-        c.min_enter_frames = self.frames;
-        c.enter_ms = (self.frames.saturating_sub(1) as f32 * 1000.0 / 60.0 - 3.0).max(0.0);
+        let mut c = ContactConfig::with_entry(self.enter, self.frames)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         c.gain_compensated = self.gain;
         ensure!(
-            c.enter.is_finite() && c.exit > 0.0 && c.exit < c.enter,
+            c.exit > 0.0 && c.exit < c.enter,
             "the contact detector needs 0 < exit ({}) < enter ({})",
             c.exit,
             c.enter
@@ -99,8 +91,6 @@ impl Detector {
     }
 }
 
-/// The detectors the study runs, the baseline ([`Detector::before`])
-/// first, then the shipped one.
 pub fn candidates() -> Vec<Detector> {
     let mut v = vec![Detector::before(), Detector::shipped()];
     v.dedup();
