@@ -1381,8 +1381,8 @@ pub const MAX_IDLE_S: f64 = 600.0;
 enum IdleFrames {
     Live(Box<dyn FrameSource>),
     Sim {
-        sim: Simulator,
-        clip: telextiles_sim::IdleClip,
+        sim: Box<Simulator>,
+        clip: Box<telextiles_sim::IdleClip>,
         next: usize,
     },
 }
@@ -1452,11 +1452,11 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
             "--idle records a live sensor (--sensor digit[:SERIAL], or sim): footage of a resting sensor, not presses to replay"
         ),
         SensorArg::Sim => {
-            let sim = Simulator::new()?;
+            let sim = Box::new(Simulator::new()?);
             let spec = PressSpec::new("T001", args.sim_seed.unwrap_or(1));
             let fps = sim.press_meta(&spec)?.fps as f64;
             let n = ((seconds * fps).round() as usize).max(1);
-            let clip = sim.idle_clip(&PressSpec { frames: n, ..spec })?;
+            let clip = Box::new(sim.idle_clip(&PressSpec { frames: n, ..spec })?);
             IdleSource {
                 frames: IdleFrames::Sim { sim, clip, next: 0 },
                 serial: "SIM0000".to_string(),
