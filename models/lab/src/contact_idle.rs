@@ -221,7 +221,7 @@ struct ClipResult {
 enum Clip<'a> {
     Sim {
         sim: &'a telextiles_sim::Simulator,
-        clip: telextiles_sim::IdleClip,
+        clip: Box<telextiles_sim::IdleClip>,
         /// The unit's nominal frame rate.
         fps: f64,
     },
@@ -233,9 +233,6 @@ enum Clip<'a> {
 }
 
 impl Clip<'_> {
-    fn len(&self) -> usize {
-        self.timestamps().len()
-    }
     fn timestamps(&self) -> &[u64] {
         match self {
             Clip::Sim { clip, .. } => &clip.timestamps_us,
@@ -294,7 +291,11 @@ fn sim_clip<'a>(
     let clip = sim
         .idle_clip(&telextiles_sim::PressSpec { frames, ..spec })
         .map_err(sim_err)?;
-    Ok(Clip::Sim { sim, clip, fps })
+    Ok(Clip::Sim {
+        sim,
+        clip: Box::new(clip),
+        fps,
+    })
 }
 
 fn run_clip(
@@ -334,9 +335,9 @@ fn run_clip(
         .context("the shipped detector is a candidate")?;
     let mut last: Vec<[f32; 3]> = vec![[0.0; 3]; cfg.stress.len()];
     let t0 = ts.first().copied().unwrap_or(0);
-    for i in 0..clip.len() {
+    for (i, &t_frame) in ts.iter().enumerate() {
         let base = clip.frame(i)?;
-        let t = ts[i] - t0;
+        let t = t_frame - t0;
         for (s, &pct) in cfg.stress.iter().enumerate() {
             // The reference is captured on calm footage (the first 2 s);
             // the flicker comes after.
@@ -661,11 +662,13 @@ pub struct Row {
     /// (stress, false presses, hours, share of the time capturing the
     /// reference) over every catalogue.
     pub idle: Vec<(f32, u64, f64, f64)>,
-    /// (study, group, right at 100 ms, first decision right, right at the
-    /// end, first decision ms p50, share of presses never started,
-    /// switches / 100).
-    pub groups: Vec<(String, String, f64, f64, f64, f64, f64, f64)>,
+    pub groups: Vec<GroupScore>,
 }
+
+/// One group of one study for a detector: (study, group, right at 100 ms,
+/// first decision right, right at the end, first decision ms p50, share
+/// of presses never started, switches / 100).
+pub type GroupScore = (String, String, f64, f64, f64, f64, f64, f64);
 
 /// The rows of every detector that has both an idle score and a timing
 /// study in each of `timings`' sources, the shipped detector first.
@@ -803,7 +806,7 @@ pub fn choose(rows: &[Row]) -> Result<usize> {
     let worst = |r: &Row| r.groups.iter().map(|g| g.2).fold(f64::INFINITY, f64::min);
     let mut best: Option<usize> = None;
     for (i, r) in rows.iter().enumerate() {
-        if !(safe(r) && keeps(r)) || !worst(r).is_finite() {
+        if !(safe(r) && keeps(r) && worst(r).is_finite()) {
             continue;
         }
         let better = match best {
