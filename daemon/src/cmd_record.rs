@@ -134,7 +134,7 @@ pub struct Args {
     /// Record this many seconds (up to 600) of the sensor resting
     /// untouched, into <out>/idle/NNNN/, and check the contact detector on
     /// them: presses it started (each false), and how close its score came
-    /// to starting one. Fails if it started any. About 10 MB per second of
+    /// to starting one. Fails if it started any. About 7 MB per second of
     /// PNG frames. With --sensor digit[:SERIAL] or sim.
     #[arg(long, value_name = "SECONDS")]
     pub idle: Option<f64>,
@@ -1377,42 +1377,30 @@ impl LiveRecording {
 /// The longest `--idle` recording, seconds.
 pub const MAX_IDLE_S: f64 = 600.0;
 
-/// Where idle footage comes from.
-enum IdleFrames {
-    Live(Box<dyn FrameSource>),
-    Sim {
-        sim: Box<Simulator>,
-        clip: Box<telextiles_sim::IdleClip>,
-        next: usize,
-    },
+/// The simulator's idle footage of a unit as a frame source (as fast as
+/// it renders; `Ended` after the clip).
+struct IdleSimSource {
+    sim: Simulator,
+    clip: telextiles_sim::IdleClip,
+    next: usize,
 }
 
-impl IdleFrames {
-    /// The next frame and its capture time (µs), or None when a finite
-    /// source has no more.
-    fn next(&mut self, frame: &mut Frame) -> Result<Option<()>> {
-        match self {
-            IdleFrames::Live(src) => loop {
-                match src.next_frame(frame) {
-                    Ok(()) => return Ok(Some(())),
-                    Err(SourceError::BadFrame(e)) => tracing::warn!("bad frame skipped: {e}"),
-                    Err(SourceError::Ended) => return Ok(None),
-                    Err(e) => return Err(anyhow::anyhow!("{e}")),
-                }
-            },
-            IdleFrames::Sim { sim, clip, next } => {
-                if *next >= clip.len() {
-                    return Ok(None);
-                }
-                frame.image = sim
-                    .idle_frame(clip, *next)
-                    .map_err(|e| anyhow::anyhow!("simulator: {e}"))?;
-                frame.timestamp_us = clip.timestamps_us[*next];
-                frame.seq = *next as u64;
-                *next += 1;
-                Ok(Some(()))
-            }
+impl FrameSource for IdleSimSource {
+    fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+        if self.next >= self.clip.len() {
+            return Err(SourceError::Ended);
         }
+        out.image = self
+            .sim
+            .idle_frame(&self.clip, self.next)
+            .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+        out.timestamp_us = self.clip.timestamps_us[self.next];
+        out.seq = self.next as u64;
+        self.next += 1;
+        Ok(())
+    }
+    fn describe(&self) -> String {
+        "the simulated DIGIT (unit 0), untouched".into()
     }
 }
 
@@ -1420,7 +1408,7 @@ impl IdleFrames {
 /// detector checked on it (see the module docs).
 fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= MAX_IDLE_S) {
-        bail!("--idle takes 0 < SECONDS <= {MAX_IDLE_S} (the footage is about 10 MB a second)");
+        bail!("--idle takes 0 < SECONDS <= {MAX_IDLE_S} (the footage is about 7 MB a second)");
     }
     if args.textile.is_some() || args.presses.is_some() || args.name.is_some() {
         bail!("--idle records the sensor untouched, not presses of a textile: leave out --textile, --name and --presses");
@@ -1452,16 +1440,17 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
             "--idle records a live sensor (--sensor digit[:SERIAL], or sim): footage of a resting sensor, not presses to replay"
         ),
         SensorArg::Sim => {
-            let sim = Box::new(Simulator::new()?);
+            let sim = Simulator::new()?;
             let spec = PressSpec::new("T001", args.sim_seed.unwrap_or(1));
             let fps = sim.press_meta(&spec)?.fps as f64;
             let n = ((seconds * fps).round() as usize).max(1);
-            let clip = Box::new(sim.idle_clip(&PressSpec { frames: n, ..spec })?);
+            let clip = sim.idle_clip(&PressSpec { frames: n, ..spec })?;
+            let src = IdleSimSource { sim, clip, next: 0 };
             IdleSource {
-                frames: IdleFrames::Sim { sim, clip, next: 0 },
+                desc: src.describe(),
+                frames: Box::new(src),
                 serial: "SIM0000".to_string(),
                 source: "sim",
-                desc: "the simulated DIGIT (unit 0), untouched".to_string(),
             }
         }
         SensorArg::Digit(serial) => {
@@ -1470,7 +1459,7 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
                 bail!("a DIGIT is a live source");
             };
             IdleSource {
-                frames: IdleFrames::Live(src),
+                frames: src,
                 serial: opened.serial.unwrap_or_default(),
                 source: "digit",
                 desc: opened.desc,
@@ -1482,7 +1471,7 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
 
 /// An opened source of idle footage and what it is.
 struct IdleSource {
-    frames: IdleFrames,
+    frames: Box<dyn FrameSource>,
     serial: String,
     source: &'static str,
     desc: String,
@@ -1502,6 +1491,7 @@ fn run_idle(
         source,
         desc,
     } = src;
+    let contact = args.contact.contact()?;
     let dir = args.out.join("idle");
     remove_stale_temporaries(&dir);
     let number = next_number(&dir)?;
@@ -1511,7 +1501,7 @@ fn run_idle(
         path.display()
     );
     let mut writer = telextiles_sim::recording::PressWriter::create(&path)?;
-    let mut check = IdleCheck::new(args.contact.contact()?);
+    let mut check = IdleCheck::new(contact);
     let progress = Progress::new("idle", seconds.ceil() as u64, "s");
     let mut frame = Frame::blank();
     let mut timestamps = Vec::new();
@@ -1523,9 +1513,13 @@ fn run_idle(
             interrupted = true;
             break;
         }
-        match frames.next(&mut frame) {
-            Ok(Some(())) => {}
-            Ok(None) => break,
+        match frames.next_frame(&mut frame) {
+            Ok(()) => {}
+            Err(SourceError::BadFrame(e)) => {
+                tracing::warn!("bad frame skipped: {e}");
+                continue;
+            }
+            Err(SourceError::Ended) => break,
             Err(e) => bail!(
                 "{e}: the sensor stopped after {} frames; nothing saved",
                 timestamps.len()
@@ -1744,11 +1738,11 @@ mod tests {
             frames: images,
         };
         IdleSource {
-            frames: IdleFrames::Live(Box::new(RecordedSource::from_press(
+            frames: Box::new(RecordedSource::from_press(
                 footage,
                 Pace::AsFastAsPossible,
                 "test",
-            ))),
+            )),
             serial: "D00001".into(),
             source: "digit",
             desc: "a test DIGIT".into(),
@@ -1805,19 +1799,41 @@ mod tests {
         assert!(d.path().join("idle/0002/press.json").is_file());
     }
 
-    /// A source that delivers `n` frames, then is unplugged.
-    struct Unplugged(IdleFrames, usize);
-    impl FrameSource for Unplugged {
+    /// How a [`CutShort`] source ends.
+    enum Then {
+        /// The DIGIT is unplugged.
+        Unplugged,
+        /// Ctrl-C is pressed (sets [`STOP`]); the frames go on.
+        CtrlC,
+    }
+    static STOP: AtomicBool = AtomicBool::new(false);
+    /// A source that delivers `n` frames of another, then ends as `Then` says.
+    struct CutShort(Box<dyn FrameSource>, usize, Then);
+    impl FrameSource for CutShort {
         fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
             if self.1 == 0 {
-                return Err(SourceError::Unavailable("DIGIT unplugged".into()));
+                match self.2 {
+                    Then::Unplugged => {
+                        return Err(SourceError::Unavailable("DIGIT unplugged".into()))
+                    }
+                    Then::CtrlC => STOP.store(true, Ordering::SeqCst),
+                }
+            } else {
+                self.1 -= 1;
             }
-            self.1 -= 1;
-            self.0.next(out).expect("frame").expect("more frames");
-            Ok(())
+            self.0.next_frame(out)
         }
         fn describe(&self) -> String {
-            "unplugged".into()
+            "cut short".into()
+        }
+    }
+
+    /// [`touched_idle`] (untouched), cut short.
+    fn cut_short(frames: usize, after: usize, then: Then) -> IdleSource {
+        let inner = touched_idle(frames, frames, 0);
+        IdleSource {
+            frames: Box::new(CutShort(inner.frames, after, then)),
+            ..inner
         }
     }
 
@@ -1825,12 +1841,7 @@ mod tests {
     fn idle_recording_cut_short_by_the_sensor_or_at_once_leaves_nothing() {
         let d = tempfile::tempdir().expect("tempdir");
         let stop = AtomicBool::new(false);
-        let src = IdleSource {
-            frames: IdleFrames::Live(Box::new(Unplugged(touched_idle(60, 100, 0).frames, 30))),
-            serial: "D00001".into(),
-            source: "digit",
-            desc: "a test DIGIT".into(),
-        };
+        let src = cut_short(60, 30, Then::Unplugged);
         let err = run_idle(&idle_args(d.path()), 5.0, src, &mut Vec::new(), &stop)
             .expect_err("unplugged");
         let msg = err.to_string();
@@ -1855,33 +1866,10 @@ mod tests {
         assert!(left.is_empty(), "{left:?}");
     }
 
-    /// A source that presses Ctrl-C (sets `STOP`) after `n` frames.
-    static STOP: AtomicBool = AtomicBool::new(false);
-    struct CtrlC(IdleFrames, usize);
-    impl FrameSource for CtrlC {
-        fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
-            if self.1 == 0 {
-                STOP.store(true, Ordering::SeqCst);
-            } else {
-                self.1 -= 1;
-            }
-            self.0.next(out).expect("frame").expect("more frames");
-            Ok(())
-        }
-        fn describe(&self) -> String {
-            "ctrl-c".into()
-        }
-    }
-
     #[test]
     fn idle_recording_interrupted_keeps_and_checks_what_it_recorded() {
         let d = tempfile::tempdir().expect("tempdir");
-        let src = IdleSource {
-            frames: IdleFrames::Live(Box::new(CtrlC(touched_idle(200, 1000, 0).frames, 90))),
-            serial: "D00001".into(),
-            source: "digit",
-            desc: "a test DIGIT".into(),
-        };
+        let src = cut_short(200, 90, Then::CtrlC);
         let mut out = Vec::new();
         run_idle(&idle_args(d.path()), 10.0, src, &mut out, &STOP).expect("saved");
         let text = String::from_utf8(out).expect("utf-8");
