@@ -129,6 +129,14 @@ pub struct ContactConfig {
     /// block by the same factor, scores as noise, while contact, which
     /// changes the gel's shading from place to place, still scores.
     pub gain_compensated: bool,
+    /// Score the most changed region rather than the whole frame: the
+    /// frame is cut into tiles of `tile` x `tile` blocks (4 px each;
+    /// partial tiles at the edges count as tiles) and the score is the
+    /// highest tile's mean (0 = the whole frame's mean). A domed gel
+    /// touches first at one place (its crown, or the side a tilt
+    /// lowers), which a whole-frame mean dilutes; noise and lighting
+    /// change everywhere alike.
+    pub tile: u32,
 }
 
 impl Default for ContactConfig {
@@ -166,6 +174,7 @@ impl Default for ContactConfig {
             // On: without it, the exposure wander of catalogue 2's
             // simulated units starts hundreds of presses an hour at rest.
             gain_compensated: true,
+            tile: 0,
         }
     }
 }
@@ -194,6 +203,21 @@ impl ContactConfig {
         c.min_enter_frames = frames;
         c.enter_ms = (frames.saturating_sub(1) as f32 * 1000.0 / 60.0 - 3.0).max(0.0);
         Ok(c)
+    }
+
+    /// This detector scoring the most changed tile of `tile` x `tile`
+    /// blocks of 4 px (0: the whole frame, as shipped), as a user sets it
+    /// (`contact_tile`). A tile's score is higher at rest than the whole
+    /// frame's: the entry threshold must be raised with it
+    /// (docs/benchmarks.md, "The most changed tile").
+    pub fn with_tile(mut self, tile: u32) -> Result<ContactConfig, String> {
+        if tile > SAMPLES_Y as u32 {
+            return Err(format!(
+                "a tile of {tile} blocks is out of range: 0 (the whole frame) to {SAMPLES_Y} blocks of 4 px (shipped 0)"
+            ));
+        }
+        self.tile = tile;
+        Ok(self)
     }
 }
 
@@ -242,8 +266,16 @@ pub enum ContactEvent {
 /// Result of one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactUpdate {
-    /// Mean absolute difference from the reference (0 while capturing it).
+    /// The detector's score: the mean absolute difference from the
+    /// reference over the whole frame, or over its most changed tile
+    /// ([`ContactConfig::tile`]) (0 while capturing the reference).
     pub score: f32,
+    /// How deep the contact is: the whole frame's mean absolute difference
+    /// from the reference, scored as `score` is (after the gain), which
+    /// weights the frame in a press's mean ([`crate::decide::contact_weight`]).
+    /// It is `score` when the whole frame is scored; with a tile, a touch
+    /// at one place scores high and is shallow (0 while capturing).
+    pub depth: f32,
     /// Whether a press is in progress after this frame.
     pub in_contact: bool,
     /// What happened on this frame, if anything.
@@ -503,15 +535,34 @@ impl ContactDetector {
     /// Score a frame against the reference without changing state.
     pub fn score(&mut self, image: &RgbImage) -> f32 {
         sample(image, &mut self.samples);
-        self.score_samples()
+        self.score_samples().0
     }
 
-    /// The score of the sampled frame (see [`ContactConfig::gain_compensated`]).
-    fn score_samples(&self) -> f32 {
+    /// The score and the depth of the sampled frame (see
+    /// [`ContactConfig::gain_compensated`], [`ContactUpdate::depth`]).
+    fn score_samples(&self) -> (f32, f32) {
         if self.cfg.gain_compensated {
-            gain_residual(&self.samples, &self.reference)
+            self.gain_residual()
         } else {
-            mad(&self.samples, &self.reference)
+            self.score_with([1.0; 3])
+        }
+    }
+
+    /// The score and the depth after the best per-channel gain has been
+    /// taken out.
+    fn gain_residual(&self) -> (f32, f32) {
+        self.score_with(channel_gains(&self.samples, &self.reference))
+    }
+
+    /// The score (over the whole frame or its worst tile) and the depth
+    /// (over the whole frame) of the sampled frame against the reference
+    /// scaled by `g` per channel.
+    fn score_with(&self, g: [f32; 3]) -> (f32, f32) {
+        if self.cfg.tile == 0 {
+            let whole = residual(&self.samples, &self.reference, g);
+            (whole, whole)
+        } else {
+            worst_tile(&self.samples, &self.reference, g, self.cfg.tile as usize)
         }
     }
 
@@ -560,12 +611,13 @@ impl ContactDetector {
             }
             return ContactUpdate {
                 score: 0.0,
+                depth: 0.0,
                 in_contact: false,
                 event,
                 quiet: true,
             };
         }
-        let score = self.score_samples();
+        let (score, depth) = self.score_samples();
         let cfg = &self.cfg;
         let (enter, exit) = (self.floor + cfg.enter, self.floor + cfg.exit);
         let mut event = None;
@@ -585,7 +637,7 @@ impl ContactDetector {
                         // change): a soft fabric's weak press, whose change
                         // is partly a shift of brightness, must stay a press.
                         let lighting = cfg.lighting_check && {
-                            let residual = gain_residual(&self.samples, &self.reference);
+                            let residual = self.gain_residual().0;
                             residual < exit && score >= 4.0 * residual
                         };
                         if lighting || self.touched_reference(image) {
@@ -746,6 +798,7 @@ impl ContactDetector {
         };
         ContactUpdate {
             score,
+            depth,
             in_contact: self.in_contact(),
             event,
             quiet,
@@ -859,23 +912,27 @@ fn sample(image: &RgbImage, out: &mut [f32]) {
     out.iter_mut().for_each(|v| *v *= inv);
 }
 
-/// Mean absolute difference between `a` and the best per-channel gain of
-/// `b` (least squares): what is left of a difference once a change of LED
-/// intensity or exposure is taken out.
-fn gain_residual(a: &[f32], b: &[f32]) -> f32 {
+/// The per-channel gain of `b` that fits `a` best (least squares; 1 for a
+/// dark channel).
+fn channel_gains(a: &[f32], b: &[f32]) -> [f32; 3] {
     let mut ab = [0.0f64; 3];
     let mut bb = [0.0f64; 3];
     for (i, (x, y)) in a.iter().zip(b).enumerate() {
         ab[i % 3] += (*x as f64) * (*y as f64);
         bb[i % 3] += (*y as f64) * (*y as f64);
     }
-    let g: [f32; 3] = std::array::from_fn(|c| {
+    std::array::from_fn(|c| {
         if bb[c] > 0.0 {
             (ab[c] / bb[c]) as f32
         } else {
             1.0
         }
-    });
+    })
+}
+
+/// Mean absolute difference between `a` and `b` with each channel of `b`
+/// scaled by `g`.
+fn residual(a: &[f32], b: &[f32], g: [f32; 3]) -> f32 {
     let s: f32 = a
         .iter()
         .zip(b)
@@ -885,7 +942,113 @@ fn gain_residual(a: &[f32], b: &[f32]) -> f32 {
     s / a.len().max(1) as f32
 }
 
+/// The highest mean of [`residual`] over tiles of `tile` x `tile` blocks
+/// (the last row and column of tiles may be narrower), and the mean over
+/// them all ([`residual`]).
+fn worst_tile(a: &[f32], b: &[f32], g: [f32; 3], tile: usize) -> (f32, f32) {
+    let tile = tile.max(1);
+    let tiles_x = SAMPLES_X.div_ceil(tile);
+    let tiles_y = SAMPLES_Y.div_ceil(tile);
+    let mut sum = vec![0.0f32; tiles_x * tiles_y];
+    let mut n = vec![0u32; tiles_x * tiles_y];
+    for (y, (ra, rb)) in a
+        .chunks_exact(SAMPLES_X * 3)
+        .zip(b.chunks_exact(SAMPLES_X * 3))
+        .enumerate()
+    {
+        let row = (y / tile) * tiles_x;
+        for (x, (pa, pb)) in ra.chunks_exact(3).zip(rb.chunks_exact(3)).enumerate() {
+            let t = row + x / tile;
+            sum[t] += (pa[0] - g[0] * pb[0]).abs()
+                + (pa[1] - g[1] * pb[1]).abs()
+                + (pa[2] - g[2] * pb[2]).abs();
+            n[t] += 3;
+        }
+    }
+    let worst = sum
+        .iter()
+        .zip(&n)
+        .filter(|(_, &n)| n > 0)
+        .map(|(s, &n)| s / n as f32)
+        .fold(0.0, f32::max);
+    (worst, sum.iter().sum::<f32>() / a.len().max(1) as f32)
+}
+
 fn mad(a: &[f32], b: &[f32]) -> f32 {
     let s: f32 = a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum();
     s / a.len() as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Block samples of a smooth, coloured background.
+    fn background() -> Vec<f32> {
+        (0..SAMPLES)
+            .map(|i| {
+                let (b, c) = (i / 3, i % 3);
+                let (x, y) = ((b % SAMPLES_X) as f32, (b / SAMPLES_X) as f32);
+                60.0 + 40.0 * c as f32 + 0.3 * x + 0.2 * y
+            })
+            .collect()
+    }
+
+    /// `b` with `dn` added to the blocks `x0..x1` x `y0..y1`.
+    fn touched(b: &[f32], (x0, x1): (usize, usize), (y0, y1): (usize, usize), dn: f32) -> Vec<f32> {
+        let mut a = b.to_vec();
+        for y in y0..y1 {
+            for x in x0..x1 {
+                for c in 0..3 {
+                    a[(y * SAMPLES_X + x) * 3 + c] += dn;
+                }
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn a_tile_as_large_as_the_frame_scores_as_the_whole_frame() {
+        let b = background();
+        let a = touched(&b, (3, 17), (40, 52), 5.0);
+        let g = channel_gains(&a, &b);
+        let whole = residual(&a, &b, g);
+        assert!(whole > 0.0);
+        for tile in [SAMPLES_Y, SAMPLES_Y + 7] {
+            assert!((worst_tile(&a, &b, g, tile).0 - whole).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn a_touch_in_one_place_scores_in_full_on_its_tile_and_diluted_on_the_frame() {
+        let b = background();
+        // One 40 px tile of 60 x 80 blocks' 48, changed by 3 DN.
+        let a = touched(&b, (20, 30), (40, 50), 3.0);
+        let g = [1.0; 3];
+        let whole = residual(&a, &b, g);
+        assert!((whole - 3.0 / 48.0).abs() < 1e-3, "{whole}");
+        assert!((worst_tile(&a, &b, g, 10).0 - 3.0).abs() < 1e-3);
+        // The depth stays the whole frame's.
+        assert!((worst_tile(&a, &b, g, 10).1 - whole).abs() < 1e-4);
+        // Straddling four tiles, the worst holds a quarter of it.
+        let a = touched(&b, (15, 25), (35, 45), 3.0);
+        assert!((worst_tile(&a, &b, g, 10).0 - 0.75).abs() < 1e-3);
+        // Tiles that do not divide the frame: the last column's tiles are
+        // 4 blocks wide and score their own mean.
+        let a = touched(&b, (56, 60), (0, 7), 2.0);
+        assert!((worst_tile(&a, &b, g, 7).0 - 2.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_change_of_lighting_scores_as_nothing_on_every_tile() {
+        let b = background();
+        let a: Vec<f32> = b
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v * [1.03, 0.98, 1.01][i % 3])
+            .collect();
+        let g = channel_gains(&a, &b);
+        assert!(worst_tile(&a, &b, g, 10).0 < 1e-3);
+        assert!(worst_tile(&a, &b, [1.0; 3], 10).0 > 0.5);
+    }
 }

@@ -45,8 +45,8 @@ use crate::frame::Frame;
 pub struct EarlyEmbedding {
     /// The frame's timestamp.
     pub t_us: u64,
-    /// Its contact score.
-    pub score: f32,
+    /// Its contact depth ([`ContactUpdate::depth`]), which weights it.
+    pub depth: f32,
     /// Its L2-normalised embedding.
     pub embedding: Vec<f32>,
 }
@@ -79,7 +79,7 @@ pub struct FrontOutput<'a> {
 struct Held {
     image: image::RgbImage,
     t_us: u64,
-    score: f32,
+    depth: f32,
 }
 
 /// Contact detector + encoder sharing one reference (see the module docs).
@@ -115,14 +115,14 @@ impl FrontEnd {
                 .map(|_| Held {
                     image: image::RgbImage::new(crate::frame::FRAME_W, crate::frame::FRAME_H),
                     t_us: 0,
-                    score: 0.0,
+                    depth: 0.0,
                 })
                 .collect(),
             held_n: 0,
             early: (0..slots)
                 .map(|_| EarlyEmbedding {
                     t_us: 0,
-                    score: 0.0,
+                    depth: 0.0,
                     embedding: vec![0.0; dim],
                 })
                 .collect(),
@@ -217,7 +217,7 @@ impl FrontEnd {
                     )?;
                     let e = &mut self.early[self.early_n];
                     e.t_us = h.t_us;
-                    e.score = h.score;
+                    e.depth = h.depth;
                     e.embedding.copy_from_slice(emb);
                     self.early_n += 1;
                 }
@@ -230,7 +230,7 @@ impl FrontEnd {
             let h = &mut self.held[run - 1];
             h.image.copy_from_slice(frame.image.as_raw());
             h.t_us = frame.timestamp_us;
-            h.score = up.score;
+            h.depth = up.depth;
             self.held_n = run;
         }
         // Frames of the release run (already below the release threshold,
@@ -436,8 +436,9 @@ pub struct ContactFrame {
     pub index: usize,
     /// Its timestamp, microseconds from the recording's first frame.
     pub t_us: u64,
-    /// Contact score (mean absolute difference from the reference, 0..255).
-    pub score: f32,
+    /// Contact depth (the whole frame's mean absolute difference from the
+    /// reference, 0..255; [`ContactUpdate::depth`]), which weights the frame.
+    pub depth: f32,
     /// Start of the press it belongs to (microseconds).
     pub press_start_us: u64,
     /// A frame of the run that started the press, before the frame the
@@ -509,7 +510,7 @@ pub fn segment_with(
             contact.push(ContactFrame {
                 index: i,
                 t_us: t,
-                score: up.score,
+                depth: up.depth,
                 press_start_us: start,
                 early: false,
             });
@@ -521,7 +522,7 @@ pub fn segment_with(
             run.push(ContactFrame {
                 index: i,
                 t_us: t,
-                score: up.score,
+                depth: up.depth,
                 press_start_us: 0,
                 early: true,
             });

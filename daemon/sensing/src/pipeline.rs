@@ -245,9 +245,9 @@ impl<I: TextileIndex> Pipeline<I> {
         let frames = out
             .earlier
             .iter()
-            .map(|e| (e.t_us, e.embedding.as_slice(), e.score))
-            .chain(out.embedding.map(|e| (t, e, c.score)));
-        for (t, emb, score) in frames {
+            .map(|e| (e.t_us, e.embedding.as_slice(), e.depth))
+            .chain(out.embedding.map(|e| (t, e, c.depth)));
+        for (t, emb, depth) in frames {
             if !self.decider.in_press() {
                 break;
             }
@@ -256,7 +256,7 @@ impl<I: TextileIndex> Pipeline<I> {
             // checks), which the index shares (checked in `new`).
             let nearest = self
                 .decider
-                .accumulate_weighted(emb, crate::decide::contact_weight(score))
+                .accumulate_weighted(emb, crate::decide::contact_weight(depth))
                 .and_then(|mean| self.index.nearest2(mean));
             let t4 = Instant::now();
             if let Some(n) = nearest {

@@ -1067,3 +1067,41 @@ fn the_press_mean_is_the_powered_mean() {
     let s = m.sum();
     assert!(s[0].is_finite() && s[0] < 1e-15 && s[1] == 1.0, "{s:?}");
 }
+
+#[test]
+fn the_most_changed_tile_starts_a_press_sooner_and_its_frames_weigh_by_the_whole_frame() {
+    let sim = common::sim();
+    let tiled = ContactConfig::with_entry(0.6, 2)
+        .and_then(|c| c.with_tile(10))
+        .unwrap();
+    let mut sooner = 0;
+    for (id, seed) in [("T030", 1), ("T020", 2), ("T100", 3), ("T055", 4)] {
+        let press = sim.render_press(&PressSpec::new(id, seed)).unwrap();
+        let contact = press.meta.params.as_ref().unwrap().contact_frame as usize;
+        let start = |cfg: ContactConfig| {
+            let mut det = ContactDetector::new(cfg);
+            press
+                .frames
+                .iter()
+                .zip(&press.meta.timestamps_us)
+                .enumerate()
+                .find_map(|(i, (f, &t))| {
+                    let up = det.update(f, t);
+                    matches!(up.event, Some(ContactEvent::PressStart { .. })).then_some((i, up))
+                })
+                .unwrap_or_else(|| panic!("{id}: no press"))
+        };
+        let (whole, w) = start(ContactConfig::default());
+        let (tile, t) = start(tiled.clone());
+        assert!(
+            tile >= contact && tile <= whole,
+            "{id}: contact {contact}, tile {tile}, whole {whole}"
+        );
+        sooner += (tile < whole) as usize;
+        assert_eq!(w.depth, w.score, "{id}");
+        // The tile's score is one place's; the depth is the whole frame's,
+        // shallower while the touch has not spread.
+        assert!(t.depth < t.score, "{id}: {t:?}");
+    }
+    assert!(sooner >= 3, "the tile started {sooner} of 4 presses sooner");
+}

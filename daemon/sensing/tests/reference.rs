@@ -109,6 +109,73 @@ fn a_lighting_step_recaptures_the_reference_instead_of_starting_a_press() {
     assert_eq!(starts(&ev), 1, "{ev:?}");
 }
 
+/// `img` with a ±`dn` checkerboard of 4 px squares in the 40 px square
+/// whose corner is (`x0`, `y0`): a touch at one place.
+fn touch_at(img: &RgbImage, x0: u32, y0: u32, dn: f32) -> RgbImage {
+    let mut out = img.clone();
+    for y in y0..y0 + 40 {
+        for x in x0..x0 + 40 {
+            let s = if (x / 4 + y / 4) % 2 == 0 { dn } else { -dn };
+            for v in out.get_pixel_mut(x, y).0.iter_mut() {
+                *v = (*v as f32 + s).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn a_touch_in_one_place_starts_a_press_on_its_tile_and_is_not_taken_for_lighting() {
+    let sim = common::sim();
+    let bg = sim.background(0);
+    let touch = touch_at(&bg, 120, 160, 4.0);
+    // Over the whole frame the touch is a 48th of its change: under the
+    // threshold, no press.
+    let mut whole = ContactDetector::with_reference(ContactConfig::default(), &bg);
+    assert!(whole.score(&touch) < 0.35, "{}", whole.score(&touch));
+    let up = ContactDetector::with_reference(ContactConfig::default(), &bg).update(&touch, PERIOD);
+    assert_eq!(up.depth, up.score);
+    let mut t = 0;
+    assert_eq!(
+        starts(&feed(&mut whole, &vec![touch.clone(); 20], &mut t)),
+        0
+    );
+    // Its 40 px tile holds all of it: a press, also with the lighting
+    // check on (which must compare the same region: over the whole frame
+    // the touch is small, and would pass for what a gain leaves).
+    for cfg in [
+        ContactConfig {
+            tile: 10,
+            ..Default::default()
+        },
+        ContactConfig {
+            tile: 10,
+            ..lighting_on()
+        },
+    ] {
+        let mut det = ContactDetector::with_reference(cfg.clone(), &bg);
+        assert!(det.score(&touch) > 3.0, "{cfg:?}: {}", det.score(&touch));
+        // It scores high and is shallow: the weight of the frame in a
+        // press's mean comes from the whole frame.
+        let up = ContactDetector::with_reference(cfg.clone(), &bg).update(&touch, PERIOD);
+        assert!(up.score > 3.0 && up.depth < 0.2, "{up:?}");
+        let mut t = 0;
+        let ev = feed(&mut det, &vec![touch.clone(); 20], &mut t);
+        assert_eq!((starts(&ev), rejected(&ev)), (1, 0), "{cfg:?}: {ev:?}");
+        // A lighting step is still nothing to the gain-compensated tile
+        // score, and still a lighting change to the plain one's check.
+        let mut det = ContactDetector::with_reference(cfg.clone(), &bg);
+        let lit = gain(&bg, [1.06, 1.0, 0.96]);
+        let ev = feed(&mut det, &vec![lit; 40], &mut t);
+        assert_eq!(starts(&ev), 0, "{cfg:?}: {ev:?}");
+        assert_eq!(
+            rejected(&ev),
+            cfg.lighting_check as usize,
+            "{cfg:?}: {ev:?}"
+        );
+    }
+}
+
 #[test]
 fn simulated_presses_are_never_taken_for_lighting_changes_or_touched_references() {
     // Jig and hand-held presses by several people on several units: every

@@ -283,7 +283,7 @@ pub(crate) fn sensing_thread(
                 capture_us.saturating_sub(back),
                 event.take(),
                 Some(&e.embedding),
-                telextiles_sensing::decide::contact_weight(e.score),
+                telextiles_sensing::decide::contact_weight(e.depth),
                 &mut actions,
             );
         }
@@ -291,7 +291,7 @@ pub(crate) fn sensing_thread(
             capture_us,
             event,
             out.embedding,
-            telextiles_sensing::decide::contact_weight(up.score),
+            telextiles_sensing::decide::contact_weight(up.depth),
             &mut actions,
         );
         let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;

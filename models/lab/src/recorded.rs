@@ -416,7 +416,7 @@ impl Processor {
                         e.frames.push(c.index);
                         e.t_ms.push(c.t_us.saturating_sub(start) as f64 / 1e3);
                         e.weights
-                            .push(telextiles_sensing::decide::contact_weight(c.score));
+                            .push(telextiles_sensing::decide::contact_weight(c.depth));
                     }
                 }
                 Runner::Front(fe) => {
@@ -434,19 +434,19 @@ impl Processor {
                         let n = o.earlier.len();
                         let earlier =
                             o.earlier.iter().enumerate().map(|(k, x)| {
-                                (i - (n - k), x.t_us, x.embedding.as_slice(), x.score)
+                                (i - (n - k), x.t_us, x.embedding.as_slice(), x.depth)
                             });
                         let this = o
                             .embedding
-                            .map(|emb| (i, f.timestamp_us, emb, o.contact.score));
-                        for (j, t, emb, score) in earlier.chain(this) {
+                            .map(|emb| (i, f.timestamp_us, emb, o.contact.depth));
+                        for (j, t, emb, depth) in earlier.chain(this) {
                             e.dim = emb.len();
                             e.rows.extend_from_slice(emb);
                             e.frames.push(j);
                             let s = press_start.unwrap_or(t);
                             e.t_ms.push(t.saturating_sub(s) as f64 / 1e3);
                             e.weights
-                                .push(telextiles_sensing::decide::contact_weight(score));
+                                .push(telextiles_sensing::decide::contact_weight(depth));
                         }
                         if first {
                             e.early = n;
