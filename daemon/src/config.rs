@@ -42,6 +42,7 @@ pub const KEYS: &[&str] = &[
     "replay_fps",
     "contact_enter",
     "contact_frames",
+    "contact_tile",
     "model",
     "index",
     "roller",
@@ -63,14 +64,16 @@ impl Config {
             self.contact_enter,
             self.contact_frames,
         )
+        .and_then(|c| c.with_tile(self.contact_tile))
         .unwrap_or_default()
     }
 }
 
-/// The contact detector's two settings for the offline tools (`record`,
+/// The contact detector's settings for the offline tools (`record`,
 /// `classify`, `index build`, `index check`), as the daemon takes them from
-/// its configuration (`contact_enter`, `contact_frames`): give the same to
-/// both, so that presses are cut as the live session cuts them.
+/// its configuration (`contact_enter`, `contact_frames`, `contact_tile`):
+/// give the same to both, so that presses are cut as the live session cuts
+/// them.
 #[derive(clap::Args, Debug, Clone, Default, PartialEq)]
 pub struct ContactArgs {
     /// Contact detector: score above the noise floor (grey levels) at which
@@ -82,6 +85,11 @@ pub struct ContactArgs {
     /// the daemon's `contact_frames` [default: 2]
     #[arg(long, value_name = "N", value_parser = parse_contact_frames)]
     pub contact_frames: Option<u32>,
+    /// Contact detector: score the most changed tile of N x N blocks of
+    /// 4 px instead of the whole frame (0), as the daemon's `contact_tile`
+    /// [default: 0]
+    #[arg(long, value_name = "N", value_parser = parse_contact_tile)]
+    pub contact_tile: Option<u32>,
 }
 
 impl ContactArgs {
@@ -92,6 +100,7 @@ impl ContactArgs {
             self.contact_enter.unwrap_or(shipped.enter),
             self.contact_frames.unwrap_or(shipped.min_enter_frames),
         )
+        .and_then(|c| c.with_tile(self.contact_tile.unwrap_or(shipped.tile)))
         .map_err(anyhow::Error::msg)
     }
 }
@@ -233,6 +242,9 @@ pub struct ConfigArgs {
     /// Contact detector: frames in a row over contact_enter that start a press [env: TELEXTILESD_CONTACT_FRAMES] [default: 2]
     #[arg(long, value_name = "N", value_parser = parse_contact_frames)]
     pub contact_frames: Option<u32>,
+    /// Contact detector: score the most changed tile of N x N blocks of 4 px instead of the whole frame (0); decides steady presses sooner, tilted hand-held ones less reliably (docs/configuration.md); raise contact_enter with it [env: TELEXTILESD_CONTACT_TILE] [default: 0]
+    #[arg(long, value_name = "N", value_parser = parse_contact_tile)]
+    pub contact_tile: Option<u32>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -284,6 +296,7 @@ struct FileConfig {
     replay_fps: Option<f32>,
     contact_enter: Option<f32>,
     contact_frames: Option<u32>,
+    contact_tile: Option<u32>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -321,6 +334,8 @@ pub struct Config {
     pub contact_enter: f32,
     /// Frames in a row over it that start a press.
     pub contact_frames: u32,
+    /// Blocks a side of the tile the detector scores (0: the whole frame).
+    pub contact_tile: u32,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -527,6 +542,16 @@ impl Config {
             file_contact_frames,
         )
         .unwrap_or(shipped.min_enter_frames);
+        let file_contact_tile = file
+            .contact_tile
+            .map(|v| check_contact_tile(v).map_err(|m| file_err("contact_tile", m)))
+            .transpose()?;
+        let contact_tile = pick(
+            args.contact_tile,
+            e.get("CONTACT_TILE", parse_contact_tile)?,
+            file_contact_tile,
+        )
+        .unwrap_or(shipped.tile);
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -606,6 +631,7 @@ impl Config {
             replay_fps,
             contact_enter,
             contact_frames,
+            contact_tile,
             model,
             index,
             roller,
@@ -677,7 +703,7 @@ impl Config {
             .map(|f| format!("replay_fps = {f:?}\n"))
             .unwrap_or_default();
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -690,6 +716,7 @@ impl Config {
             replay_fps,
             self.contact_enter,
             self.contact_frames,
+            self.contact_tile,
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -766,6 +793,11 @@ fn check_contact_enter(v: f32) -> Result<f32, String> {
 fn check_contact_frames(n: u32) -> Result<u32, String> {
     telextiles_sensing::contact::ContactConfig::with_entry(0.35, n).map(|_| n)
 }
+fn check_contact_tile(n: u32) -> Result<u32, String> {
+    telextiles_sensing::contact::ContactConfig::default()
+        .with_tile(n)
+        .map(|_| n)
+}
 /// A contact threshold (`contact_enter`).
 pub fn parse_contact_enter(s: &str) -> Result<f32, String> {
     let v: f32 = s
@@ -781,6 +813,14 @@ pub fn parse_contact_frames(s: &str) -> Result<u32, String> {
         .parse()
         .map_err(|_| format!("`{s}` is not a whole number"))?;
     check_contact_frames(n)
+}
+/// The detector's tile, blocks a side (`contact_tile`; 0 = the whole frame).
+pub fn parse_contact_tile(s: &str) -> Result<u32, String> {
+    let n: u32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a whole number"))?;
+    check_contact_tile(n)
 }
 fn parse_path(s: &str) -> Result<PathBuf, String> {
     Ok(PathBuf::from(s))
@@ -1195,6 +1235,7 @@ mod tests {
         std::fs::write(&cfg, "").unwrap();
         let c = resolve(&[], &env).unwrap();
         assert_eq!((c.contact_enter, c.contact_frames), (0.35, 2));
+        assert_eq!(c.contact_tile, 0);
         assert_eq!(
             c.contact(),
             telextiles_sensing::contact::ContactConfig::default()
@@ -1232,6 +1273,25 @@ mod tests {
             e.contains("contact_frames") && e.contains("out of range"),
             "{e}"
         );
+        // The tile: the file, then the variable, then the flag; 0 to 80.
+        std::fs::write(&cfg, "contact_tile = 10\n").unwrap();
+        assert_eq!(resolve(&[], &env).unwrap().contact().tile, 10);
+        let mut tile_var = env.clone();
+        tile_var.push(("TELEXTILESD_CONTACT_TILE", "20"));
+        assert_eq!(resolve(&[], &tile_var).unwrap().contact_tile, 20);
+        assert_eq!(
+            resolve(&["--contact-tile", "0"], &tile_var)
+                .unwrap()
+                .contact()
+                .tile,
+            0
+        );
+        std::fs::write(&cfg, "contact_tile = 81\n").unwrap();
+        let e = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            e.contains("contact_tile") && e.contains("out of range"),
+            "{e}"
+        );
         std::fs::write(&cfg, "").unwrap();
         let mut bad_var = env.clone();
         bad_var.push(("TELEXTILESD_CONTACT_ENTER", "high"));
@@ -1249,10 +1309,12 @@ mod tests {
         let a = ContactArgs {
             contact_enter: Some(0.5),
             contact_frames: Some(3),
+            contact_tile: Some(10),
         };
         let mut c = resolve(&[], &env).unwrap();
-        (c.contact_enter, c.contact_frames) = (0.5, 3);
+        (c.contact_enter, c.contact_frames, c.contact_tile) = (0.5, 3, 10);
         assert_eq!(a.contact().unwrap(), c.contact());
+        assert_eq!(c.contact().tile, 10);
         assert_eq!(
             ContactArgs::default().contact().unwrap(),
             telextiles_sensing::contact::ContactConfig::default()
@@ -1362,6 +1424,7 @@ mod tests {
             "replay_fps" => "30",
             "contact_enter" => "0.5",
             "contact_frames" => "3",
+            "contact_tile" => "10",
             "listen" | "map_bind" => "\"127.0.0.1:9\"",
             "sensor" => "\"sim\"",
             "roller" => "\"sim\"",
@@ -1379,6 +1442,7 @@ mod tests {
             "replay_fps" => "29.97",
             "contact_enter" => "0.45",
             "contact_frames" => "4",
+            "contact_tile" => "20",
             "listen" | "map_bind" => "127.0.0.1:9",
             "sensor" => "sim",
             "roller" => "sim",
