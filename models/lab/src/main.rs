@@ -175,6 +175,11 @@ struct DeciderTimingArgs {
     /// detector's).
     #[arg(long)]
     contact_gain: Option<bool>,
+    /// Score the most changed tile of this many 4-px blocks a side
+    /// instead of the whole frame: the detector's `tile` (0 = the whole
+    /// frame; default: the shipped detector's).
+    #[arg(long)]
+    contact_tile: Option<u32>,
     /// Where timing.json, report.md and the charts go.
     #[arg(long)]
     out: PathBuf,
@@ -1302,6 +1307,7 @@ fn decider_timing(a: DeciderTimingArgs) -> Result<()> {
             a.contact_exit,
             a.contact_frames,
             a.contact_gain,
+            a.contact_tile,
         )?,
     };
     let r = dt::run(&cfg, &m)?;
@@ -1321,12 +1327,14 @@ fn contact_config(
     exit: Option<f32>,
     frames: Option<u32>,
     gain: Option<bool>,
+    tile: Option<u32>,
 ) -> Result<telextiles_sensing::contact::ContactConfig> {
     let shipped = telextiles_lab::contact_idle::Detector::shipped();
     let mut c = telextiles_lab::contact_idle::Detector {
         enter: enter.unwrap_or(shipped.enter),
         frames: frames.unwrap_or(shipped.frames),
         gain: gain.unwrap_or(shipped.gain),
+        tile: tile.unwrap_or(shipped.tile),
     }
     .config()?;
     if let Some(x) = exit {
