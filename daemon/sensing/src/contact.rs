@@ -94,7 +94,10 @@ pub struct ContactConfig {
     pub background_alpha: f32,
     /// A contact whose score varies by less than `stale_band` for this
     /// long (milliseconds of frame time) is taken as a stale reference
-    /// (0 = never).
+    /// (0 = never), unless the frame shows fabric: clearly more fine
+    /// detail than the reference (by `touched_reference_ratio`), which a
+    /// steady press held in a jig does and a settled gel or a changed LED
+    /// does not; then the wait starts again.
     pub stale_after_ms: f32,
     /// Score band for the stale test.
     pub stale_band: f32,
@@ -768,6 +771,19 @@ impl ContactDetector {
                     }
                 } else if cfg.stale_after_ms > 0.0
                     && flat_us as f64 >= cfg.stale_after_ms as f64 * 1000.0
+                    && self.shows_fabric(image)
+                {
+                    // A steady press, held: not a stale reference.
+                    State::Contact {
+                        start,
+                        run: 0,
+                        run_start,
+                        flat_since: t_us,
+                        lo: score,
+                        hi: score,
+                    }
+                } else if cfg.stale_after_ms > 0.0
+                    && flat_us as f64 >= cfg.stale_after_ms as f64 * 1000.0
                 {
                     tracing::warn!(
                         "contact score stayed at {score:.1} for {:.1} s: taking the reference as stale and re-capturing it",
@@ -818,6 +834,21 @@ impl ContactDetector {
         let now = detail(|i| raw[i] as f32);
         let refd = detail(|i| self.full[i]);
         refd > ratio * now + 0.05
+    }
+
+    /// Whether `image` holds clearly more fine detail than the reference
+    /// (by `touched_reference_ratio`): fabric pressed on the gel, not a
+    /// settled gel or a change of lighting (see
+    /// [`ContactConfig::stale_after_ms`]).
+    fn shows_fabric(&self, image: &RgbImage) -> bool {
+        let ratio = self.cfg.touched_reference_ratio;
+        if ratio <= 0.0 || self.full.len() != FULL || image.as_raw().len() != FULL {
+            return false;
+        }
+        let raw = image.as_raw();
+        let now = detail(|i| raw[i] as f32);
+        let refd = detail(|i| self.full[i]);
+        now > ratio * refd + 0.05
     }
 }
 

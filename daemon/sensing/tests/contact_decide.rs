@@ -1105,3 +1105,50 @@ fn the_most_changed_tile_starts_a_press_sooner_and_its_frames_weigh_by_the_whole
     }
     assert!(sooner >= 3, "the tile started {sooner} of 4 presses sooner");
 }
+
+#[test]
+fn a_steady_press_held_past_the_stale_wait_stays_one_press() {
+    // A jig press held for 40 s. With the gain taken out its score is
+    // flat (it varies by less than the stale band), as a stale reference's
+    // is; but the frames show the fabric's fine detail, which a settled gel
+    // or a changed LED does not: it stays one press. Without that check
+    // (`touched_reference_ratio` 0) it would end as a stale reference
+    // after 30 s, and the reference would be captured with the fabric on
+    // the gel.
+    let sim = common::sim();
+    let spec = PressSpec {
+        frames: 60 * 40,
+        release: Some(false),
+        ..PressSpec::new("T020", 2)
+    };
+    let press = sim.render_press(&spec).unwrap();
+    let run = |cfg: ContactConfig| {
+        let mut det = ContactDetector::new(cfg);
+        press
+            .frames
+            .iter()
+            .zip(&press.meta.timestamps_us)
+            .filter_map(|(f, &t)| det.update(f, t).event)
+            .filter(|e| !matches!(e, ContactEvent::ReferenceCaptured { .. }))
+            .collect::<Vec<_>>()
+    };
+    let held = run(ContactConfig::default());
+    assert!(
+        matches!(held[..], [ContactEvent::PressStart { .. }]),
+        "{held:?}"
+    );
+    let unchecked = run(ContactConfig {
+        touched_reference_ratio: 0.0,
+        ..Default::default()
+    });
+    assert!(
+        unchecked.iter().any(|e| matches!(
+            e,
+            ContactEvent::PressEnd {
+                reason: EndReason::StaleReference,
+                ..
+            }
+        )),
+        "{unchecked:?}"
+    );
+}
