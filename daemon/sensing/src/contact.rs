@@ -771,35 +771,35 @@ impl ContactDetector {
                     }
                 } else if cfg.stale_after_ms > 0.0
                     && flat_us as f64 >= cfg.stale_after_ms as f64 * 1000.0
-                    && self.shows_fabric(image)
                 {
-                    // A steady press, held: not a stale reference.
-                    State::Contact {
-                        start,
-                        run: 0,
-                        run_start,
-                        flat_since: t_us,
-                        lo: score,
-                        hi: score,
+                    if self.shows_fabric(image) {
+                        // A steady press, held: not a stale reference; the
+                        // wait starts again.
+                        State::Contact {
+                            start,
+                            run: 0,
+                            run_start,
+                            flat_since: t_us,
+                            lo: score,
+                            hi: score,
+                        }
+                    } else {
+                        tracing::warn!(
+                            "contact score stayed at {score:.1} for {:.1} s: taking the reference as stale and re-capturing it",
+                            flat_us as f64 / 1e6
+                        );
+                        event = Some(ContactEvent::PressEnd {
+                            start_us: start,
+                            t_us,
+                            reason: EndReason::StaleReference,
+                        });
+                        // This frame is the first of the new reference.
+                        self.reference.copy_from_slice(&self.samples);
+                        self.first.copy_from_slice(&self.samples);
+                        self.acc.copy_from_slice(&self.samples);
+                        self.accumulate_full(image, 0);
+                        State::Capturing { n: 1, restarts: 0 }
                     }
-                } else if cfg.stale_after_ms > 0.0
-                    && flat_us as f64 >= cfg.stale_after_ms as f64 * 1000.0
-                {
-                    tracing::warn!(
-                        "contact score stayed at {score:.1} for {:.1} s: taking the reference as stale and re-capturing it",
-                        flat_us as f64 / 1e6
-                    );
-                    event = Some(ContactEvent::PressEnd {
-                        start_us: start,
-                        t_us,
-                        reason: EndReason::StaleReference,
-                    });
-                    // This frame is the first of the new reference.
-                    self.reference.copy_from_slice(&self.samples);
-                    self.first.copy_from_slice(&self.samples);
-                    self.acc.copy_from_slice(&self.samples);
-                    self.accumulate_full(image, 0);
-                    State::Capturing { n: 1, restarts: 0 }
                 } else {
                     State::Contact {
                         start,
