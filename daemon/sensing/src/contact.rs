@@ -826,14 +826,8 @@ impl ContactDetector {
     /// Whether the reference holds clearly more fine detail than `image`
     /// (see the module docs).
     fn touched_reference(&self, image: &RgbImage) -> bool {
-        let ratio = self.cfg.touched_reference_ratio;
-        if ratio <= 0.0 || self.full.len() != FULL || image.as_raw().len() != FULL {
-            return false;
-        }
-        let raw = image.as_raw();
-        let now = detail(|i| raw[i] as f32);
-        let refd = detail(|i| self.full[i]);
-        refd > ratio * now + 0.05
+        self.detail_of(image)
+            .is_some_and(|(now, refd, ratio)| refd > ratio * now + 0.05)
     }
 
     /// Whether `image` holds clearly more fine detail than the reference
@@ -841,14 +835,20 @@ impl ContactDetector {
     /// settled gel or a change of lighting (see
     /// [`ContactConfig::stale_after_ms`]).
     fn shows_fabric(&self, image: &RgbImage) -> bool {
+        self.detail_of(image)
+            .is_some_and(|(now, refd, ratio)| now > ratio * refd + 0.05)
+    }
+
+    /// The fine detail of `image` and of the reference, and the ratio
+    /// that makes one clearly more detailed than the other; None when the
+    /// check is off or either is not a full frame.
+    fn detail_of(&self, image: &RgbImage) -> Option<(f32, f32, f32)> {
         let ratio = self.cfg.touched_reference_ratio;
         if ratio <= 0.0 || self.full.len() != FULL || image.as_raw().len() != FULL {
-            return false;
+            return None;
         }
         let raw = image.as_raw();
-        let now = detail(|i| raw[i] as f32);
-        let refd = detail(|i| self.full[i]);
-        now > ratio * refd + 0.05
+        Some((detail(|i| raw[i] as f32), detail(|i| self.full[i]), ratio))
     }
 }
 
@@ -981,7 +981,6 @@ fn worst_tile(a: &[f32], b: &[f32], g: [f32; 3], tile: usize) -> (f32, f32) {
     let tiles_x = SAMPLES_X.div_ceil(tile);
     let tiles_y = SAMPLES_Y.div_ceil(tile);
     let mut sum = vec![0.0f32; tiles_x * tiles_y];
-    let mut n = vec![0u32; tiles_x * tiles_y];
     for (y, (ra, rb)) in a
         .chunks_exact(SAMPLES_X * 3)
         .zip(b.chunks_exact(SAMPLES_X * 3))
@@ -989,18 +988,17 @@ fn worst_tile(a: &[f32], b: &[f32], g: [f32; 3], tile: usize) -> (f32, f32) {
     {
         let row = (y / tile) * tiles_x;
         for (x, (pa, pb)) in ra.chunks_exact(3).zip(rb.chunks_exact(3)).enumerate() {
-            let t = row + x / tile;
-            sum[t] += (pa[0] - g[0] * pb[0]).abs()
+            sum[row + x / tile] += (pa[0] - g[0] * pb[0]).abs()
                 + (pa[1] - g[1] * pb[1]).abs()
                 + (pa[2] - g[2] * pb[2]).abs();
-            n[t] += 3;
         }
     }
+    // A tile's values: its blocks (fewer in the last row and column) x 3.
+    let side = |t: usize, n: usize| tile.min(n - t * tile);
     let worst = sum
         .iter()
-        .zip(&n)
-        .filter(|(_, &n)| n > 0)
-        .map(|(s, &n)| s / n as f32)
+        .enumerate()
+        .map(|(t, s)| s / (3 * side(t % tiles_x, SAMPLES_X) * side(t / tiles_x, SAMPLES_Y)) as f32)
         .fold(0.0, f32::max);
     (worst, sum.iter().sum::<f32>() / a.len().max(1) as f32)
 }

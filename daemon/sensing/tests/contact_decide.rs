@@ -6,7 +6,9 @@ mod common;
 use image::{Rgb, RgbImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use telextiles_sensing::contact::{ContactConfig, ContactDetector, ContactEvent, EndReason};
+use telextiles_sensing::contact::{
+    ContactConfig, ContactDetector, ContactEvent, ContactUpdate, EndReason,
+};
 use telextiles_sensing::decide::{DecideConfig, Decider, FlatIndex, PressOutcome, TextileIndex};
 use telextiles_sensing::idle::{IdleCheck, IdleSummary};
 use telextiles_sim::PressSpec;
@@ -1068,6 +1070,17 @@ fn the_press_mean_is_the_powered_mean() {
     assert!(s[0].is_finite() && s[0] < 1e-15 && s[1] == 1.0, "{s:?}");
 }
 
+/// The detector's update on every frame of `press`, at its timestamps.
+fn updates(press: &telextiles_sim::Press, cfg: ContactConfig) -> Vec<ContactUpdate> {
+    let mut det = ContactDetector::new(cfg);
+    press
+        .frames
+        .iter()
+        .zip(&press.meta.timestamps_us)
+        .map(|(f, &t)| det.update(f, t))
+        .collect()
+}
+
 #[test]
 fn the_most_changed_tile_starts_a_press_sooner_and_its_frames_weigh_by_the_whole_frame() {
     let sim = common::sim();
@@ -1079,16 +1092,10 @@ fn the_most_changed_tile_starts_a_press_sooner_and_its_frames_weigh_by_the_whole
         let press = sim.render_press(&PressSpec::new(id, seed)).unwrap();
         let contact = press.meta.params.as_ref().unwrap().contact_frame as usize;
         let start = |cfg: ContactConfig| {
-            let mut det = ContactDetector::new(cfg);
-            press
-                .frames
-                .iter()
-                .zip(&press.meta.timestamps_us)
+            updates(&press, cfg)
+                .into_iter()
                 .enumerate()
-                .find_map(|(i, (f, &t))| {
-                    let up = det.update(f, t);
-                    matches!(up.event, Some(ContactEvent::PressStart { .. })).then_some((i, up))
-                })
+                .find(|(_, up)| matches!(up.event, Some(ContactEvent::PressStart { .. })))
                 .unwrap_or_else(|| panic!("{id}: no press"))
         };
         let (whole, w) = start(ContactConfig::default());
@@ -1123,12 +1130,9 @@ fn a_steady_press_held_past_the_stale_wait_stays_one_press() {
     };
     let press = sim.render_press(&spec).unwrap();
     let run = |cfg: ContactConfig| {
-        let mut det = ContactDetector::new(cfg);
-        press
-            .frames
-            .iter()
-            .zip(&press.meta.timestamps_us)
-            .filter_map(|(f, &t)| det.update(f, t).event)
+        updates(&press, cfg)
+            .into_iter()
+            .filter_map(|up| up.event)
             .filter(|e| !matches!(e, ContactEvent::ReferenceCaptured { .. }))
             .collect::<Vec<_>>()
     };
