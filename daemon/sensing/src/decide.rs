@@ -8,7 +8,9 @@
 //! decision is made once embeddings have come in for `min_ms` and the same
 //! textile has been nearest for `confirm_ms` (and at least two frames) in a
 //! row, or, sooner, on the second frame of its run when it is nearer than
-//! the runner-up by `commit_margin` (a clear leader). After that the decision switches only when another textile is nearer
+//! the runner-up by `commit_margin` (a clear leader); with
+//! `commit_weight` set, either waits until one of the press's frames has
+//! touched that deep (or `commit_weight_ms` has passed). After that the decision switches only when another textile is nearer
 //! than the current one by at least `switch_margin` for `switch_ms` (and at
 //! least two frames) in a row (hysteresis: no flip-flop between two close
 //! textiles); each change within a press multiplies the time the next
@@ -314,6 +316,12 @@ impl PressMean {
     pub fn sum(&self) -> &[f32] {
         &self.sum
     }
+
+    /// The largest contact weight of a frame added so far (0 before the
+    /// first).
+    pub fn max_weight(&self) -> f32 {
+        self.max_weight
+    }
 }
 
 /// Decider tuning.
@@ -353,6 +361,18 @@ pub struct DecideConfig {
     /// same; the release's shallow frames count little. 1: the weight as it
     /// is; 0: every frame the same.
     pub depth_power: u32,
+    /// The first decision of a press waits until one of its frames has had
+    /// at least this contact weight ([`contact_weight`] of its whole-frame
+    /// depth), or until `commit_weight_ms` after the press's first
+    /// embedding, whichever comes first: a press that has touched the gel
+    /// in one place only (a tilted, hand-held one) is not decided from that
+    /// place. The leader's run is counted meanwhile, so a clear leader
+    /// commits on the frame the gate opens. 0: no wait.
+    pub commit_weight: f32,
+    /// The longest the first decision waits for `commit_weight` (ms after
+    /// the press's first embedding); a light press that never gets that
+    /// deep is decided then.
+    pub commit_weight_ms: f32,
 }
 
 impl Default for DecideConfig {
@@ -385,6 +405,8 @@ impl Default for DecideConfig {
             // Chosen on catalogue 1's held-out people, checked on
             // catalogue 2 (docs/benchmarks.md, "Deciding from the ramp").
             depth_power: 8,
+            commit_weight: 0.0,
+            commit_weight_ms: 0.0,
         }
     }
 }
@@ -602,7 +624,9 @@ impl Decider {
                 None => {
                     let (run, since) = self.bump(nearest.best, true, t_us);
                     let sure = nearest.second_dist - nearest.best_dist >= self.cfg.commit_margin;
-                    if run >= 2 && (sure || ms(t_us, since) >= self.cfg.confirm_ms) {
+                    let deep = self.sum.max_weight() >= self.cfg.commit_weight
+                        || ms(t_us, first) >= self.cfg.commit_weight_ms;
+                    if deep && run >= 2 && (sure || ms(t_us, since) >= self.cfg.confirm_ms) {
                         self.current = Some(self.make(index, nearest.best, t_us, &nearest));
                         self.first_decision_us = Some(t_us);
                         self.challenger = None;

@@ -636,6 +636,55 @@ fn a_clear_leader_commits_at_once_and_a_close_call_waits_for_confirmation() {
     assert!(after_ms >= cfg.switch_ms, "switched after {after_ms} ms");
 }
 
+/// `commit_weight`: the first decision waits for a frame of the press to
+/// be that deep (contact weight), or for `commit_weight_ms`; the leader's
+/// run counts meanwhile, so a clear leader commits on the frame the gate
+/// opens. 0 (the default) waits for nothing.
+#[test]
+fn the_first_decision_waits_for_a_deep_frame_or_its_longest_wait() {
+    let idx = toy_index();
+    const P: u64 = 16_667; // 60 fps
+    let clear = unit(&[1.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // A ramp: shallow frames (weight 0.1), deep from frame 6 on (0.9).
+    let ramp = |k: u64| if k < 6 { 0.1 } else { 0.9 };
+    let first_at = |gate: (f32, f32), weight: &dyn Fn(u64) -> f32| {
+        let mut d = Decider::new(
+            DecideConfig {
+                commit_weight: gate.0,
+                commit_weight_ms: gate.1,
+                ..DecideConfig::default()
+            },
+            8,
+        );
+        d.press_start(0);
+        (0..40u64).find(|&k| {
+            d.on_embedding_weighted(&idx, k * P, &clear, weight(k))
+                .unwrap()
+                .decision
+                .is_some()
+        })
+    };
+    // No gate: the clear leader's second frame.
+    assert_eq!(first_at((0.0, 0.0), &ramp), Some(1));
+    assert_eq!(
+        (
+            DecideConfig::default().commit_weight,
+            DecideConfig::default().commit_weight_ms
+        ),
+        (0.0, 0.0)
+    );
+    // A gate of 0.5: the first deep frame (its run already long).
+    assert_eq!(first_at((0.5, 200.0), &ramp), Some(6));
+    // A gate the shallow frames pass: no wait.
+    assert_eq!(first_at((0.05, 200.0), &ramp), Some(1));
+    // A light press never gets deep: decided at the longest wait
+    // (100 ms after the first embedding: frame 6 at 60 fps).
+    assert_eq!(first_at((0.5, 100.0), &|_| 0.1), Some(6));
+    assert_eq!(first_at((0.5, 200.0), &|_| 0.1), Some(12));
+    // A wait of 0 is no gate.
+    assert_eq!(first_at((0.5, 0.0), &|_| 0.1), Some(1));
+}
+
 /// Ten seconds of frames halfway between A and B (A very slightly nearer)
 /// with heavy noise: the frames whose decision changed, and the outcome.
 fn noisy_press(cfg: DecideConfig) -> (Vec<u64>, PressOutcome) {

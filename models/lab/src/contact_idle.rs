@@ -18,7 +18,7 @@
 //! 0 in the report), alone or beside the simulated units; the project has
 //! none of its own yet.
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 use telextiles_sensing::contact::{ContactConfig, ContactDetector, ContactEvent};
 
@@ -677,12 +677,18 @@ pub fn daemon_timing() -> crate::decider_timing::Timing {
     }
 }
 
-/// The daemon decider's scores in one group of a timing study.
+/// The daemon decider's scores in one group of a timing study, with the
+/// first decision's depth gate `gate` (`DecideConfig::commit_weight`,
+/// `commit_weight_ms`; None: the daemon's own).
 fn daemon_score<'a>(
     r: &'a crate::decider_timing::TimingReport,
     group: &str,
+    gate: Option<(f32, f32)>,
 ) -> Option<&'a crate::decider_timing::TimingScore> {
-    let t = daemon_timing();
+    let t = crate::decider_timing::Timing {
+        gate: gate.or(daemon_timing().gate),
+        ..daemon_timing()
+    };
     r.switch_scores
         .iter()
         .chain(&r.scores)
@@ -690,10 +696,14 @@ fn daemon_score<'a>(
 }
 
 /// One detector in the choice: its false presses and, per study and
-/// group, what the daemon's decider does with the presses it starts.
+/// group, what the daemon's decider does with the presses it starts (with
+/// a depth gate on its first decision, when `gate` is set).
 #[derive(Clone, Debug)]
 pub struct Row {
     pub detector: Detector,
+    /// The first decision's depth gate (`decider_timing::DEPTH_GATES`);
+    /// None: the daemon's decider as it is.
+    pub gate: Option<(f32, f32)>,
     /// (stress, false presses, hours, share of the time capturing the
     /// reference) over every catalogue.
     pub idle: Vec<(f32, u64, f64, f64)>,
@@ -704,6 +714,19 @@ pub struct Row {
 /// first decision right, right at the end, first decision ms p50, share
 /// of presses never started, switches / 100).
 pub type GroupScore = (String, String, f64, f64, f64, f64, f64, f64);
+
+impl Row {
+    /// The detector's label, and the depth gate's when there is one.
+    pub fn label(&self) -> String {
+        match self.gate {
+            None => self.detector.label(),
+            Some((w, ms)) => format!(
+                "{}, first decision at depth {w:.2} (≤ {ms:.0} ms)",
+                self.detector.label()
+            ),
+        }
+    }
+}
 
 /// The rows of every detector that has both an idle score and a timing
 /// study in each of `timings`' sources, the shipped detector first.
@@ -724,50 +747,68 @@ pub fn rows(
                 false_per_hour(idle, *d, st).map(|(n, h)| (st, n, h, capturing_share(idle, *d, st)))
             })
             .collect();
-        let mut groups = Vec::new();
-        let mut complete = true;
-        for src in &sources {
-            let Some(t) = timings
-                .iter()
-                .find(|t| t.source == *src && t.contact.unwrap_or_else(Detector::before) == *d)
-            else {
-                complete = false;
-                break;
-            };
-            for g in ["jig", "hand-held"] {
-                let s = daemon_score(t, g).with_context(|| {
-                    format!(
-                        "{} ({}): no score of the daemon's decider for {g} presses",
-                        t.command, src
-                    )
-                })?;
-                let never = t.undetected.iter().find(|(x, _)| x == g).map_or(0, |x| x.1);
-                groups.push((
-                    src.to_string(),
-                    g.to_string(),
-                    s.right(100.0),
-                    s.first_right,
-                    s.final_right,
-                    s.first_ms_p50,
-                    never as f64 / s.presses.max(1) as f64,
-                    s.switches_per_100,
-                ));
+        let gates = std::iter::once(None)
+            .chain(crate::decider_timing::DEPTH_GATES.iter().map(|&g| Some(g)));
+        for gate in gates {
+            let mut groups = Vec::new();
+            let mut complete = true;
+            for src in &sources {
+                let Some(t) = timings
+                    .iter()
+                    .find(|t| t.source == *src && t.contact.unwrap_or_else(Detector::before) == *d)
+                else {
+                    complete = false;
+                    break;
+                };
+                for g in ["jig", "hand-held"] {
+                    let s = match (daemon_score(t, g, gate), gate) {
+                        (Some(s), _) => s,
+                        // Studies from before the gates were candidates.
+                        (None, Some(_)) => {
+                            complete = false;
+                            break;
+                        }
+                        (None, None) => bail!(
+                            "{} ({}): no score of the daemon's decider for {g} presses",
+                            t.command,
+                            src
+                        ),
+                    };
+                    let never = t.undetected.iter().find(|(x, _)| x == g).map_or(0, |x| x.1);
+                    groups.push((
+                        src.to_string(),
+                        g.to_string(),
+                        s.right(100.0),
+                        s.first_right,
+                        s.final_right,
+                        s.first_ms_p50,
+                        never as f64 / s.presses.max(1) as f64,
+                        s.switches_per_100,
+                    ));
+                }
+                if !complete {
+                    break;
+                }
+            }
+            if complete && !groups.is_empty() {
+                out.push(Row {
+                    detector: *d,
+                    gate,
+                    idle: idle_scores.clone(),
+                    groups,
+                });
             }
         }
-        if complete && !groups.is_empty() {
-            out.push(Row {
-                detector: *d,
-                idle: idle_scores,
-                groups,
-            });
-        }
     }
-    if let Some(i) = out.iter().position(|r| r.detector == Detector::before()) {
+    if let Some(i) = out
+        .iter()
+        .position(|r| r.detector == Detector::before() && r.gate.is_none())
+    {
         let b = out.remove(i);
         out.insert(0, b);
     }
     ensure!(
-        out.first().map(|r| r.detector) == Some(Detector::before()),
+        out.first().map(|r| (r.detector, r.gate)) == Some((Detector::before(), None)),
         "the baseline detector ({}) needs an idle score and a timing study of every source",
         Detector::before().label()
     );
@@ -797,13 +838,16 @@ pub fn baseline(rows: &[Row]) -> Result<usize> {
         gain: true,
         ..first.detector
     };
-    let i = rows.iter().position(|r| r.detector == d).with_context(|| {
-        format!(
-            "the baseline {} is not safe and {} was not measured",
-            first.detector.label(),
-            d.label()
-        )
-    })?;
+    let i = rows
+        .iter()
+        .position(|r| r.detector == d && r.gate.is_none())
+        .with_context(|| {
+            format!(
+                "the baseline {} is not safe and {} was not measured",
+                first.detector.label(),
+                d.label()
+            )
+        })?;
     ensure!(
         safe(&rows[i]),
         "neither {} nor {} is safe on the idle footage",
@@ -851,8 +895,12 @@ pub fn choose(rows: &[Row]) -> Result<usize> {
                 w > wb + 1e-9
                     || ((w - wb).abs() <= 1e-9
                         && b != bi
-                        && (r.detector.enter, r.detector.frames)
-                            > (rows[b].detector.enter, rows[b].detector.frames))
+                        && (r.detector.enter, r.detector.frames, r.gate.is_none())
+                            > (
+                                rows[b].detector.enter,
+                                rows[b].detector.frames,
+                                rows[b].gate.is_none(),
+                            ))
             }
         };
         if better {
@@ -887,7 +935,7 @@ pub fn markdown_choice(rows: &[Row], chosen: usize, command: &str) -> String {
     }
     s.push('\n');
     for (i, r) in rows.iter().enumerate() {
-        let l = r.detector.label();
+        let l = r.label();
         let l = if i == chosen { format!("**{l}**") } else { l };
         let idle = r
             .idle
@@ -926,7 +974,7 @@ pub fn markdown_choice(rows: &[Row], chosen: usize, command: &str) -> String {
          baseline (the detector before, the first row, when it passes the idle bound; else the \
          same with the gain taken out), in every group of every study; of those, the highest share right \
          100 ms after first contact in the worst group. It picks **{}**.\n",
-        rows[chosen].detector.label()
+        rows[chosen].label()
     ));
     s
 }
@@ -934,6 +982,9 @@ pub fn markdown_choice(rows: &[Row], chosen: usize, command: &str) -> String {
 /// Right at 100 ms in the worst group against the entry threshold, one
 /// line per run length and region scored (the whole frame or a tile).
 pub fn chart(rows: &[Row], svg: &std::path::Path) -> Result<()> {
+    // The detectors with the daemon's decider as it is (the gates are in
+    // the table).
+    let rows: Vec<&Row> = rows.iter().filter(|r| r.gate.is_none()).collect();
     let mut runs: Vec<(u32, u32)> = rows
         .iter()
         .map(|r| (r.detector.frames, r.detector.tile))
@@ -1248,6 +1299,74 @@ mod tests {
             seconds: 0.0,
             contact: d,
         }
+    }
+
+    /// Adds the daemon decider's scores with depth gate `gate` to `t`.
+    fn with_gate(
+        mut t: crate::decider_timing::TimingReport,
+        gate: (f32, f32),
+        at100: [f64; 2],
+        first: [f64; 2],
+    ) -> crate::decider_timing::TimingReport {
+        let g = timing_of(&t.source, t.contact, at100, first);
+        t.scores.extend(g.switch_scores.into_iter().map(|mut s| {
+            s.timing.gate = Some(gate);
+            s
+        }));
+        t
+    }
+
+    #[test]
+    fn a_detector_with_a_depth_gate_is_a_row_of_its_own_and_can_be_the_pick() {
+        let before = Detector::before();
+        let tile = Detector {
+            enter: 0.6,
+            frames: 2,
+            gain: false,
+            tile: 10,
+        };
+        let gate = crate::decider_timing::DEPTH_GATES[0];
+        let idle = idle_of(&[(before, [0, 0, 0]), (tile, [0, 0, 0])]);
+        // The tile alone loses hand-held first decisions; with the gate it
+        // keeps them and is still the faster.
+        let timings = vec![
+            timing_of("cat 1", None, [0.40, 0.20], [0.96, 0.85]),
+            with_gate(
+                timing_of("cat 1", Some(tile), [0.70, 0.40], [0.96, 0.83]),
+                gate,
+                [0.65, 0.35],
+                [0.96, 0.845],
+            ),
+        ];
+        let r = rows(&idle, &timings).unwrap();
+        assert_eq!(r.len(), 3, "before; the tile; the tile with the gate");
+        assert_eq!((r[0].detector, r[0].gate), (before, None));
+        let c = choose(&r).unwrap();
+        assert_eq!((r[c].detector, r[c].gate), (tile, Some(gate)));
+        assert!(r[c]
+            .label()
+            .contains("first decision at depth 0.25 (≤ 100 ms)"));
+        let md = markdown_choice(&r, c, "contact-choose");
+        assert!(md.contains(&format!("**{}**", r[c].label())), "{md}");
+        // Without the gate's scores (a study from before), no gated row,
+        // and the tile alone fails the rule: the detector before stays.
+        let r = rows(
+            &idle,
+            &[
+                timings[0].clone(),
+                timing_of("cat 1", Some(tile), [0.70, 0.40], [0.96, 0.83]),
+            ],
+        )
+        .unwrap();
+        assert_eq!(r.len(), 2);
+        assert_eq!(choose(&r).unwrap(), 0);
+        // A gate whose scores are in one source's study but not the
+        // other's is left out.
+        let mut t = timings.clone();
+        t.push(timing_of("cat 2", None, [0.2, 0.1], [0.5, 0.37]));
+        t.push(timing_of("cat 2", Some(tile), [0.3, 0.15], [0.5, 0.37]));
+        let r = rows(&idle, &t).unwrap();
+        assert!(r.iter().all(|x| x.gate.is_none()));
     }
 
     #[test]

@@ -117,6 +117,10 @@ pub struct Timing {
     /// `DecideConfig::commit_margin` (None: always confirm).
     #[serde(default)]
     pub commit_margin: Option<f32>,
+    /// `DecideConfig::commit_weight` and `commit_weight_ms` (None: the
+    /// first decision does not wait for the press's depth).
+    #[serde(default)]
+    pub gate: Option<(f32, f32)>,
 }
 
 fn default_switch_margin() -> f32 {
@@ -139,6 +143,8 @@ impl Timing {
         let d = DecideConfig::default();
         Timing {
             commit_margin: d.commit_margin.is_finite().then_some(d.commit_margin),
+            gate: (d.commit_weight > 0.0 && d.commit_weight_ms > 0.0)
+                .then_some((d.commit_weight, d.commit_weight_ms)),
             ..Timing::pair(d.min_ms, d.confirm_ms, false)
         }
     }
@@ -153,6 +159,7 @@ impl Timing {
             switch_ms: default_switch_ms(),
             switch_backoff: default_switch_backoff(),
             commit_margin: None,
+            gate: None,
         }
     }
 
@@ -170,11 +177,14 @@ impl Timing {
             )
         };
         format!(
-            "{:.0} / {:.0}{}{}{sw}",
+            "{:.0} / {:.0}{}{}{}{sw}",
             self.min_ms,
             self.confirm_ms,
             self.commit_margin
                 .map(|m| format!(" or margin {m:.2}"))
+                .unwrap_or_default(),
+            self.gate
+                .map(|(w, ms)| format!(", depth {w:.2} (≤ {ms:.0} ms)"))
                 .unwrap_or_default(),
             if self.run { " + run" } else { "" }
         )
@@ -235,8 +245,35 @@ pub fn candidates() -> Vec<Timing> {
             });
         }
     }
+    let d = DecideConfig::default();
+    for (w, ms) in DEPTH_GATES {
+        v.push(Timing {
+            gate: Some((w, ms)),
+            switch_margin: d.switch_margin,
+            switch_ms: d.switch_ms,
+            switch_backoff: d.switch_backoff,
+            ..Timing::shipped()
+        });
+    }
     v
 }
+
+/// Depth gates for the first decision (`DecideConfig::commit_weight`,
+/// `commit_weight_ms`), each on the daemon's decider
+/// (`DecideConfig::default()`, its switching rules too): the first
+/// decision waits until a frame of the press has had that contact weight
+/// (`contact_weight` of its whole-frame depth: 0.25, 0.5, 0.75 are 1.2,
+/// 2.8 and 5.5 DN), or that long after the press's first embedding. Added
+/// with the most changed tile (`ContactConfig::tile`), whose presses start
+/// on a one-place touch, before any was scored.
+pub const DEPTH_GATES: [(f32, f32); 6] = [
+    (0.25, 100.0),
+    (0.5, 100.0),
+    (0.75, 100.0),
+    (0.25, 200.0),
+    (0.5, 200.0),
+    (0.75, 200.0),
+];
 
 /// Margins for an early first decision (`DecideConfig::commit_margin`),
 /// each with 0 / 50 without and with the run encoded: the leader commits
@@ -313,6 +350,8 @@ pub fn config(t: &Timing) -> DecideConfig {
         switch_ms: t.switch_ms,
         switch_backoff: t.switch_backoff,
         commit_margin: t.commit_margin.unwrap_or(f32::INFINITY),
+        commit_weight: t.gate.map_or(0.0, |g| g.0),
+        commit_weight_ms: t.gate.map_or(0.0, |g| g.1),
         ..DecideConfig::default()
     }
 }
@@ -1117,7 +1156,7 @@ mod tests {
         assert_eq!(candidates()[0], t(50.0, 50.0, false));
         assert_eq!(
             candidates().len(),
-            2 * PAIRS.len() + 2 * COMMIT_MARGINS.len()
+            2 * PAIRS.len() + 2 * COMMIT_MARGINS.len() + DEPTH_GATES.len()
         );
         assert_eq!(
             config(&shipped).commit_margin,
