@@ -980,7 +980,10 @@ fn worst_tile(a: &[f32], b: &[f32], g: [f32; 3], tile: usize) -> (f32, f32) {
     let tile = tile.max(1);
     let tiles_x = SAMPLES_X.div_ceil(tile);
     let tiles_y = SAMPLES_Y.div_ceil(tile);
-    let mut sum = vec![0.0f32; tiles_x * tiles_y];
+    // On the stack (at most one tile per block, 19 KB): nothing allocated
+    // per frame.
+    let mut sums = [0.0f32; SAMPLES_X * SAMPLES_Y];
+    let sum = &mut sums[..tiles_x * tiles_y];
     for (y, (ra, rb)) in a
         .chunks_exact(SAMPLES_X * 3)
         .zip(b.chunks_exact(SAMPLES_X * 3))

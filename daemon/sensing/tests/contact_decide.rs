@@ -1205,3 +1205,54 @@ fn a_steady_press_held_past_the_stale_wait_stays_one_press() {
         "{unchecked:?}"
     );
 }
+
+/// The slowest press that starts (docs/sensing.md, "Drift"): a press starts
+/// about a third of the way through its ramp, however long it is, until the
+/// ramp is so slow that the reference's follow and the noise floor keep up
+/// with it. The simulator stretches a press's ramp with its length. If the
+/// 5.75 s ramp starts one day, the limit has moved: update the doc.
+#[test]
+fn a_press_lowered_over_seconds_starts_until_the_reference_keeps_up() {
+    let sim = common::sim();
+    // (frames, jig): the ramp in ms and the start in ms after contact.
+    let run = |frames: u32, jig: bool| {
+        let spec = PressSpec {
+            frames: frames.try_into().unwrap(),
+            release: Some(false),
+            jig,
+            ..PressSpec::new("T020", 2)
+        };
+        let press = sim.render_press(&spec).unwrap();
+        let p = press.meta.params.clone().unwrap();
+        let ts = &press.meta.timestamps_us;
+        let ms = |i: usize| (ts[i] as f64 - ts[p.contact_frame as usize] as f64) / 1e3;
+        let start = updates(&press, ContactConfig::default())
+            .iter()
+            .position(|u| u.in_contact);
+        (ms(p.hold_frame as usize), start.map(ms))
+    };
+    // A hand-held press at the simulator's usual pace: a ramp of about
+    // half a second, started within a third of it.
+    let (ramp, start) = run(150, false);
+    assert!((300.0..600.0).contains(&ramp), "{ramp}");
+    assert!(
+        start.is_some_and(|s| s <= ramp * 0.4),
+        "{start:?} of {ramp}"
+    );
+    // Lowered over 3.8 s: still starts, a third of the way in.
+    let (ramp, start) = run(1200, false);
+    assert!((3500.0..4000.0).contains(&ramp), "{ramp}");
+    let s = start.expect("a 3.8 s ramp starts a press");
+    assert!(s > ramp * 0.25 && s < ramp * 0.45, "{s} of {ramp}");
+    // A jig ramp of 3.2 s too.
+    let (ramp, start) = run(1800, true);
+    assert!((3000.0..3500.0).contains(&ramp), "{ramp}");
+    assert!(start.is_some(), "a 3.2 s jig ramp starts a press");
+    // Over 5.75 s: the reference keeps up, and no press starts.
+    let (ramp, start) = run(1800, false);
+    assert!(ramp > 5000.0, "{ramp}");
+    assert_eq!(
+        start, None,
+        "the slowest press now starts: update docs/sensing.md"
+    );
+}

@@ -263,16 +263,23 @@ pub fn candidates() -> Vec<Timing> {
 /// (`DecideConfig::default()`, its switching rules too): the first
 /// decision waits until a frame of the press has had that contact weight
 /// (`contact_weight` of its whole-frame depth: 0.25, 0.5, 0.75 are 1.2,
-/// 2.8 and 5.5 DN), or that long after the press's first embedding. Added
-/// with the most changed tile (`ContactConfig::tile`), whose presses start
-/// on a one-place touch, before any was scored.
-pub const DEPTH_GATES: [(f32, f32); 6] = [
+/// 2.8 and 5.5 DN), or that long after the press's first embedding. The
+/// first six were added with the most changed tile (`ContactConfig::tile`),
+/// whose presses start on a one-place touch, before any was scored; the
+/// last four (waiting up to 750 ms, the study's window) after them, when
+/// the tile's catalogue-2 hand-held presses proved to start up to 26
+/// frames before the whole frame's, longer than 200 ms.
+pub const DEPTH_GATES: [(f32, f32); 10] = [
     (0.25, 100.0),
     (0.5, 100.0),
     (0.75, 100.0),
     (0.25, 200.0),
     (0.5, 200.0),
     (0.75, 200.0),
+    (0.15, 750.0),
+    (0.25, 750.0),
+    (0.35, 750.0),
+    (0.5, 750.0),
 ];
 
 /// Margins for an early first decision (`DecideConfig::commit_margin`),
