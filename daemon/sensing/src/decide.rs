@@ -9,8 +9,9 @@
 //! textile has been nearest for `confirm_ms` (and at least two frames) in a
 //! row, or, sooner, on the second frame of its run when it is nearer than
 //! the runner-up by `commit_margin` (a clear leader); with
-//! `commit_weight` set, either waits until one of the press's frames has
-//! touched that deep (or `commit_weight_ms` has passed). After that the decision switches only when another textile is nearer
+//! `commit_weight` set (off by default), either waits until one of the
+//! press's frames has touched that deep (or `commit_weight_ms` has passed).
+//! After that the decision switches only when another textile is nearer
 //! than the current one by at least `switch_margin` for `switch_ms` (and at
 //! least two frames) in a row (hysteresis: no flip-flop between two close
 //! textiles); each change within a press multiplies the time the next
