@@ -43,6 +43,8 @@ pub const KEYS: &[&str] = &[
     "contact_enter",
     "contact_frames",
     "contact_tile",
+    "commit_margin",
+    "encode_run",
     "model",
     "index",
     "roller",
@@ -66,6 +68,15 @@ impl Config {
         )
         .and_then(|c| c.with_tile(self.contact_tile))
         .unwrap_or_default()
+    }
+
+    /// The decider these settings ask for (on presses this daemon
+    /// receives): the shipped one with `commit_margin`.
+    pub fn decide(&self) -> telextiles_sensing::decide::DecideConfig {
+        telextiles_sensing::decide::DecideConfig {
+            commit_margin: self.commit_margin,
+            ..Default::default()
+        }
     }
 }
 
@@ -245,6 +256,12 @@ pub struct ConfigArgs {
     /// Contact detector: score the most changed tile of N x N blocks of 4 px instead of the whole frame (0); decides steady presses sooner, tilted hand-held ones less reliably (docs/configuration.md); raise contact_enter with it [env: TELEXTILESD_CONTACT_TILE] [default: 0]
     #[arg(long, value_name = "N", value_parser = parse_contact_tile)]
     pub contact_tile: Option<u32>,
+    /// Decisions on presses this daemon receives: the first decision commits on the leader's second frame when it leads the runner-up by this distance (0 to 2; lower decides sooner and is wrong more often; docs/configuration.md) [env: TELEXTILESD_COMMIT_MARGIN] [default: 0.08]
+    #[arg(long, value_name = "DISTANCE", value_parser = parse_commit_margin)]
+    pub commit_margin: Option<f32>,
+    /// Presses this daemon senses: also encode the frames of the run that starts a press, so the peer's decider counts from the first frame over the threshold (sooner; first decisions right less often on hand-held presses; docs/configuration.md) [env: TELEXTILESD_ENCODE_RUN] [default: false]
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
+    pub encode_run: Option<bool>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -297,6 +314,8 @@ struct FileConfig {
     contact_enter: Option<f32>,
     contact_frames: Option<u32>,
     contact_tile: Option<u32>,
+    commit_margin: Option<f32>,
+    encode_run: Option<bool>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -336,6 +355,11 @@ pub struct Config {
     pub contact_frames: u32,
     /// Blocks a side of the tile the detector scores (0: the whole frame).
     pub contact_tile: u32,
+    /// The receiving decider's `DecideConfig::commit_margin`.
+    pub commit_margin: f32,
+    /// The sending front end encodes the run that starts a press
+    /// (`FrontEnd::set_encode_run`).
+    pub encode_run: bool,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -552,6 +576,22 @@ impl Config {
             file_contact_tile,
         )
         .unwrap_or(shipped.tile);
+        let file_commit_margin = file
+            .commit_margin
+            .map(|v| check_commit_margin(v).map_err(|m| file_err("commit_margin", m)))
+            .transpose()?;
+        let commit_margin = pick(
+            args.commit_margin,
+            e.get("COMMIT_MARGIN", parse_commit_margin)?,
+            file_commit_margin,
+        )
+        .unwrap_or(telextiles_sensing::decide::DecideConfig::default().commit_margin);
+        let encode_run = pick(
+            args.encode_run,
+            e.get("ENCODE_RUN", parse_bool)?,
+            file.encode_run,
+        )
+        .unwrap_or(false);
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -632,6 +672,8 @@ impl Config {
             contact_enter,
             contact_frames,
             contact_tile,
+            commit_margin,
+            encode_run,
             model,
             index,
             roller,
@@ -703,7 +745,7 @@ impl Config {
             .map(|f| format!("replay_fps = {f:?}\n"))
             .unwrap_or_default();
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -717,6 +759,8 @@ impl Config {
             self.contact_enter,
             self.contact_frames,
             self.contact_tile,
+            self.commit_margin,
+            self.encode_run,
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -797,6 +841,23 @@ fn check_contact_tile(n: u32) -> Result<u32, String> {
     telextiles_sensing::contact::ContactConfig::default()
         .with_tile(n)
         .map(|_| n)
+}
+fn check_commit_margin(v: f32) -> Result<f32, String> {
+    if v.is_finite() && (0.0..=2.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "the commit margin {v} is out of range: 0 to 2 (a distance between unit vectors; shipped 0.08)"
+        ))
+    }
+}
+/// The decider's commit margin (`commit_margin`).
+pub fn parse_commit_margin(s: &str) -> Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    check_commit_margin(v)
 }
 /// A contact threshold (`contact_enter`).
 pub fn parse_contact_enter(s: &str) -> Result<f32, String> {
@@ -1322,6 +1383,70 @@ mod tests {
     }
 
     #[test]
+    fn the_decision_speed_is_set_from_flag_env_or_file_and_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("t.toml");
+        let base = base_env(dir.path());
+        let mut env: Vec<(&str, &str)> =
+            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+        let cfg_s = cfg.display().to_string();
+        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        // Unset: the shipped decider, the run not encoded.
+        std::fs::write(&cfg, "").unwrap();
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!(
+            c.decide(),
+            telextiles_sensing::decide::DecideConfig::default()
+        );
+        assert!(!c.encode_run);
+        // The file, then the variable, then the flag.
+        std::fs::write(&cfg, "commit_margin = 0.02\nencode_run = true\n").unwrap();
+        let c = resolve(&[], &env).unwrap();
+        assert_eq!((c.decide().commit_margin, c.encode_run), (0.02, true));
+        // Only the commit margin changes in the decider.
+        assert_eq!(
+            telextiles_sensing::decide::DecideConfig {
+                commit_margin: telextiles_sensing::decide::DecideConfig::default().commit_margin,
+                ..c.decide()
+            },
+            telextiles_sensing::decide::DecideConfig::default()
+        );
+        let mut with_var = env.clone();
+        with_var.push(("TELEXTILESD_COMMIT_MARGIN", "0.04"));
+        with_var.push(("TELEXTILESD_ENCODE_RUN", "false"));
+        let c = resolve(&[], &with_var).unwrap();
+        assert_eq!((c.commit_margin, c.encode_run), (0.04, false));
+        let c = resolve(&["--commit-margin", "0.16", "--encode-run"], &with_var).unwrap();
+        assert_eq!((c.commit_margin, c.encode_run), (0.16, true));
+        // Out of range anywhere: a clear error naming where.
+        std::fs::write(&cfg, "commit_margin = 2.5\n").unwrap();
+        let e = resolve(&[], &env).unwrap_err().to_string();
+        assert!(
+            e.contains("commit_margin") && e.contains("out of range"),
+            "{e}"
+        );
+        std::fs::write(&cfg, "").unwrap();
+        let mut bad = env.clone();
+        bad.push(("TELEXTILESD_COMMIT_MARGIN", "-0.1"));
+        let e = resolve(&[], &bad).unwrap_err().to_string();
+        assert!(
+            e.contains("TELEXTILESD_COMMIT_MARGIN") && e.contains("out of range"),
+            "{e}"
+        );
+        let e = T::try_parse_from(["t", "--commit-margin", "NaN"])
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("out of range"), "{e}");
+        let mut bad = env.clone();
+        bad.push(("TELEXTILESD_ENCODE_RUN", "sometimes"));
+        assert!(resolve(&[], &bad)
+            .unwrap_err()
+            .to_string()
+            .contains("TELEXTILESD_ENCODE_RUN"));
+    }
+
+    #[test]
     fn replay_fps_is_a_positive_rate_from_flag_env_or_file() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = dir.path().join("t.toml");
@@ -1425,6 +1550,8 @@ mod tests {
             "contact_enter" => "0.5",
             "contact_frames" => "3",
             "contact_tile" => "10",
+            "commit_margin" => "0.02",
+            "encode_run" => "true",
             "listen" | "map_bind" => "\"127.0.0.1:9\"",
             "sensor" => "\"sim\"",
             "roller" => "\"sim\"",
@@ -1443,6 +1570,8 @@ mod tests {
             "contact_enter" => "0.45",
             "contact_frames" => "4",
             "contact_tile" => "20",
+            "commit_margin" => "0.04",
+            "encode_run" => "yes",
             "listen" | "map_bind" => "127.0.0.1:9",
             "sensor" => "sim",
             "roller" => "sim",

@@ -244,12 +244,13 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     let sensing = {
         let state = state.clone();
         let ended = ended_tx.clone();
-        let contact = cfg.contact();
+        let (contact, encode_run) = (cfg.contact(), cfg.encode_run);
         std::thread::Builder::new()
             .name("sensing".into())
             .spawn(move || {
                 let guard = EndGuard::new("sensing thread", ended);
-                let r = sensing::sensing_thread(state, source, encoder, contact, sensor_rx);
+                let r =
+                    sensing::sensing_thread(state, source, encoder, contact, encode_run, sensor_rx);
                 guard.done(r.err());
             })?
     };
@@ -257,7 +258,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     // Receiver: the session core, fed by the link.
     let receiver = {
         let state = state.clone();
-        let mut rx = Receiver::new(index.clone(), ReceiverConfig::default());
+        let mut rx = Receiver::new(index.clone(), receiver_config(&cfg));
         supervise("receiver task", &ended_tx, async move {
             while let Some(ev) = link_rx.recv().await {
                 receive::on_link_event(&state, &mut rx, ev);
@@ -372,10 +373,50 @@ async fn sigterm() {
     }
 }
 
+/// The receiving session core's settings: the configured decider
+/// (`commit_margin`, [`Config::decide`]).
+fn receiver_config(cfg: &Config) -> ReceiverConfig {
+    ReceiverConfig {
+        decide: cfg.decide(),
+        ..ReceiverConfig::default()
+    }
+}
+
 fn resolve_addr(s: &str) -> Result<SocketAddr> {
     use std::net::ToSocketAddrs;
     s.to_socket_addrs()
         .with_context(|| format!("cannot resolve peer address {s:?}"))?
         .next()
         .ok_or_else(|| anyhow!("peer address {s:?} resolves to nothing"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ConfigArgs;
+
+    /// The `commit_margin` setting reaches the decider of presses this
+    /// daemon receives, and nothing else of the receiver changes.
+    #[test]
+    fn the_configured_commit_margin_reaches_the_receiving_decider() {
+        let resolve = |margin: Option<f32>| {
+            let args = ConfigArgs {
+                commit_margin: margin,
+                runtime_dir: Some("/r".into()),
+                config: Some("/dev/null".into()),
+                ..ConfigArgs::default()
+            };
+            Config::resolve(&args, &|k| (k == "HOME").then(|| "/h".into())).unwrap()
+        };
+        assert_eq!(receiver_config(&resolve(None)), ReceiverConfig::default());
+        let r = receiver_config(&resolve(Some(0.02)));
+        assert_eq!(r.decide.commit_margin, 0.02);
+        assert_eq!(
+            ReceiverConfig {
+                decide: Default::default(),
+                ..r
+            },
+            ReceiverConfig::default()
+        );
+    }
 }

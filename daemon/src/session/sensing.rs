@@ -157,17 +157,25 @@ pub(crate) fn open_source(
 
 /// Run until `SensorCmd::Stop` or shutdown (Ok), or until the source fails
 /// for good (Err: the session ends with it).
+/// The sensing thread's front end: the one per-frame path (as `classify`
+/// and `index build` run it), with the configured contact detector
+/// (`contact_enter`, `contact_frames`, `contact_tile`), and the run that
+/// starts a press encoded when `encode_run` (the `encode_run` setting).
+pub(crate) fn front_end(encoder: Encoder, contact: ContactConfig, encode_run: bool) -> FrontEnd {
+    let mut front = FrontEnd::new(encoder, contact, None);
+    front.set_encode_run(encode_run);
+    front
+}
+
 pub(crate) fn sensing_thread(
     state: Arc<State>,
     mut source: Box<dyn FrameSource>,
     encoder: Encoder,
     contact: ContactConfig,
+    encode_run: bool,
     cmds: std_mpsc::Receiver<SensorCmd>,
 ) -> Result<(), String> {
-    // The one per-frame path (as `classify` and `index build` run it),
-    // with the configured contact detector (`contact_enter`,
-    // `contact_frames`).
-    let mut front = FrontEnd::new(encoder, contact, None);
+    let mut front = front_end(encoder, contact, encode_run);
     let mut sender = SenderCore::new(front.encoder().dim());
     let mut frame = Frame::blank();
     let mut actions = Vec::new();
@@ -407,6 +415,51 @@ mod tests {
                 .to_string();
             assert!(err.contains("--reference") && err.contains(want), "{err}");
         }
+    }
+
+    /// The `encode_run` setting reaches the front end: on the frame that
+    /// starts a press, the run's earlier frame comes encoded with it
+    /// (the shipped detector starts a press on its second frame over the
+    /// threshold), and without the setting it does not.
+    #[test]
+    fn the_encode_run_setting_encodes_the_run_that_starts_a_press() {
+        let model = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("sensing/tests/fixtures/fixture_encoder.onnx");
+        let sim = telextiles_sim::Simulator::new().unwrap();
+        let press = sim
+            .render_press(&telextiles_sim::PressSpec::new("T030", 1))
+            .unwrap();
+        let earlier_at_start = |encode_run: bool| {
+            let enc = telextiles_sensing::encoder::Encoder::open(
+                &model,
+                &telextiles_sensing::encoder::EncoderOptions::default(),
+            )
+            .unwrap();
+            let mut front = front_end(enc, ContactConfig::default(), encode_run);
+            for (i, (image, &t)) in press
+                .frames
+                .iter()
+                .zip(&press.meta.timestamps_us)
+                .enumerate()
+            {
+                let frame = Frame {
+                    image: image.clone(),
+                    timestamp_us: t,
+                    seq: i as u64,
+                };
+                let out = front.process(&frame).unwrap();
+                if matches!(out.contact.event, Some(ContactEvent::PressStart { .. })) {
+                    assert!(out.embedding.is_some());
+                    return out.earlier.len();
+                }
+            }
+            panic!("no press started");
+        };
+        assert_eq!(earlier_at_start(false), 0);
+        assert_eq!(
+            earlier_at_start(true),
+            ContactConfig::default().min_enter_frames as usize - 1
+        );
     }
 
     #[test]
