@@ -990,6 +990,18 @@ mod tests {
         ]
     }
 
+    /// [`base_env`] with `TELEXTILESD_CONFIG` naming the file `cfg`.
+    fn file_env(dir: &Path, cfg: &Path) -> Vec<(String, String)> {
+        let mut env = base_env(dir);
+        env.push(("TELEXTILESD_CONFIG".into(), cfg.display().to_string()));
+        env
+    }
+
+    /// An environment as [`resolve`] takes it.
+    fn borrow(env: &[(String, String)]) -> Vec<(&str, &str)> {
+        env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect()
+    }
+
     fn resolve(a: &[&str], env: &[(&str, &str)]) -> Result<Config, ConfigError> {
         Config::resolve(&args(a), &env_of(env))
     }
@@ -1062,11 +1074,8 @@ mod tests {
             "name = \"from-file\"\nsensor = \"replay:presses\"\nroller = \"sim\"\nlisten = \"127.0.0.1:1000\"\nconnect = [\"a:1\"]\nmap = false\nlog = \"debug\"\nmodel = \"m.onnx\"\n",
         )
         .unwrap();
-        let base: Vec<(String, String)> = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
 
         // File over defaults; relative paths are relative to the file.
         let c = resolve(&[], &env).unwrap();
@@ -1157,17 +1166,14 @@ mod tests {
     #[test]
     fn bad_values_name_their_source() {
         let dir = tempfile::tempdir().unwrap();
-        let base = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
         let cfg = dir.path().join("t.toml");
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
 
         std::fs::write(&cfg, "name = \"x\"\nsnesor = \"sim\"\n").unwrap();
         let err = resolve(&[], &env).unwrap_err().to_string();
         assert!(err.contains("unknown field `snesor`"), "{err}");
-        assert!(err.contains(&cfg_s), "{err}");
+        assert!(err.contains(&cfg.display().to_string()), "{err}");
 
         std::fs::write(&cfg, "sensor = \"webcam\"\n").unwrap();
         let err = resolve(&[], &env).unwrap_err().to_string();
@@ -1287,11 +1293,8 @@ mod tests {
     fn the_contact_detector_is_set_from_flag_env_or_file_and_checked() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = dir.path().join("t.toml");
-        let base = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
         // Unset: the shipped detector.
         std::fs::write(&cfg, "").unwrap();
         let c = resolve(&[], &env).unwrap();
@@ -1386,11 +1389,8 @@ mod tests {
     fn the_decision_speed_is_set_from_flag_env_or_file_and_checked() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = dir.path().join("t.toml");
-        let base = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
         // Unset: the shipped decider, the run not encoded.
         std::fs::write(&cfg, "").unwrap();
         let c = resolve(&[], &env).unwrap();
@@ -1450,11 +1450,8 @@ mod tests {
     fn replay_fps_is_a_positive_rate_from_flag_env_or_file() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = dir.path().join("t.toml");
-        let base = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
         // A TOML integer or float; unset, None (by the frames' size).
         for (line, want) in [
             ("replay_fps = 30", Some(30.0)),
@@ -1508,11 +1505,8 @@ mod tests {
             "sensor = \"replay:data\"\nreference = [\"ref.png\", \"D20001=refs/d1.png\", \"a=b.png\", \"D2=/abs/d2.png\"]\n",
         )
         .unwrap();
-        let base = base_env(dir.path());
-        let mut env: Vec<(&str, &str)> =
-            base.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
-        let cfg_s = cfg.display().to_string();
-        env.push(("TELEXTILESD_CONFIG", &cfg_s));
+        let owned = file_env(dir.path(), &cfg);
+        let env = borrow(&owned);
         let d = dir.path().display();
         let c = resolve(&[], &env).unwrap();
         assert_eq!(
