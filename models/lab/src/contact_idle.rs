@@ -750,47 +750,7 @@ pub fn rows(
         let gates = std::iter::once(None)
             .chain(crate::decider_timing::DEPTH_GATES.iter().map(|&g| Some(g)));
         for gate in gates {
-            let mut groups = Vec::new();
-            let mut complete = true;
-            for src in &sources {
-                let Some(t) = timings
-                    .iter()
-                    .find(|t| t.source == *src && t.contact.unwrap_or_else(Detector::before) == *d)
-                else {
-                    complete = false;
-                    break;
-                };
-                for g in ["jig", "hand-held"] {
-                    let s = match (daemon_score(t, g, gate), gate) {
-                        (Some(s), _) => s,
-                        // Studies from before the gates were candidates.
-                        (None, Some(_)) => {
-                            complete = false;
-                            break;
-                        }
-                        (None, None) => bail!(
-                            "{} ({}): no score of the daemon's decider for {g} presses",
-                            t.command,
-                            src
-                        ),
-                    };
-                    let never = t.undetected.iter().find(|(x, _)| x == g).map_or(0, |x| x.1);
-                    groups.push((
-                        src.to_string(),
-                        g.to_string(),
-                        s.right(100.0),
-                        s.first_right,
-                        s.final_right,
-                        s.first_ms_p50,
-                        never as f64 / s.presses.max(1) as f64,
-                        s.switches_per_100,
-                    ));
-                }
-                if !complete {
-                    break;
-                }
-            }
-            if complete && !groups.is_empty() {
+            if let Some(groups) = groups_of(timings, &sources, *d, gate)? {
                 out.push(Row {
                     detector: *d,
                     gate,
@@ -813,6 +773,50 @@ pub fn rows(
         Detector::before().label()
     );
     Ok(out)
+}
+
+/// Detector `d`'s groups with depth gate `gate` over every source: None
+/// when a source has no study of `d`, or (for a gate) a study predates
+/// the gates; an error when a study lacks the daemon decider's own scores.
+fn groups_of(
+    timings: &[crate::decider_timing::TimingReport],
+    sources: &[&str],
+    d: Detector,
+    gate: Option<(f32, f32)>,
+) -> Result<Option<Vec<GroupScore>>> {
+    let mut groups = Vec::new();
+    for src in sources {
+        let Some(t) = timings
+            .iter()
+            .find(|t| t.source == *src && t.contact.unwrap_or_else(Detector::before) == d)
+        else {
+            return Ok(None);
+        };
+        for g in ["jig", "hand-held"] {
+            let s = match (daemon_score(t, g, gate), gate) {
+                (Some(s), _) => s,
+                // Studies from before the gates were candidates.
+                (None, Some(_)) => return Ok(None),
+                (None, None) => bail!(
+                    "{} ({}): no score of the daemon's decider for {g} presses",
+                    t.command,
+                    src
+                ),
+            };
+            let never = t.undetected.iter().find(|(x, _)| x == g).map_or(0, |x| x.1);
+            groups.push((
+                src.to_string(),
+                g.to_string(),
+                s.right(100.0),
+                s.first_right,
+                s.final_right,
+                s.first_ms_p50,
+                never as f64 / s.presses.max(1) as f64,
+                s.switches_per_100,
+            ));
+        }
+    }
+    Ok((!groups.is_empty()).then_some(groups))
 }
 
 /// Whether a detector starts no press on any idle footage up to
