@@ -1229,7 +1229,10 @@ fn a_press_lowered_over_seconds_starts_until_the_reference_keeps_up() {
         let start = updates(&press, ContactConfig::default())
             .iter()
             .position(|u| u.in_contact);
-        (ms(p.hold_frame as usize), start.map(ms))
+        let (ramp, start) = (ms(p.hold_frame as usize), start.map(ms));
+        // The figures of docs/sensing.md (`-- --nocapture`).
+        eprintln!("{frames} frames, jig {jig}: ramp {ramp:.0} ms, press start {start:?} ms");
+        (ramp, start)
     };
     // A hand-held press at the simulator's usual pace: a ramp of about
     // half a second, started within a third of it.
