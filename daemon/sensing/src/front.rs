@@ -17,7 +17,8 @@
 //! as they come (copied into slots allocated once) and, on the frame that
 //! starts the press, encodes them too ([`FrontOutput::earlier`], oldest
 //! first, with their own timestamps): a press's embeddings begin at its
-//! first frame over the threshold, not two frames (33 ms at 60 fps) later.
+//! first frame over the threshold, not `min_enter_frames - 1` frames later
+//! (one frame, 17 ms at 60 fps, with the shipped two).
 //! Which frames start a press is the detector's alone, so this changes
 //! when embeddings begin, never whether a press is seen. Off by default:
 //! measured, it makes right decisions come sooner on catalogue 1 and costs

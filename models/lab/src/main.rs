@@ -541,9 +541,9 @@ struct SplitArgs {
     #[arg(long, default_value_t = 30)]
     frames_per_press: usize,
     /// Encode the run of frames that starts each press too (the front
-    /// end's `set_encode_run`, off in the daemon): embeddings and
-    /// decisions begin at the press's first frame over the contact
-    /// threshold, two frames sooner.
+    /// end's `set_encode_run`, the daemon's `encode_run`, off by default):
+    /// embeddings and decisions begin at the press's first frame over the
+    /// contact threshold, a frame sooner with the shipped detector.
     #[arg(long)]
     encode_run: bool,
     /// The sensor's no-contact frame (a 240x320 RGB PNG taken with nothing
