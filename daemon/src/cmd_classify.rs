@@ -11,7 +11,7 @@ use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::front::References;
-use telextiles_sensing::pipeline::{run_source, Pipeline, PipelineConfig, PressReport};
+use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
 use telextiles_sim::PressSpec;
@@ -78,6 +78,8 @@ pub struct Args {
     pub json: bool,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
+    #[command(flatten)]
+    pub decision: crate::config::DecisionArgs,
 }
 
 fn print(
@@ -117,9 +119,14 @@ fn print(
                 r.margin.unwrap_or(f32::NAN),
                 r.confidence.unwrap_or(f32::NAN),
             )?;
+            // Where the roller went first, when the decision changed.
+            let first = match r.first_textile.as_deref() {
+                Some(f) if f != id => format!(" as {f}"),
+                _ => String::new(),
+            };
             writeln!(
                 out,
-                "  decided {:.0} ms after contact, stable since {:.0} ms ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
+                "  decided {:.0} ms after contact{first}, stable since {:.0} ms ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
                 r.decision_ms.unwrap_or(f64::NAN),
                 r.stable_ms.unwrap_or(f64::NAN),
                 r.switches,
@@ -161,6 +168,10 @@ struct Tally {
     decided: Vec<(usize, usize)>,
     /// Of those, flagged unknown.
     known_flagged: usize,
+    /// Of those, first decided as their own fabric, and first decided as
+    /// another fabric than their last decision (the roller moved twice).
+    first_right: usize,
+    first_changed: usize,
     /// Presses with no decision.
     undecided: usize,
     /// Presses of fabrics the index does not hold, and of them flagged
@@ -187,6 +198,12 @@ impl Tally {
             (Some(fabric), Some(d)) => {
                 self.decided.push((fabric, d));
                 self.known_flagged += usize::from(r.unknown);
+                let first = r
+                    .first_textile
+                    .as_deref()
+                    .and_then(|id| index.entry_by_id(id));
+                self.first_right += usize::from(first == Some(fabric));
+                self.first_changed += usize::from(first != Some(d));
             }
         }
     }
@@ -209,6 +226,12 @@ impl Tally {
         };
         if self.known_flagged > 0 {
             text += &format!("; {} of them flagged unknown", self.known_flagged);
+        }
+        if self.first_changed > 0 {
+            text += &format!(
+                "; first decided as their own fabric: {} of {} (the decision changed in {})",
+                self.first_right, check.presses, self.first_changed
+            );
         }
         let presses = |n: usize| match n {
             1 => "1 press".to_string(),
@@ -294,10 +317,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         let gap = 20;
         let (mut src, _handle) =
             SimSource::new(sim, spec, gap, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
-        let pcfg = PipelineConfig {
-            contact: args.contact.contact()?,
-            ..Default::default()
-        };
+        let pcfg = args.decision.pipeline(args.contact.contact()?);
         let mut pipeline =
             Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
         let total = (gap + frames) as u64 * args.presses as u64;
@@ -322,10 +342,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     // One pipeline, reset for every recording with the recording's own
     // reference (else the one given for its sensor): nothing carries over
     // from one recording to the next.
-    let pcfg = PipelineConfig {
-        contact: args.contact.contact()?,
-        ..Default::default()
-    };
+    let pcfg = args.decision.pipeline(args.contact.contact()?);
     let mut pipeline = Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
     let progress =
         telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
@@ -462,6 +479,7 @@ mod tests {
             threads: 1,
             json: true,
             contact: Default::default(),
+            decision: Default::default(),
         }
     }
 
@@ -492,7 +510,14 @@ mod tests {
         let lines = json_lines(&out);
         assert_eq!(lines.len(), 2, "{lines:?}");
         for v in &lines {
-            for key in ["textile", "slot", "distance", "decision_ms", "stages"] {
+            for key in [
+                "textile",
+                "first_textile",
+                "slot",
+                "distance",
+                "decision_ms",
+                "stages",
+            ] {
                 assert!(!v[key].is_null(), "{key} missing in {v}");
             }
             assert_eq!(v["textile"], "T030", "{v}");
@@ -619,6 +644,41 @@ mod tests {
             }
             .line(&index),
             "summary: 3 of 3 presses (100.0 %) decided as the fabric they are labelled with; more than one press in 1 of 2 recordings"
+        );
+        // Presses whose decision changed: where each went first counts.
+        let report = |last: &str, first: &str| PressReport {
+            textile: Some(last.into()),
+            slot: Some(0),
+            distance: Some(0.1),
+            margin: Some(0.1),
+            confidence: Some(1.0),
+            unknown: false,
+            start_ms: 400.0,
+            decision_ms: Some(50.0),
+            first_textile: Some(first.into()),
+            stable_ms: Some(50.0),
+            switches: u32::from(first != last),
+            duration_ms: 900.0,
+            frames: 40,
+            ended: "released".into(),
+            stages: Default::default(),
+            frame_total: Default::default(),
+        };
+        let mut tally = Tally::default();
+        // Right throughout; wrong, then right; right, then wrong; wrong
+        // throughout.
+        for (label, last, first) in [
+            ("T030", "T030", "T030"),
+            ("T080", "T080", "T010"),
+            ("T110", "T010", "T110"),
+            ("T010", "T030", "T030"),
+        ] {
+            tally.press(label, &report(last, first), &index);
+        }
+        assert_eq!((tally.first_right, tally.first_changed), (2, 2));
+        assert_eq!(
+            tally.line(&index),
+            "summary: 2 of 4 presses (50.0 %) decided as the fabric they are labelled with; taken for another: T010 as T030 (1), T110 as T010 (1); first decided as their own fabric: 2 of 4 (the decision changed in 2)"
         );
     }
 
@@ -850,5 +910,132 @@ mod tests {
             .filter(|(v, id)| v.0 == *id)
             .count();
         assert!(right >= 3, "{right} of 4 right: {together:?}");
+    }
+
+    /// `classify` alone, with these arguments, parsed.
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        a: Args,
+    }
+
+    /// `classify --commit-margin` and `--encode-run` decide replayed
+    /// presses as a daemon pair with those settings does: the parsed flags
+    /// give the pipeline the receiving daemon's decider
+    /// (`Config::decide`) and the sending daemon's front end, checked as
+    /// the daemon checks them.
+    #[test]
+    fn classify_decides_with_the_daemons_commit_margin_and_encode_run() {
+        let parse = |flags: &[&str]| {
+            <Cli as clap::Parser>::try_parse_from(["classify", "--sim", "T030"].iter().chain(flags))
+                .map(|c| c.a)
+        };
+        let a = parse(&["--commit-margin", "0.02", "--encode-run"]).unwrap();
+        assert_eq!(
+            a.decision,
+            crate::config::DecisionArgs {
+                commit_margin: Some(0.02),
+                encode_run: Some(true),
+            }
+        );
+        // (`config::tests::the_decision_speed_is_set_from_flag_env_or_file_and_checked`
+        // checks these against a daemon's configuration.)
+        let contact = telextiles_sensing::contact::ContactConfig::default();
+        let pcfg = a.decision.pipeline(contact.clone());
+        assert_eq!(
+            pcfg.decide,
+            telextiles_sensing::decide::DecideConfig {
+                commit_margin: 0.02,
+                ..Default::default()
+            }
+        );
+        assert!(pcfg.encode_run);
+        // Unset: the shipped pipeline, as the daemons' defaults.
+        let shipped = parse(&[]).unwrap();
+        assert_eq!(
+            shipped.decision.pipeline(contact),
+            telextiles_sensing::pipeline::PipelineConfig::default()
+        );
+        let off = parse(&["--encode-run=false"]).unwrap();
+        assert_eq!(off.decision.encode_run, Some(false));
+        // Out of range or not a number: refused, naming the flag.
+        for bad in [["--commit-margin", "3"], ["--commit-margin", "x"]] {
+            let e = parse(&bad).err().unwrap().to_string();
+            assert!(e.contains("--commit-margin"), "{e}");
+        }
+        assert!(parse(&["--encode-run=maybe"]).is_err());
+
+        // The same recorded presses, replayed with each setting.
+        let dir = tempfile::tempdir().unwrap();
+        let index = index_file(dir.path());
+        let sim = Simulator::new().unwrap();
+        // The true first contact of each press (ms from its first frame).
+        let mut contact_ms = Vec::new();
+        for (k, id) in TEXTILES.iter().enumerate() {
+            let p = sim
+                .render_press(&PressSpec::new(*id, 30 + k as u64))
+                .unwrap();
+            let frame = p.meta.params.as_ref().unwrap().contact_frame as usize;
+            contact_ms.push(p.meta.timestamps_us[frame] as f64 / 1000.0);
+            telextiles_sim::recording::write_press(&dir.path().join("presses").join(id), &p)
+                .unwrap();
+        }
+        let run = |decision: crate::config::DecisionArgs| {
+            let mut out = Vec::new();
+            run_to(
+                Args {
+                    press: vec![dir.path().join("presses")],
+                    decision,
+                    ..args(fixture_model(), index.clone())
+                },
+                &mut out,
+            )
+            .unwrap();
+            json_lines(&out)
+        };
+        let with = |commit_margin: Option<f32>, encode_run: Option<bool>| {
+            run(crate::config::DecisionArgs {
+                commit_margin,
+                encode_run,
+            })
+        };
+        let base = with(None, None);
+        assert_eq!(base.len(), TEXTILES.len());
+        // Each press starts (`start_ms`, the recording's clock) at or a few
+        // frames after its true first contact: decision times plus it are
+        // times since the recording began, comparable across detectors.
+        for (b, c) in base.iter().zip(&contact_ms) {
+            let start = b["start_ms"].as_f64().unwrap();
+            assert!(
+                start >= c - 1.0 && start <= c + 250.0,
+                "contact {c} ms: {b}"
+            );
+        }
+        // The run that starts a press encoded: one more frame (the default
+        // detector's run is two frames) in every press.
+        let run_encoded = with(None, Some(true));
+        for (b, r) in base.iter().zip(&run_encoded) {
+            // The same start: the detector alone decides it.
+            assert_eq!(r["start_ms"], b["start_ms"]);
+            assert_eq!(
+                r["frames"].as_u64().unwrap(),
+                b["frames"].as_u64().unwrap() + 1,
+                "{b}\n{r}"
+            );
+        }
+        // A margin of 0 commits on the leader's second frame; one of 2
+        // (no lead is that large) leaves the first decision to the timing
+        // rules: never later, and sooner in some press.
+        let ms = |v: &[serde_json::Value]| -> Vec<f64> {
+            v.iter()
+                .map(|p| p["decision_ms"].as_f64().unwrap())
+                .collect()
+        };
+        let (soon, late) = (ms(&with(Some(0.0), None)), ms(&with(Some(2.0), None)));
+        assert!(
+            soon.iter().zip(&late).all(|(s, l)| s <= l)
+                && soon.iter().zip(&late).any(|(s, l)| s < l),
+            "margin 0: {soon:?}, margin 2: {late:?}"
+        );
     }
 }

@@ -73,9 +73,48 @@ impl Config {
     /// The decider these settings ask for (on presses this daemon
     /// receives): the shipped one with `commit_margin`.
     pub fn decide(&self) -> telextiles_sensing::decide::DecideConfig {
-        telextiles_sensing::decide::DecideConfig {
-            commit_margin: self.commit_margin,
-            ..Default::default()
+        decide_with(self.commit_margin)
+    }
+}
+
+/// The shipped decider with this commit margin: the daemon's and
+/// `classify`'s, from one place.
+fn decide_with(commit_margin: f32) -> telextiles_sensing::decide::DecideConfig {
+    telextiles_sensing::decide::DecideConfig {
+        commit_margin,
+        ..Default::default()
+    }
+}
+
+/// The decision-speed settings for `classify`, as the daemons take them
+/// from their configuration (`commit_margin` on the receiving daemon,
+/// `encode_run` on the sending one): give the same as to the daemons, so
+/// that replayed presses are decided as a live pair decides them.
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct DecisionArgs {
+    /// The decider's commit margin, as the receiving daemon's
+    /// `commit_margin` (0 to 2; lower decides sooner and is wrong more
+    /// often) [default: 0.08]
+    #[arg(long, value_name = "DISTANCE", value_parser = parse_commit_margin)]
+    pub commit_margin: Option<f32>,
+    /// Also encode the frames of the run that starts a press, as the
+    /// sending daemon's `encode_run` [default: false]
+    #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
+    pub encode_run: Option<bool>,
+}
+
+impl DecisionArgs {
+    /// The pipeline these settings and `contact` ask for: the daemons'
+    /// decider and front end with the same settings.
+    pub fn pipeline(
+        &self,
+        contact: telextiles_sensing::contact::ContactConfig,
+    ) -> telextiles_sensing::pipeline::PipelineConfig {
+        let shipped = telextiles_sensing::decide::DecideConfig::default();
+        telextiles_sensing::pipeline::PipelineConfig {
+            contact,
+            decide: decide_with(self.commit_margin.unwrap_or(shipped.commit_margin)),
+            encode_run: self.encode_run.unwrap_or(false),
         }
     }
 }
@@ -1418,6 +1457,17 @@ mod tests {
         assert_eq!((c.commit_margin, c.encode_run), (0.04, false));
         let c = resolve(&["--commit-margin", "0.16", "--encode-run"], &with_var).unwrap();
         assert_eq!((c.commit_margin, c.encode_run), (0.16, true));
+        // `classify` given the same values replays with this daemon's
+        // decider and front end.
+        let offline = DecisionArgs {
+            commit_margin: Some(c.commit_margin),
+            encode_run: Some(c.encode_run),
+        }
+        .pipeline(c.contact());
+        assert_eq!(
+            (offline.contact, offline.decide, offline.encode_run),
+            (c.contact(), c.decide(), c.encode_run)
+        );
         // Out of range anywhere: a clear error naming where.
         std::fs::write(&cfg, "commit_margin = 2.5\n").unwrap();
         let e = resolve(&[], &env).unwrap_err().to_string();

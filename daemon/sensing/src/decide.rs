@@ -455,6 +455,9 @@ pub struct PressOutcome {
     pub decision: Option<Decision>,
     /// Timestamp of the first decision.
     pub first_decision_us: Option<u64>,
+    /// Index entry of the first decision (where the roller went first;
+    /// the final one's when the decision never changed).
+    pub first_entry: Option<usize>,
     /// Timestamp of the last change of decision.
     pub stable_since_us: Option<u64>,
     /// How many times the decision changed after the first one.
@@ -478,6 +481,7 @@ pub struct Decider {
     /// Candidate entry, frames in its run, timestamp of the run's first.
     challenger: Option<(usize, u32, u64)>,
     first_decision_us: Option<u64>,
+    first_entry: Option<usize>,
     switches: u32,
 }
 
@@ -495,6 +499,7 @@ impl Decider {
             current: None,
             challenger: None,
             first_decision_us: None,
+            first_entry: None,
             switches: 0,
         }
     }
@@ -523,6 +528,7 @@ impl Decider {
         self.current = None;
         self.challenger = None;
         self.first_decision_us = None;
+        self.first_entry = None;
         self.switches = 0;
     }
 
@@ -630,6 +636,7 @@ impl Decider {
                     if deep && run >= 2 && (sure || ms(t_us, since) >= self.cfg.confirm_ms) {
                         self.current = Some(self.make(index, nearest.best, t_us, &nearest));
                         self.first_decision_us = Some(t_us);
+                        self.first_entry = Some(nearest.best);
                         self.challenger = None;
                         changed = true;
                     }
@@ -740,6 +747,7 @@ impl Decider {
             end_us: t_us,
             decision: self.current,
             first_decision_us: self.first_decision_us,
+            first_entry: self.first_entry,
             stable_since_us: self.current.map(|c| c.since_us),
             switches: self.switches,
             frames: self.frames,

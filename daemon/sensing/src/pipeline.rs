@@ -131,6 +131,9 @@ pub struct PipelineConfig {
     pub contact: ContactConfig,
     /// Decisions.
     pub decide: DecideConfig,
+    /// Also encode the frames of the run that starts a press
+    /// ([`FrontEnd::set_encode_run`]; the daemon's `encode_run`).
+    pub encode_run: bool,
 }
 
 /// What one frame produced.
@@ -185,8 +188,10 @@ impl<I: TextileIndex> Pipeline<I> {
             ));
         }
         let decider = Decider::new(cfg.decide, encoder.dim());
+        let mut front = FrontEnd::new(encoder, cfg.contact, reference);
+        front.set_encode_run(cfg.encode_run);
         Ok(Pipeline {
-            front: FrontEnd::new(encoder, cfg.contact, reference),
+            front,
             decider,
             index,
         })
@@ -301,8 +306,15 @@ pub struct PressReport {
     pub confidence: Option<f32>,
     /// Far from every known textile.
     pub unknown: bool,
+    /// When the contact detector started the press (its run's first
+    /// frame), in milliseconds of the source's clock: from a recording's
+    /// first frame. The times below count from it.
+    pub start_ms: f64,
     /// Contact to first stable decision, in milliseconds of capture time.
     pub decision_ms: Option<f64>,
+    /// The first decision's textile id (where the roller went first):
+    /// `textile` unless the decision changed.
+    pub first_textile: Option<String>,
     /// Contact to the last change of decision, in milliseconds.
     pub stable_ms: Option<f64>,
     /// Changes of decision after the first.
@@ -345,7 +357,9 @@ fn report<I: TextileIndex>(
         margin: o.decision.map(|d| d.margin),
         confidence: o.decision.map(|d| d.confidence),
         unknown: o.decision.is_some_and(|d| d.unknown),
+        start_ms: o.start_us as f64 / 1000.0,
         decision_ms: o.first_decision_us.map(ms),
+        first_textile: o.first_entry.map(|e| index.id(e).to_string()),
         stable_ms: o.stable_since_us.map(ms),
         switches: o.switches,
         duration_ms: ms(o.end_us),

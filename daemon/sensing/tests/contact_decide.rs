@@ -548,6 +548,8 @@ fn no_decision_outside_a_press() {
         (out.first_decision_us, out.switches),
         (first.map(|k| k * P), 0)
     );
+    // Never changed: the first decision is the final one.
+    assert_eq!(out.first_entry, out.decision.map(|d| d.entry));
     // At 25 fps the same duration takes fewer frames: decided at frame 2
     // (80 ms), not after a fixed 3 frames (120 ms).
     const P25: u64 = 40_000;
@@ -753,6 +755,20 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     // then lead by the margin for 5 frames.
     let t = switched_at.expect("switched");
     assert!(t > 40 && t <= 60, "switched at {t}");
+    // The outcome keeps where the press went first, and where it ended.
+    let o = d.press_end(201 * 16_667).unwrap();
+    let id = |e: Option<usize>| e.map(|e| idx.id(e));
+    assert_eq!(
+        (
+            id(o.first_entry),
+            id(o.decision.map(|d| d.entry)),
+            o.switches
+        ),
+        (Some("A"), Some("C"), 1)
+    );
+    // A new press forgets it.
+    d.press_start(300 * 16_667);
+    assert_eq!(d.press_end(301 * 16_667).unwrap().first_entry, None);
 }
 
 /// A press on A for 20 frames, then C, then B: the frames (60 fps) of
