@@ -14,6 +14,10 @@
 //!   peers pressing at once never reset each other; reordered, duplicated,
 //!   lost or malformed messages never panic it and never stop decisions.
 //!
+//! - [`clock::CaptureClock`]: a frame's capture time on the local clock,
+//!   spaced as the sensor spaced its frames (its own timestamps), so that
+//!   the peers' deciders time presses as the offline tools do.
+//!
 //! Clocks: a peer's `capture_us` is on the peer's clock and is only ever
 //! compared with other timestamps of the same peer (durations within a
 //! press); the link's `one_way_latency_us` (from its clock-offset estimate)
@@ -21,6 +25,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod clock;
 pub mod latent;
 pub mod receiver;
 pub mod sender;

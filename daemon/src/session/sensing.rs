@@ -17,6 +17,7 @@ use telextiles_sensing::front::{FrontEnd, References};
 use telextiles_sensing::source::recorded::{Pace, RecordingsSource};
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::{FrameSource, SourceError};
+use telextiles_session::clock::CaptureClock;
 use telextiles_session::{SenderCore, TxAction};
 
 use super::{lock, SessionOptions, State};
@@ -177,6 +178,7 @@ pub(crate) fn sensing_thread(
 ) -> Result<(), String> {
     let mut front = front_end(encoder, contact, encode_run);
     let mut sender = SenderCore::new(front.encoder().dim());
+    let mut clock = CaptureClock::new();
     let mut frame = Frame::blank();
     let mut actions = Vec::new();
     // A recording asked for over the control socket, fed below.
@@ -231,7 +233,10 @@ pub(crate) fn sensing_thread(
             }
             continue;
         }
-        let capture_us = now_us();
+        // The frame's own timestamp on the local clock: the deciders time
+        // the press as the sensor spaced its frames, as `classify` does.
+        let arrived_us = now_us();
+        let capture_us = clock.stamp(frame.timestamp_us, arrived_us);
         if let Some(rec) = source.new_recording() {
             // Another recording: its frames owe nothing to the last one's.
             // A press still in progress ends here, and the front end starts
@@ -268,7 +273,7 @@ pub(crate) fn sensing_thread(
                 recording = None;
             }
         }
-        let contact_us = capture_us + out.contact_ns / 1000;
+        let contact_us = arrived_us + out.contact_ns / 1000;
         let phase = match up.event {
             Some(ContactEvent::PressStart { .. }) => Some(ContactPhase::Start),
             Some(ContactEvent::PressEnd { .. }) => Some(ContactPhase::End),
@@ -283,12 +288,11 @@ pub(crate) fn sensing_thread(
         }
         // On the frame that starts a press, the run's earlier frames go
         // first, the press starting with the first of them, each at its
-        // own capture time (this frame's, less the camera's interval).
+        // own capture time.
         let mut event = up.event;
         for e in out.earlier {
-            let back = frame.timestamp_us.saturating_sub(e.t_us);
             sender.on_frame_weighted(
-                capture_us.saturating_sub(back),
+                clock.map(e.t_us).min(capture_us),
                 event.take(),
                 Some(&e.embedding),
                 telextiles_sensing::decide::contact_weight(e.depth),
