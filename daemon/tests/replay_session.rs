@@ -114,6 +114,148 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
     );
 }
 
+/// The decision-speed settings reach a live pair as `classify` replays
+/// them: A replays recordings with `--encode-run`, B decides with
+/// `--commit-margin 2`, and B's first decision of each press (its
+/// textile, and its time after the press's start in capture time,
+/// `since_contact_ms - latency_ms`) is the one `classify --encode-run
+/// --commit-margin 2` gives on the same recordings, which neither setting
+/// alone gives.
+#[test]
+fn the_decision_speed_settings_reach_a_live_pair_as_classify_replays_them() {
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let rec = tempfile::tempdir().unwrap();
+    // Hand-held presses on three units, each released.
+    let plan = [("T030", 0), ("T061", 1), ("T090", 2)];
+    for (k, (textile, unit)) in plan.iter().enumerate() {
+        let spec = telextiles_sim::PressSpec {
+            person: 9,
+            sensor: *unit,
+            jig: false,
+            release: Some(true),
+            ..telextiles_sim::PressSpec::new(*textile, 31 + k as u64)
+        };
+        let press = sim.render_press(&spec).unwrap();
+        telextiles_sim::recording::write_press(&rec.path().join(format!("{k}-{textile}")), &press)
+            .unwrap();
+    }
+    const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx");
+    const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
+    // Each press's first decision and its ms after the press's start.
+    let classify = |flags: &[&str]| -> Vec<(String, f64)> {
+        let out = std::process::Command::new(BIN)
+            .args([
+                "classify", "--model", MODEL, "--index", INDEX, "--json", "--press",
+            ])
+            .arg(rec.path())
+            .args(flags)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout)
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                (
+                    v["first_textile"].as_str().unwrap().to_string(),
+                    v["decision_ms"].as_f64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    // A margin of 2 never commits early: B waits for the timing rules,
+    // which A's encoded run starts a frame sooner. Each setting alone
+    // gives other decisions, so the pair's match shows both arrived.
+    let want = classify(&["--encode-run", "--commit-margin", "2"]);
+    assert_eq!(want.len(), plan.len(), "{want:?}");
+    for other in [
+        classify(&[]),
+        classify(&["--encode-run"]),
+        classify(&["--commit-margin", "2"]),
+    ] {
+        assert_ne!(
+            want, other,
+            "each setting changes these presses' first decisions"
+        );
+    }
+    let setup = Setup {
+        sensors: (
+            format!("replay:{}", rec.path().display()),
+            "sim:T047".into(),
+        ),
+        flags: (
+            vec!["--encode-run".into()],
+            vec!["--commit-margin".into(), "2".into()],
+        ),
+        ..Setup::default()
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let pair = rt.block_on(Pair::start(&setup));
+    let same = |a: &[(String, f64)], b: &[(String, f64)]| {
+        a.len() == b.len()
+            && a.iter()
+                .zip(b)
+                .all(|(x, y)| x.0 == y.0 && (x.1 - y.1).abs() < 0.002)
+    };
+    let t0 = Instant::now();
+    let live = loop {
+        // B's first decision of each of A's presses, in press order.
+        let mut firsts = std::collections::BTreeMap::new();
+        for (_, e) in pair.b.events.lock().unwrap().iter() {
+            if let Event::Decision {
+                textile,
+                peer: Some(_),
+                press: Some(id),
+                final_decision: false,
+                since_contact_ms: Some(since),
+                latency_ms,
+                ..
+            } = e
+            {
+                firsts
+                    .entry(*id)
+                    .or_insert((textile.clone(), since - latency_ms));
+            }
+        }
+        let firsts: Vec<(String, f64)> = firsts.into_values().collect();
+        // Two whole rounds of the replay after the first press B saw (which
+        // may have begun before B was connected), from the first press of
+        // a round on: every one as classify decides it, to the µs. (With
+        // the sensing thread's arrival times as capture times, one press in
+        // three came a frame later.)
+        let start = firsts
+            .iter()
+            .skip(1)
+            .position(|f| f.0 == want[0].0)
+            .map(|i| i + 1);
+        if let Some(k) = start.filter(|k| firsts.len() >= k + 2 * want.len()) {
+            let rounds = &firsts[k..k + 2 * want.len()];
+            assert!(
+                rounds.chunks(want.len()).all(|r| same(r, &want)),
+                "live first decisions {rounds:?}, classify {want:?}"
+            );
+            break firsts;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(90),
+            "live first decisions {firsts:?}, classify {want:?}\nA's log:\n{}",
+            std::fs::read_to_string(&pair.a.log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    eprintln!("live first decisions {live:?}\nclassify with the settings {want:?}");
+    let (_, _, _a, _b) = pair.stop();
+}
+
 /// Runs the pair until B has decided two whole rounds of A's replay, and
 /// checks that B's final decisions are `textiles` twice, in order, and
 /// that A's sensor and encoder raised no error but the skipping of the
