@@ -307,12 +307,15 @@ pub(crate) fn sensing_thread(
             &mut actions,
         );
         let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
-        send(&state, &mut actions, [capture_us, contact_us, encoded_us]);
+        // The trace times the daemon's stages from the frame's arrival
+        // (the latents carry its capture time).
+        send(&state, &mut actions, [arrived_us, contact_us, encoded_us]);
     }
 }
 
 /// Carry out the sender core's actions on the link, in order; `stages`
-/// (capture, contact, encoded; local clock) go into the latency trace.
+/// (arrival from the source, contact, encoded; local clock) go into the
+/// latency trace.
 fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
     for a in actions.drain(..) {
         match a {
