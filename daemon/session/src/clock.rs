@@ -14,12 +14,20 @@
 //! The clock maps a frame's own timestamp onto the local clock:
 //! `capture = timestamp + offset`, where `offset` is the least `arrival -
 //! timestamp` seen over the last [`WINDOW_US`] or so (the frame that came
-//! with the least delay). Intervals are then exactly the sensor's, and a
-//! frame's capture time is never later than its arrival, so the
-//! latency measured from it stays an upper bound. The window lets the
-//! offset follow the sensor's clock drifting against the local one. A
-//! timestamp that goes backwards (another source, a replay starting
-//! again) or jumps ahead by more than the window starts the clock afresh.
+//! with the least delay). The window lets the offset follow the sensor's
+//! clock drifting against the local one. Between presses a frame's capture
+//! time is never later than its arrival, so the latency measured from it
+//! stays an upper bound.
+//!
+//! A new least delay moves the offset, and with it one interval, by a few
+//! µs: enough to make a 50 ms wait take a frame more. So during a press
+//! ([`CaptureClock::hold`] on its first frame, [`CaptureClock::release`]
+//! at its end) the offset stays the one the press began with, and every
+//! interval of the press is exactly the sensor's. A frame of the press
+//! that comes with less delay than that may then be stamped up to that
+//! difference (µs) after its arrival. A timestamp that goes backwards
+//! (another source, a replay starting again) or jumps ahead by more than
+//! the window starts the clock afresh, and ends a hold.
 //!
 //! Pure: fed timestamps and arrival times, no clock of its own.
 
@@ -37,6 +45,8 @@ pub struct CaptureClock {
     block_min: i64,
     /// The previous block's least delay, if it ended less than a block ago.
     prev_min: Option<i64>,
+    /// The offset a press in progress began with ([`CaptureClock::hold`]).
+    held: Option<i64>,
 }
 
 impl CaptureClock {
@@ -58,6 +68,7 @@ impl CaptureClock {
             self.block_start = now_us;
             self.block_min = delay;
             self.prev_min = None;
+            self.held = None;
         } else {
             if now_us.saturating_sub(self.block_start) >= WINDOW_US / 2 {
                 // A new block; the one that ended is remembered for one
@@ -69,22 +80,39 @@ impl CaptureClock {
             self.block_min = self.block_min.min(delay);
         }
         self.last_ts = Some(ts_us);
-        let offset = self
-            .prev_min
-            .map_or(self.block_min, |p| p.min(self.block_min));
+        if self.held.is_some() {
+            return self.map(ts_us);
+        }
         // The least delay is this frame's or smaller, so this is at most
         // `now_us`; a clamp keeps it so whatever the arithmetic.
-        (ts_us as i64 + offset).clamp(0, now_us as i64) as u64
+        (ts_us as i64 + self.least()).clamp(0, now_us as i64) as u64
+    }
+
+    /// The least delay over the window.
+    fn least(&self) -> i64 {
+        self.prev_min
+            .map_or(self.block_min, |p| p.min(self.block_min))
     }
 
     /// The capture time of another frame of the same source (one held by
-    /// the front end and encoded later), by the offset in use. Never later
-    /// than the newest frame's capture time when `ts_us` is not newer.
+    /// the front end and encoded later), by the offset in use.
     pub fn map(&self, ts_us: u64) -> u64 {
-        let offset = self
-            .prev_min
-            .map_or(self.block_min, |p| p.min(self.block_min));
+        let offset = self.held.unwrap_or_else(|| self.least());
         (ts_us as i64 + offset).max(0) as u64
+    }
+
+    /// A press begins: keep the offset in use (the one the last
+    /// [`CaptureClock::stamp`] used) until [`CaptureClock::release`]. A
+    /// second hold keeps the first's.
+    pub fn hold(&mut self) {
+        if self.held.is_none() && self.last_ts.is_some() {
+            self.held = Some(self.least());
+        }
+    }
+
+    /// The press ended: the offset follows the least delay again.
+    pub fn release(&mut self) {
+        self.held = None;
     }
 }
 
@@ -126,6 +154,38 @@ mod tests {
         assert_eq!(got[2].1 - got[2].0, 2_400 - 150);
         // A frame held back and encoded later maps by the same offset.
         assert_eq!(c.map(1_000_000 + 298 * P), got[298].0);
+    }
+
+    #[test]
+    fn a_press_keeps_its_offset_so_every_interval_is_the_sensors() {
+        let mut c = CaptureClock::new();
+        // Frames arriving 2 ms late, then one 1.5 ms late: between presses
+        // its interval is shortened by the new least delay.
+        let ts = |k: u64| 1_000_000 + k * P;
+        let mut caps: Vec<u64> = (0..10).map(|k| c.stamp(ts(k), ts(k) + 2_000)).collect();
+        caps.push(c.stamp(ts(10), ts(10) + 1_500));
+        assert_eq!(caps[10] - caps[9], P - 500);
+        // A press from frame 11 on: the offset it began with stays, a
+        // lower delay (1 ms) changes no interval, and the frame that came
+        // sooner than the offset says is stamped 500 µs after it arrived.
+        let first = c.stamp(ts(11), ts(11) + 1_500);
+        c.hold();
+        let low = c.stamp(ts(12), ts(12) + 1_000);
+        let next = c.stamp(ts(13), ts(13) + 1_700);
+        assert_eq!((low - first, next - low), (P, P));
+        assert_eq!(low - (ts(12) + 1_000), 500);
+        assert_eq!(c.map(ts(11)), first);
+        // A second hold keeps the first offset.
+        c.hold();
+        assert_eq!(c.stamp(ts(14), ts(14) + 1_000) - next, P);
+        // Released: the least delay (1 ms) again, never after the arrival.
+        c.release();
+        let after = c.stamp(ts(15), ts(15) + 1_200);
+        assert_eq!(after, ts(15) + 1_000);
+        // A new epoch ends a hold.
+        c.hold();
+        assert_eq!(c.stamp(0, 90_000_000), 90_000_000);
+        assert_eq!(c.stamp(P, 90_000_000 + P + 300), 90_000_000 + P);
     }
 
     #[test]

@@ -241,6 +241,7 @@ pub(crate) fn sensing_thread(
             // Another recording: its frames owe nothing to the last one's.
             // A press still in progress ends here, and the front end starts
             // afresh with the recording's own reference.
+            clock.release();
             if sender.in_press() {
                 sender.stop(capture_us, &mut actions);
                 send(&state, &mut actions, [capture_us; 3]);
@@ -279,6 +280,14 @@ pub(crate) fn sensing_thread(
             Some(ContactEvent::PressEnd { .. }) => Some(ContactPhase::End),
             _ => None,
         };
+        // A press's frames keep the offset it began with: its intervals
+        // are exactly the sensor's (the run's earlier frames are mapped
+        // with it below).
+        match phase {
+            Some(ContactPhase::Start) => clock.hold(),
+            Some(ContactPhase::End) => clock.release(),
+            None => {}
+        }
         if let Some(phase) = phase {
             *lock(&state.in_contact) = phase == ContactPhase::Start;
             let _ = state.events.send(Event::Contact {
@@ -292,7 +301,7 @@ pub(crate) fn sensing_thread(
         let mut event = up.event;
         for e in out.earlier {
             sender.on_frame_weighted(
-                clock.map(e.t_us).min(capture_us),
+                clock.map(e.t_us),
                 event.take(),
                 Some(&e.embedding),
                 telextiles_sensing::decide::contact_weight(e.depth),
