@@ -1045,6 +1045,30 @@ mod tests {
         Config::resolve(&args(a), &env_of(env))
     }
 
+    /// The error with `text` as the configuration file `cfg` (left empty
+    /// afterwards).
+    fn file_error(cfg: &Path, env: &[(&str, &str)], text: &str) -> String {
+        std::fs::write(cfg, text).unwrap();
+        let e = resolve(&[], env).unwrap_err().to_string();
+        std::fs::write(cfg, "").unwrap();
+        e
+    }
+
+    /// The error with `key = value` added to the environment `env`.
+    fn var_error(env: &[(&str, &str)], key: &str, value: &str) -> String {
+        let mut bad = env.to_vec();
+        bad.push((key, value));
+        resolve(&[], &bad).unwrap_err().to_string()
+    }
+
+    /// The parser's error for `flags`.
+    fn flag_error(flags: &[&str]) -> String {
+        match T::try_parse_from(std::iter::once("t").chain(flags.iter().copied())) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{flags:?} was taken"),
+        }
+    }
+
     #[test]
     fn private_dirs_are_created_0700_whatever_the_umask() {
         use std::os::unix::fs::PermissionsExt;
@@ -1364,14 +1388,12 @@ mod tests {
             .contact();
         assert!(c.exit < c.enter && c.exit > 0.0, "{c:?}");
         // Out of range anywhere: a clear error naming where.
-        std::fs::write(&cfg, "contact_enter = 0\n").unwrap();
-        let e = resolve(&[], &env).unwrap_err().to_string();
+        let e = file_error(&cfg, &env, "contact_enter = 0\n");
         assert!(
             e.contains("contact_enter") && e.contains("out of range"),
             "{e}"
         );
-        std::fs::write(&cfg, "contact_frames = 0\n").unwrap();
-        let e = resolve(&[], &env).unwrap_err().to_string();
+        let e = file_error(&cfg, &env, "contact_frames = 0\n");
         assert!(
             e.contains("contact_frames") && e.contains("out of range"),
             "{e}"
@@ -1389,24 +1411,17 @@ mod tests {
                 .tile,
             0
         );
-        std::fs::write(&cfg, "contact_tile = 81\n").unwrap();
-        let e = resolve(&[], &env).unwrap_err().to_string();
+        let e = file_error(&cfg, &env, "contact_tile = 81\n");
         assert!(
             e.contains("contact_tile") && e.contains("out of range"),
             "{e}"
         );
-        std::fs::write(&cfg, "").unwrap();
-        let mut bad_var = env.clone();
-        bad_var.push(("TELEXTILESD_CONTACT_ENTER", "high"));
-        let e = resolve(&[], &bad_var).unwrap_err().to_string();
+        let e = var_error(&env, "TELEXTILESD_CONTACT_ENTER", "high");
         assert!(
             e.contains("TELEXTILESD_CONTACT_ENTER") && e.contains("not a number"),
             "{e}"
         );
-        let e = T::try_parse_from(["t", "--contact-frames", "31"])
-            .err()
-            .expect("refused")
-            .to_string();
+        let e = flag_error(&["--contact-frames", "31"]);
         assert!(e.contains("out of range"), "{e}");
         // The offline tools' flags make the same detector.
         let a = ContactArgs {
@@ -1469,30 +1484,19 @@ mod tests {
             (c.contact(), c.decide(), c.encode_run)
         );
         // Out of range anywhere: a clear error naming where.
-        std::fs::write(&cfg, "commit_margin = 2.5\n").unwrap();
-        let e = resolve(&[], &env).unwrap_err().to_string();
+        let e = file_error(&cfg, &env, "commit_margin = 2.5\n");
         assert!(
             e.contains("commit_margin") && e.contains("out of range"),
             "{e}"
         );
-        std::fs::write(&cfg, "").unwrap();
-        let mut bad = env.clone();
-        bad.push(("TELEXTILESD_COMMIT_MARGIN", "-0.1"));
-        let e = resolve(&[], &bad).unwrap_err().to_string();
+        let e = var_error(&env, "TELEXTILESD_COMMIT_MARGIN", "-0.1");
         assert!(
             e.contains("TELEXTILESD_COMMIT_MARGIN") && e.contains("out of range"),
             "{e}"
         );
-        let e = T::try_parse_from(["t", "--commit-margin", "NaN"])
-            .err()
-            .expect("refused")
-            .to_string();
+        let e = flag_error(&["--commit-margin", "NaN"]);
         assert!(e.contains("out of range"), "{e}");
-        let mut bad = env.clone();
-        bad.push(("TELEXTILESD_ENCODE_RUN", "sometimes"));
-        assert!(resolve(&[], &bad)
-            .unwrap_err()
-            .to_string()
+        assert!(var_error(&env, "TELEXTILESD_ENCODE_RUN", "sometimes")
             .contains("TELEXTILESD_ENCODE_RUN"));
     }
 
@@ -1523,24 +1527,17 @@ mod tests {
             Some(24.0)
         );
         // Out of range anywhere: a clear error naming where.
-        std::fs::write(&cfg, "replay_fps = 0\n").unwrap();
-        let e = resolve(&[], &env).unwrap_err().to_string();
+        let e = file_error(&cfg, &env, "replay_fps = 0\n");
         assert!(
             e.contains("replay_fps") && e.contains("out of range"),
             "{e}"
         );
-        std::fs::write(&cfg, "").unwrap();
-        let mut bad_var = env.clone();
-        bad_var.push(("TELEXTILESD_REPLAY_FPS", "fast"));
-        let e = resolve(&[], &bad_var).unwrap_err().to_string();
+        let e = var_error(&env, "TELEXTILESD_REPLAY_FPS", "fast");
         assert!(
             e.contains("TELEXTILESD_REPLAY_FPS") && e.contains("not a frame rate"),
             "{e}"
         );
-        let e = match T::try_parse_from(["t", "--replay-fps", "0"]) {
-            Err(e) => e.to_string(),
-            Ok(_) => panic!("--replay-fps 0 was taken"),
-        };
+        let e = flag_error(&["--replay-fps", "0"]);
         assert!(e.contains("out of range"), "{e}");
     }
 
