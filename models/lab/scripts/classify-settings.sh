@@ -9,8 +9,8 @@
 #
 # Three sets (presses already written are kept): catalogue 1, 24 textiles x
 # 8 presses, people 8-10, units 0, 4, 5, held by hand and in the jig; and
-# catalogue 2's c2hand of recorded-sets.sh (40 textiles x 8 hand-held
-# presses). The first 4 presses of each textile (sorted) build the index
+# catalogue 2's C2HAND of sets.sh (40 textiles x 8 hand-held presses, as
+# recorded-sets.sh renders them). The first 4 presses of each textile (sorted) build the index
 # (`index build --presses`, its defaults), the others are queries. Times
 # count from each press's true first contact, which simulated recordings
 # carry (press.json `params.contact_frame`); real recordings do not, so
@@ -26,8 +26,9 @@ OUT=docs/bench-v2/classify-settings
 mkdir -p "$T" "$OUT"
 $LAB sim-presses --out $T/c1jig --first 24 --presses 8 --sensors 0,4,5 --people 8,9,10 > /dev/null
 $LAB sim-presses --out $T/c1hand --first 24 --presses 8 --sensors 0,4,5 --people 8,9,10 --hand > /dev/null
-$LAB sim-presses --out $T/c2hand --catalogue 2 --first 40 --presses 8 \
-    --sensors 0,4,5,6 --people 8,9,10,11 --hand > /dev/null
+# shellcheck source=models/lab/scripts/sets.sh
+source models/lab/scripts/sets.sh
+$LAB sim-presses --out $T/c2hand "${C2HAND[@]}" > /dev/null
 SETTINGS=(
     ""
     "--encode-run"

@@ -15,8 +15,9 @@ cd "$(dirname "$0")/../../.."
 DIR=${1:-target/telextiles-lab/simrec}
 cargo build -p telextiles-lab
 LAB=target/debug/telextiles-lab
-$LAB sim-presses --out "$DIR/recordings" --first 12 --presses 6 \
-    --sensors 0,4,5 --people 8,9,10 --hand
+# shellcheck source=models/lab/scripts/sets.sh
+source models/lab/scripts/sets.sh
+$LAB sim-presses --out "$DIR/recordings" "${SIMREC[@]}"
 for split in "--index-presses 3:study-k3" "--split lopo:study-lopo"; do
     # shellcheck disable=SC2086
     $LAB bench --source "presses:$DIR/recordings" ${split%%:*} \
