@@ -126,7 +126,8 @@ fn print(
             };
             writeln!(
                 out,
-                "  decided {:.0} ms after contact{first}, stable since {:.0} ms ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
+                "  press began at {:.0} ms; decided {:.0} ms later{first} and stable from {:.0} ms after it ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
+                r.start_ms,
                 r.decision_ms.unwrap_or(f64::NAN),
                 r.stable_ms.unwrap_or(f64::NAN),
                 r.switches,
@@ -562,7 +563,8 @@ mod tests {
         assert!(
             text.contains("T080")
                 && text.contains("roller slot")
-                && text.contains("after contact")
+                && text.contains("press began at ")
+                && text.contains(" ms later and stable from ")
                 && text.contains("encode"),
             "{text}"
         );
