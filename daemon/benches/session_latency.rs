@@ -4,9 +4,16 @@
 //! (this kernel has no netem). Per-frame stage times come from the daemons'
 //! latency traces on the shared CLOCK_MONOTONIC, joined on sequence numbers.
 //!
+//! Each daemon replays a set of `--replay N` different presses
+//! (`--sensor replay:<dir>`; catalogue 1, held-out people, six sensor
+//! units, every third press hand-held), so that contact -> first decision
+//! is measured over many presses, not over one press pressed again and
+//! again. `--replay 0`: each daemon's simulated DIGIT presses one textile
+//! (A T012, B T047) again and again, as the runs before 2026-11-29 did.
+//!
 //! ```sh
 //! cargo bench -p telextilesd --bench session_latency -- \
-//!     [--seconds 30] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg]
+//!     [--seconds 30] [--replay 24] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg]
 //! ```
 //! Prints the markdown of docs/benchmarks.md's "Live session" section.
 #[path = "../tests/harness/mod.rs"]
@@ -66,6 +73,20 @@ fn main() {
     // in the package directory).
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let svg = opt("--svg").map(|p| root.join(p).display().to_string());
+    let replay: usize = opt("--replay").map_or(24, |s| s.parse().expect("--replay N"));
+    let sets = tempfile::tempdir().expect("a temporary directory");
+    let sensors = if replay == 0 {
+        Setup::default().sensors
+    } else {
+        let a = sets.path().join("a");
+        let b = sets.path().join("b");
+        render_set(&a, replay, 0);
+        render_set(&b, replay, 1);
+        (
+            format!("replay:{}", a.display()),
+            format!("replay:{}", b.display()),
+        )
+    };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -78,6 +99,7 @@ fn main() {
         let (pair, t0, t1) = rt.block_on(async {
             let pair = Pair::start(&Setup {
                 relay: sc.relay,
+                sensors: sensors.clone(),
                 ..Default::default()
             })
             .await;
@@ -111,6 +133,14 @@ fn main() {
         });
     }
     let ms = |v: f64| format!("{:.3}", v / 1000.0);
+    if replay == 0 {
+        println!("Sources: A's simulated DIGIT presses T012 and B's T047, again and again ({seconds} s per scenario).");
+    } else {
+        println!(
+            "Sources: each daemon replays {replay} recorded presses, one after another and round again \
+             (catalogue 1, held-out people 8-10, units 0-5, every third hand-held; A's and B's textiles differ; {seconds} s per scenario)."
+        );
+    }
     for r in &results {
         println!("\n#### {}\n", r.name);
         println!("| stage (both directions) | frames | p50 ms | p95 ms | p99 ms |\n|---|---:|---:|---:|---:|");
@@ -142,7 +172,7 @@ fn main() {
                 cat(&r.ab.total_serial, &r.ba.total_serial),
             ),
             (
-                "contact → first stable decision of a press",
+                "press start (its first frame sent) → its first decision on the other side",
                 cat(&r.ab.contact_to_decision, &r.ba.contact_to_decision),
             ),
         ];
@@ -173,6 +203,33 @@ fn main() {
     if let Some(path) = svg {
         histogram(&results, &path).expect("write the SVG");
         eprintln!("wrote {path}");
+    }
+}
+
+/// Renders `n` presses into `dir`, one recording each: catalogue-1 textiles
+/// spread over the 119 (`side` shifts them, so the daemons press different
+/// ones), held-out people 8-10, sensor units 0-5, every third press
+/// hand-held, each with its no-contact frames and its release.
+fn render_set(dir: &std::path::Path, n: usize, side: usize) {
+    let sim = telextiles_sim::Simulator::new().expect("the simulator");
+    for k in 0..n {
+        let textile = format!("T{:03}", (k * 119 / n + side * 7) % 119 + 1);
+        let spec = telextiles_sim::PressSpec {
+            person: 8 + ((k + side) % 3) as u32,
+            sensor: (k % 6) as u32,
+            jig: k % 3 != 2,
+            release: Some(true),
+            catalogue: Some(1),
+            ..telextiles_sim::PressSpec::new(textile.clone(), (1000 * side + k) as u64)
+        };
+        let press = sim.render_press(&spec).expect("render a press");
+        telextiles_sim::recording::write_press(&dir.join(format!("{k:03}-{textile}")), &press)
+            .expect("write a press");
+        eprintln!(
+            "rendered press {} of {n} for daemon {}",
+            k + 1,
+            ["A", "B"][side]
+        );
     }
 }
 
