@@ -331,8 +331,13 @@ impl<I: TextileIndex> ReceiverCore<I> {
         if st.finished.contains(&press_id) {
             return false;
         }
-        if let Some(p) = &st.press {
+        if let Some(p) = &mut st.press {
             if p.press_id == press_id {
+                // A latent may come before its press's start (datagrams
+                // and the control stream race): the press began no later
+                // than the earliest capture any of its messages carries,
+                // and its start message carries when it began.
+                p.contact_capture_us = p.contact_capture_us.min(capture_us);
                 return true;
             }
             if capture_us < p.contact_capture_us {

@@ -726,3 +726,51 @@ fn the_receiver_weights_frames_by_the_length_the_sender_gave_them() {
     assert_eq!(final_decision(false), 5);
     assert_eq!(final_decision(true), 2);
 }
+
+/// A press's start travels on the control stream, its latents as
+/// datagrams, so a latent may come first and start the press at its own
+/// capture time. The start, when it comes, still dates the press: the
+/// time since contact of every decision counts from the first frame of
+/// the detector's run (here a frame before the first latent), as it does
+/// when the start comes first.
+#[test]
+fn a_start_that_comes_after_its_first_latent_still_dates_the_press() {
+    let idx = index();
+    let a = centroid(&idx, 2);
+    let pressed = |start_first: bool| {
+        let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
+        let mut out = Vec::new();
+        let start = RxInput::PressStart {
+            press_id: 1,
+            capture_us: 10 * PERIOD,
+        };
+        let latent = |k: u64| RxInput::Latent {
+            press_id: 1,
+            seq: k,
+            capture_us: (10 + k) * PERIOD,
+            vector: &a,
+            one_way_latency_us: Some(2_000),
+        };
+        if start_first {
+            rx.handle("p", start, &mut out);
+            rx.handle("p", latent(1), &mut out);
+        } else {
+            rx.handle("p", latent(1), &mut out);
+            rx.handle("p", start, &mut out);
+        }
+        for k in 2..10 {
+            rx.handle("p", latent(k), &mut out);
+        }
+        out.iter()
+            .find_map(|x| match x {
+                RxAction::Decision(d) => Some(d.since_contact_ms.unwrap() - d.latency_ms.unwrap()),
+                _ => None,
+            })
+            .expect("a decision")
+    };
+    let ms = |frames: u64| (frames * PERIOD) as f64 / 1000.0;
+    // A clear leader: decided on its second latent, two frames after the
+    // run's first frame.
+    assert!((pressed(true) - ms(2)).abs() < 1e-6, "{}", pressed(true));
+    assert!((pressed(false) - ms(2)).abs() < 1e-6, "{}", pressed(false));
+}
