@@ -123,6 +123,40 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
 /// alone gives.
 #[test]
 fn the_decision_speed_settings_reach_a_live_pair_as_classify_replays_them() {
+    // A margin of 2 never commits early: B waits for the timing rules,
+    // which A's encoded run starts a frame sooner. Each setting alone
+    // gives other decisions, so the pair's match shows both arrived.
+    live_first_decisions_as_classify(
+        (
+            vec!["--encode-run".into()],
+            vec!["--commit-margin".into(), "2".into()],
+        ),
+        &["--encode-run", "--commit-margin", "2"],
+        &[&[], &["--encode-run"], &["--commit-margin", "2"]],
+    );
+}
+
+/// With the shipped settings the run that starts a press is not encoded,
+/// and the press still begins at its first frame: B times its decisions
+/// from there, as `classify` does. (Before, the press began at the frame
+/// the detector fired on, and every live decision was a frame sooner
+/// after the start than `classify` said: 16.7 ms at 60 fps.)
+#[test]
+fn with_the_shipped_settings_live_decisions_are_timed_from_the_detectors_start_as_classify_times_them(
+) {
+    live_first_decisions_as_classify((Vec::new(), Vec::new()), &[], &[]);
+}
+
+/// A replays three hand-held recordings to B with `flags` (A's, B's); B's
+/// first decision of every press in two whole rounds (its textile, and its
+/// time after the press's start in capture time, `since_contact_ms -
+/// latency_ms`) is the one `classify` gives with `classify_flags`, to
+/// 2 µs; `classify` with each of `others` gives other first decisions.
+fn live_first_decisions_as_classify(
+    flags: (Vec<String>, Vec<String>),
+    classify_flags: &[&str],
+    others: &[&[&str]],
+) {
     let sim = telextiles_sim::Simulator::new().unwrap();
     let rec = tempfile::tempdir().unwrap();
     // Hand-held presses on three units, each released.
@@ -168,19 +202,13 @@ fn the_decision_speed_settings_reach_a_live_pair_as_classify_replays_them() {
             })
             .collect()
     };
-    // A margin of 2 never commits early: B waits for the timing rules,
-    // which A's encoded run starts a frame sooner. Each setting alone
-    // gives other decisions, so the pair's match shows both arrived.
-    let want = classify(&["--encode-run", "--commit-margin", "2"]);
+    let want = classify(classify_flags);
     assert_eq!(want.len(), plan.len(), "{want:?}");
-    for other in [
-        classify(&[]),
-        classify(&["--encode-run"]),
-        classify(&["--commit-margin", "2"]),
-    ] {
+    for other in others {
         assert_ne!(
-            want, other,
-            "each setting changes these presses' first decisions"
+            want,
+            classify(other),
+            "{other:?} changes these presses' first decisions"
         );
     }
     let setup = Setup {
@@ -188,10 +216,7 @@ fn the_decision_speed_settings_reach_a_live_pair_as_classify_replays_them() {
             format!("replay:{}", rec.path().display()),
             "sim:T047".into(),
         ),
-        flags: (
-            vec!["--encode-run".into()],
-            vec!["--commit-margin".into(), "2".into()],
-        ),
+        flags,
         ..Setup::default()
     };
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -252,7 +277,7 @@ fn the_decision_speed_settings_reach_a_live_pair_as_classify_replays_them() {
         );
         std::thread::sleep(Duration::from_millis(200));
     };
-    eprintln!("live first decisions {live:?}\nclassify with the settings {want:?}");
+    eprintln!("live first decisions {live:?}\nclassify {classify_flags:?}: {want:?}");
     let (_, _, _a, _b) = pair.stop();
 }
 

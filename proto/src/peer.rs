@@ -176,7 +176,9 @@ pub enum Control {
     Mismatch {
         reasons: Vec<MismatchReason>,
     },
-    /// The sender starts pressing a fabric.
+    /// The sender starts pressing a fabric. `capture_us`: the capture time
+    /// (sender's clock) of the first frame of the contact detector's run
+    /// that started the press, encoded or not.
     PressStart {
         press_id: u32,
         capture_us: u64,

@@ -9,11 +9,14 @@ use crate::latent::Latent;
 /// stream and latents as datagrams).
 #[derive(Clone, Debug, PartialEq)]
 pub enum TxAction {
-    /// A press started (its first frame's capture time, local clock).
+    /// A press started.
     PressStart {
         /// Press number (wrapping).
         press_id: u32,
-        /// Capture time of the frame that started it.
+        /// When the contact detector started it: the capture time of the
+        /// first frame of the run that started it (local clock), whether
+        /// or not that frame was encoded. The receiver times the press's
+        /// decisions from it, as `classify` does from the detector's start.
         capture_us: u64,
     },
     /// The latent of one frame in contact.
@@ -75,6 +78,9 @@ impl SenderCore {
 
     /// One frame: its capture time (local clock), the contact event it
     /// carried, and its embedding if it was encoded. Actions go to `out`.
+    /// A `PressStart`'s `t_us` (the run's first frame) must be on the local
+    /// clock too (the wiring maps it as it maps capture times); the press
+    /// starts then, and never after the frame that reports it.
     /// An embedding that is not a valid latent (wrong dimension, non-finite,
     /// zero) is dropped and counted nowhere else: the encoder never makes one.
     pub fn on_frame(
@@ -99,7 +105,7 @@ impl SenderCore {
         out: &mut Vec<TxAction>,
     ) {
         match event {
-            Some(ContactEvent::PressStart { .. }) => {
+            Some(ContactEvent::PressStart { t_us }) => {
                 if self.in_press {
                     // Never two presses at once: close the open one first.
                     self.stop(capture_us, out);
@@ -110,7 +116,7 @@ impl SenderCore {
                 self.frames = 0;
                 out.push(TxAction::PressStart {
                     press_id: self.press_id,
-                    capture_us,
+                    capture_us: t_us.min(capture_us),
                 });
             }
             Some(ContactEvent::PressEnd { .. }) => self.stop(capture_us, out),
@@ -266,6 +272,43 @@ mod tests {
                     final_latent: None
                 }
             ]
+        );
+    }
+
+    /// The detector starts a press on the last frame of a run over its
+    /// threshold; the press begins at the run's first frame, as `classify`
+    /// times it, whether that frame is encoded (`encode_run`) or not.
+    #[test]
+    fn a_press_begins_at_the_first_frame_of_the_run_that_started_it() {
+        let mut s = SenderCore::new(1);
+        let mut out = Vec::new();
+        s.on_frame(16_667, None, None, &mut out);
+        s.on_frame(33_333, start(16_667), Some(&[1.0]), &mut out);
+        assert_eq!(
+            out[0],
+            TxAction::PressStart {
+                press_id: 1,
+                capture_us: 16_667
+            }
+        );
+        assert!(matches!(
+            out[1],
+            TxAction::Latent {
+                capture_us: 33_333,
+                ..
+            }
+        ));
+        // A start stamped after its frame (a clock mapped wrong) starts
+        // at the frame.
+        out.clear();
+        s.on_frame(50_000, end(50_000), None, &mut out);
+        s.on_frame(60_000, start(70_000), Some(&[1.0]), &mut out);
+        assert_eq!(
+            out[1],
+            TxAction::PressStart {
+                press_id: 2,
+                capture_us: 60_000
+            }
         );
     }
 

@@ -296,9 +296,15 @@ pub(crate) fn sensing_thread(
             });
         }
         // On the frame that starts a press, the run's earlier frames go
-        // first, the press starting with the first of them, each at its
-        // own capture time.
-        let mut event = up.event;
+        // first, each at its own capture time; the press starts at the
+        // run's first frame, encoded or not (on the local clock, as
+        // `classify` times it from the detector's start).
+        let mut event = up.event.map(|e| match e {
+            ContactEvent::PressStart { t_us } => ContactEvent::PressStart {
+                t_us: clock.map(t_us),
+            },
+            other => other,
+        });
         for e in out.earlier {
             sender.on_frame_weighted(
                 clock.map(e.t_us),
