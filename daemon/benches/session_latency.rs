@@ -13,15 +13,22 @@
 //!
 //! ```sh
 //! cargo bench -p telextilesd --bench session_latency -- \
-//!     [--seconds 30] [--replay 24] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg]
+//!     [--seconds 30] [--replay 24] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg] \
+//!     [--flags "--encode-run --commit-margin 0.02 ..."]
 //! ```
+//!
+//! `--flags`: settings given to both daemons and to `classify` (the
+//! decision-speed settings of docs/configuration.md), to measure them live.
 //! Prints the markdown of docs/benchmarks.md's "Live session" section.
 #[path = "../tests/harness/mod.rs"]
 mod harness;
 
 use harness::*;
 use plotters::prelude::*;
+use std::collections::BTreeMap;
+use std::path::Path;
 use std::time::Duration;
+use telextiles_control::Event;
 
 struct Scenario {
     name: String,
@@ -36,6 +43,8 @@ struct Result1 {
     /// Sensor frames per second processed by A and B.
     fps: [f64; 2],
     finals_lost: usize,
+    /// Replayed sets only: each direction's presses, live against `classify`.
+    presses: Vec<Compared>,
 }
 
 fn parse_scenarios(s: &str) -> Vec<Scenario> {
@@ -74,7 +83,12 @@ fn main() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let svg = opt("--svg").map(|p| root.join(p).display().to_string());
     let replay: usize = opt("--replay").map_or(24, |s| s.parse().expect("--replay N"));
+    let flags: Vec<String> = opt("--flags")
+        .map(|s| s.split_whitespace().map(str::to_string).collect())
+        .unwrap_or_default();
     let sets = tempfile::tempdir().expect("a temporary directory");
+    // Each set as `classify` decides it offline (A's set, B's set).
+    let mut offline: [Vec<Offline>; 2] = Default::default();
     let sensors = if replay == 0 {
         Setup::default().sensors
     } else {
@@ -82,6 +96,7 @@ fn main() {
         let b = sets.path().join("b");
         render_set(&a, replay, 0);
         render_set(&b, replay, 1);
+        offline = [classify_set(&a, &flags), classify_set(&b, &flags)];
         (
             format!("replay:{}", a.display()),
             format!("replay:{}", b.display()),
@@ -100,7 +115,7 @@ fn main() {
             let pair = Pair::start(&Setup {
                 relay: sc.relay,
                 sensors: sensors.clone(),
-                ..Default::default()
+                flags: (flags.clone(), flags.clone()),
             })
             .await;
             tokio::time::sleep(Duration::from_secs(5)).await;
@@ -123,6 +138,11 @@ fn main() {
         let ab = stages(&ta, &tb, t0, t1);
         let ba = stages(&tb, &ta, t0, t1);
         let lost = lost_finals(&ta, &b, t0, t1).0.len() + lost_finals(&tb, &a, t0, t1).0.len();
+        let mut presses = Vec::new();
+        if replay > 0 {
+            presses.extend(compare(&ta, &b, &offline[0], t0, t1));
+            presses.extend(compare(&tb, &a, &offline[1], t0, t1));
+        }
         results.push(Result1 {
             name: sc.name.clone(),
             ab,
@@ -130,9 +150,16 @@ fn main() {
             cpu: [usage(&a, t0, t1), usage(&b, t0, t1)],
             fps,
             finals_lost: lost,
+            presses,
         });
     }
     let ms = |v: f64| format!("{:.3}", v / 1000.0);
+    if !flags.is_empty() {
+        println!(
+            "Settings of both daemons (and of `classify`): {}",
+            flags.join(" ")
+        );
+    }
     if replay == 0 {
         println!("Sources: A's simulated DIGIT presses T012 and B's T047, again and again ({seconds} s per scenario).");
     } else {
@@ -200,6 +227,9 @@ fn main() {
             r.cpu[1].1 as f64 / 1e6
         );
     }
+    if replay > 0 {
+        print_decisions(&results);
+    }
     if let Some(path) = svg {
         histogram(&results, &path).expect("write the SVG");
         eprintln!("wrote {path}");
@@ -229,6 +259,233 @@ fn render_set(dir: &std::path::Path, n: usize, side: usize) {
             "rendered press {} of {n} for daemon {}",
             k + 1,
             ["A", "B"][side]
+        );
+    }
+}
+
+/// One recording of a replayed set as `classify` (the same per-frame
+/// pipeline, model, index and settings as the daemons) decides it.
+struct Offline {
+    /// The fabric pressed (the recording's label).
+    label: String,
+    /// The true first contact, ms from the recording's first frame
+    /// (simulated recordings carry it).
+    contact_ms: f64,
+    /// The contact detector's start, ms from the first frame.
+    start_ms: f64,
+    /// The first decision: textile, ms after the start.
+    first: Option<(String, f64)>,
+    /// The press's final decision.
+    last: Option<String>,
+}
+
+/// `telextilesd classify --json` over the set, one entry per recording in
+/// the order the replay takes them (sorted names); panics unless each
+/// recording is exactly one press.
+fn classify_set(dir: &Path, flags: &[String]) -> Vec<Offline> {
+    let out = std::process::Command::new(BIN)
+        .arg("classify")
+        .args([
+            "--model",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
+        ])
+        .args([
+            "--index",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
+        ])
+        .arg("--press")
+        .arg(dir)
+        .arg("--json")
+        .args(flags)
+        .output()
+        .expect("run telextilesd classify");
+    assert!(
+        out.status.success(),
+        "classify failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut rows: Vec<(String, Offline)> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).expect("classify's JSON");
+            let source = v["source"].as_str().expect("source").to_string();
+            let meta: serde_json::Value = serde_json::from_str(
+                &std::fs::read_to_string(Path::new(&source).join("press.json"))
+                    .expect("press.json"),
+            )
+            .expect("press.json is JSON");
+            let contact = meta["params"]["contact_frame"]
+                .as_u64()
+                .expect("contact_frame");
+            let textile = |k: &str| v[k].as_str().map(str::to_string);
+            let first = textile("first_textile").zip(v["decision_ms"].as_f64());
+            (
+                source,
+                Offline {
+                    label: meta["textile"].as_str().expect("textile").to_string(),
+                    contact_ms: meta["timestamps_us"][contact as usize]
+                        .as_f64()
+                        .expect("timestamps_us")
+                        / 1000.0,
+                    start_ms: v["start_ms"].as_f64().expect("start_ms"),
+                    first,
+                    last: textile("textile"),
+                },
+            )
+        })
+        .collect();
+    rows.sort_by(|a, b| a.0.cmp(&b.0));
+    let n = std::fs::read_dir(dir).expect("the set").count();
+    assert_eq!(
+        rows.len(),
+        n,
+        "classify: one press per recording of {dir:?}"
+    );
+    assert!(
+        rows.windows(2).all(|w| w[0].0 != w[1].0),
+        "classify: two presses in one recording of {dir:?}"
+    );
+    rows.into_iter().map(|r| r.1).collect()
+}
+
+/// One press replayed live, beside what `classify` made of its recording.
+struct Compared {
+    label: String,
+    /// The detector's start after the true contact, ms.
+    start_after_contact_ms: f64,
+    /// The receiver's decisions of the press in order (textile, ms after
+    /// the press's start as the receiver reckons it: the press on the
+    /// sender's clock plus the link's latency); the last may be the final.
+    live: Vec<(String, f64, bool)>,
+    offline_first: Option<(String, f64)>,
+    offline_last: Option<String>,
+}
+
+/// The sender's presses that began in `[t0, t1 - 3 s)`, with the
+/// receiver's decisions of each. Press `k` (numbered from 1 by the
+/// sender) is recording `(k - 1) mod n` of the set: the replay takes the
+/// recordings in order, one press each (`classify_set` checks the
+/// latter; the final decisions against `classify`'s check the mapping).
+fn compare(from: &Traces, to: &Side, set: &[Offline], t0: u64, t1: u64) -> Vec<Compared> {
+    let mut start: BTreeMap<u32, u64> = BTreeMap::new();
+    for (press, t) in from.tx.values() {
+        start.entry(*press).or_insert(t[0]);
+    }
+    let mut live: BTreeMap<u32, Vec<(String, f64, bool)>> = BTreeMap::new();
+    for (_, e) in to.events.lock().unwrap().iter() {
+        if let Event::Decision {
+            textile,
+            peer: Some(_),
+            press: Some(k),
+            since_contact_ms: Some(ms),
+            final_decision,
+            ..
+        } = e
+        {
+            live.entry(*k)
+                .or_default()
+                .push((textile.clone(), *ms, *final_decision));
+        }
+    }
+    start
+        .iter()
+        .filter(|(_, &t)| t >= t0 && t + 3_000_000 < t1)
+        .filter_map(|(k, _)| {
+            let o = &set[(*k as usize - 1) % set.len()];
+            Some(Compared {
+                label: o.label.clone(),
+                start_after_contact_ms: o.start_ms - o.contact_ms,
+                live: live.remove(k)?,
+                offline_first: o.first.clone(),
+                offline_last: o.last.clone(),
+            })
+        })
+        .collect()
+}
+
+/// Live first decisions against `classify`'s on the same recordings, per
+/// scenario, in the terms of the decision-time studies (times from the
+/// true first contact).
+fn print_decisions(results: &[Result1]) {
+    println!(
+        "\n#### First decisions, live and offline\n\n\
+         Each press replayed live beside `classify` on its recording (the same pipeline, model, index and settings); \
+         times from the press's true first contact.\n"
+    );
+    println!(
+        "| scenario | presses | final decision as `classify`'s | first decision: live right | `classify` right | same textile as `classify` | \
+         live ms after contact p50 / p90 | `classify` p50 / p90 | live − `classify` p50 / p95 ms | live: right 100 ms after contact |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let pc = |k: usize, n: usize| format!("{:.1} %", 100.0 * k as f64 / n.max(1) as f64);
+    for r in results {
+        let p = &r.presses;
+        let n = p.len();
+        let first = |c: &Compared| c.live.iter().find(|d| !d.2).cloned();
+        let finals = p
+            .iter()
+            .filter(|c| {
+                let last = c.live.iter().rev().find(|d| d.2).map(|d| &d.0);
+                last.is_some() && last == c.offline_last.as_ref()
+            })
+            .count();
+        let live_right = p
+            .iter()
+            .filter(|c| first(c).is_some_and(|d| d.0 == c.label))
+            .count();
+        let off_right = p
+            .iter()
+            .filter(|c| c.offline_first.as_ref().is_some_and(|d| d.0 == c.label))
+            .count();
+        let same = p
+            .iter()
+            .filter(|c| {
+                first(c)
+                    .zip(c.offline_first.as_ref())
+                    .is_some_and(|(l, o)| l.0 == o.0)
+            })
+            .count();
+        let live_ms: Vec<f64> = p
+            .iter()
+            .filter_map(|c| first(c).map(|d| c.start_after_contact_ms + d.1))
+            .collect();
+        let off_ms: Vec<f64> = p
+            .iter()
+            .filter_map(|c| {
+                c.offline_first
+                    .as_ref()
+                    .map(|d| c.start_after_contact_ms + d.1)
+            })
+            .collect();
+        let added: Vec<f64> = p
+            .iter()
+            .filter_map(|c| Some(first(c)?.1 - c.offline_first.as_ref()?.1))
+            .collect();
+        // The decision in effect 100 ms after contact: the last change
+        // made by then (1 µs for the decimal milliseconds).
+        let at_100 = p
+            .iter()
+            .filter(|c| {
+                c.live
+                    .iter()
+                    .rfind(|d| !d.2 && c.start_after_contact_ms + d.1 <= 100.001)
+                    .is_some_and(|d| d.0 == c.label)
+            })
+            .count();
+        println!(
+            "| {} | {n} | {} | {} | {} | {} | {:.0} / {:.0} | {:.0} / {:.0} | {:.1} / {:.1} | {} |",
+            r.name,
+            pc(finals, n),
+            pc(live_right, n),
+            pc(off_right, n),
+            pc(same, n),
+            pct(&live_ms, 50.0),
+            pct(&live_ms, 90.0),
+            pct(&off_ms, 50.0),
+            pct(&off_ms, 90.0),
+            pct(&added, 50.0),
+            pct(&added, 95.0),
+            pc(at_100, n),
         );
     }
 }
