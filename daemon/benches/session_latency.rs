@@ -284,15 +284,7 @@ struct Offline {
 /// recording is exactly one press.
 fn classify_set(dir: &Path, flags: &[String]) -> Vec<Offline> {
     let out = std::process::Command::new(BIN)
-        .arg("classify")
-        .args([
-            "--model",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
-        ])
-        .args([
-            "--index",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
-        ])
+        .args(["classify", "--model", MODEL, "--index", INDEX])
         .arg("--press")
         .arg(dir)
         .arg("--json")

@@ -24,8 +24,6 @@ use telextiles_proto::peer::{
     encode_control, Control, Hello, LatentFrame, QuantVec, FLAG_FINAL, PROTOCOL_VERSION,
 };
 
-const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
-
 fn datagram(seq: u64, press_id: u32, flags: u8, v: &[f32]) -> bytes::Bytes {
     datagram_at(seq, 1_000_000 + seq * 16_667, press_id, flags, v)
 }

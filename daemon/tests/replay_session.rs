@@ -173,8 +173,6 @@ fn live_first_decisions_as_classify(
         telextiles_sim::recording::write_press(&rec.path().join(format!("{k}-{textile}")), &press)
             .unwrap();
     }
-    const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx");
-    const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
     // Each press's first decision and its ms after the press's start.
     let classify = |flags: &[&str]| -> Vec<(String, f64)> {
         let out = std::process::Command::new(BIN)

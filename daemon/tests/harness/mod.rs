@@ -22,6 +22,9 @@ use telextiles_control::{Command as Ctl, Event, SubscribeArgs};
 use telextiles_tests::relay::{Impairment, Relay};
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
+/// The shipped model and index, which the daemons here run with.
+pub const MODEL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx");
+pub const INDEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi");
 
 /// CLOCK_MONOTONIC in µs (the clock of the daemons' traces).
 pub fn mono_us() -> u64 {
@@ -119,14 +122,7 @@ pub fn spawn(
         .args(flags)
         .args(["--roller", "sim", "--map=false", "--mdns=false"])
         .args(["--listen", &listen.to_string()])
-        .args([
-            "--model",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/encoder.onnx"),
-        ])
-        .args([
-            "--index",
-            concat!(env!("CARGO_MANIFEST_DIR"), "/../models/index.tlxi"),
-        ])
+        .args(["--model", MODEL, "--index", INDEX])
         .arg("--config")
         .arg(dir.join("none.toml"))
         .arg("--latency-trace")
