@@ -382,15 +382,16 @@ fn compare(from: &Traces, to: &Side, set: &[Offline], t0: u64, t1: u64) -> Vec<C
     start
         .iter()
         .filter(|(_, &t)| t >= t0 && t + 3_000_000 < t1)
-        .filter_map(|(k, _)| {
+        .map(|(k, _)| {
             let o = &set[(*k as usize - 1) % set.len()];
-            Some(Compared {
+            Compared {
                 label: o.label.clone(),
                 start_after_contact_ms: o.start_ms - o.contact_ms,
-                live: live.remove(k)?,
+                // A press the receiver never decided counts, as undecided.
+                live: live.remove(k).unwrap_or_default(),
                 offline_first: o.first.clone(),
                 offline_last: o.last.clone(),
-            })
+            }
         })
         .collect()
 }
