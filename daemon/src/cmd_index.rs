@@ -440,19 +440,11 @@ fn record(
             name: t.name.clone(),
             seen: t.book == Book::Training,
             structure: t.structure.label(),
-            attributes: [
-                "roughness",
-                "density",
-                "softness",
-                "fuzziness",
-                "thickness",
-                "stretch",
-                "slipperiness",
-            ]
-            .iter()
-            .zip(t.attributes.to_vec())
-            .map(|(n, v)| (n.to_string(), v))
-            .collect(),
+            attributes: telextiles_sim::catalogue::Attributes::NAMES
+                .iter()
+                .zip(t.attributes.to_vec())
+                .map(|(n, v)| (n.to_string(), v))
+                .collect(),
             embeddings,
             exemplars,
         },

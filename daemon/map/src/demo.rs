@@ -193,17 +193,6 @@ pub async fn run(
     }
 }
 
-/// Names of the catalogue's tactile attributes, in `Attributes::to_vec` order.
-pub const ATTRIBUTE_NAMES: [&str; 7] = [
-    "roughness",
-    "density",
-    "softness",
-    "fuzziness",
-    "thickness",
-    "stretch",
-    "slipperiness",
-];
-
 /// Dimension of [`catalogue_index`]'s stand-in embeddings.
 pub const DEMO_DIM: usize = 32;
 
@@ -287,7 +276,7 @@ pub fn catalogue_index(
             name: t.name.clone(),
             seen: t.book == Book::Training,
             structure: t.structure.label(),
-            attributes: ATTRIBUTE_NAMES
+            attributes: telextiles_sim::catalogue::Attributes::NAMES
                 .iter()
                 .zip(t.attributes.to_vec())
                 .map(|(n, v)| (n.to_string(), v))

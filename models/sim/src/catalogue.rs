@@ -257,8 +257,19 @@ pub struct Attributes {
 }
 
 impl Attributes {
+    /// The attributes' names, in the order of [`Attributes::to_vec`].
+    pub const NAMES: [&'static str; 7] = [
+        "roughness",
+        "density",
+        "softness",
+        "fuzziness",
+        "thickness",
+        "stretch",
+        "slipperiness",
+    ];
+
     /// As a vector in a fixed order (roughness, density, softness, fuzziness,
-    /// thickness, stretch, slipperiness).
+    /// thickness, stretch, slipperiness: [`Attributes::NAMES`]).
     pub fn to_vec(&self) -> [f32; 7] {
         [
             self.roughness,
