@@ -4,6 +4,7 @@
 //! paper and measures latency. burn is a dependency of this crate only; the
 //! daemon never links it.
 
+pub mod attrmap;
 pub mod augment;
 pub mod baselines;
 pub mod bench;

@@ -489,8 +489,27 @@ pub struct Report {
     /// (c) per press of an unseen textile, as the daemon decides.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub unseen_presses: Vec<UnseenPress>,
+    /// The attribute map fitted on the known textiles' index presses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub attribute_map: Option<AttributeFit>,
+    /// (c) per press of an unseen textile, decided by its predicted
+    /// attributes (`telextiles_index::AttributeMap::feels_like`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unseen_presses_attr: Vec<UnseenPress>,
     /// Mean attribute distance between random pairs of known textiles.
     pub attr_dist_random: Option<f64>,
+}
+
+/// How an attribute map was fitted.
+#[derive(Clone, Debug, Serialize)]
+pub struct AttributeFit {
+    pub lambda: f32,
+    pub cv_rmse: f32,
+    /// Per attribute (name, share of its variance predicted for left-out
+    /// fabrics): how much of it the embedding carries.
+    pub cv_r2: Vec<(String, f32)>,
+    pub presses: u32,
+    pub fabrics: u32,
 }
 
 fn sel(
@@ -699,6 +718,45 @@ pub fn evaluate_with(
             attr_rank: ad.map(|dist| attr_rank(uc, dist)),
         });
     }
+    // Per press, by what it is predicted to feel like: a ridge map from a
+    // press's mean embedding to the attributes of the known textiles (the
+    // maker's sample book), fitted on the known textiles' index presses
+    // alone; the chosen known textile is the one nearest in attributes.
+    let known_presses: Vec<(u32, Vec<f32>)> =
+        press_sums(&sets.train_index.items, &e_train, d, is_idx)
+            .into_iter()
+            .chain(press_sums(&sets.heldout.items, &e_held, d, is_idx))
+            .filter(|((class, ..), _)| (*class as usize) < n_train_classes)
+            .map(|((class, ..), (sum, _))| (class, sum))
+            .collect();
+    let targets: Vec<Option<Vec<f32>>> = (0..n_train_classes)
+        .map(|k| sets.attributes.get(k).cloned().flatten())
+        .collect();
+    // The simulator's attributes (the only source of them here).
+    let names: Vec<String> = telextiles_sim::catalogue::Attributes::NAMES
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    let (attribute_map, chosen) = attribute_choices(
+        &known_presses,
+        &targets,
+        &names,
+        &sets.unseen.items,
+        &e_unseen,
+        d,
+    );
+    let unseen_presses_attr: Vec<UnseenPress> = chosen
+        .into_iter()
+        .map(|(class, best)| {
+            let ad = attr_dist(class as usize, best);
+            UnseenPress {
+                textile: sets.train.classes[class as usize].clone(),
+                chosen: sets.train.classes[best].clone(),
+                attr_dist: ad,
+                attr_rank: ad.map(|dist| attr_rank(class, dist)),
+            }
+        })
+        .collect();
     let mut rd = (0.0, 0usize);
     for a in 0..n_train_classes {
         for b in 0..a {
@@ -715,6 +773,19 @@ pub fn evaluate_with(
         jig_vs_handheld: jig_rows,
         unseen: unseen_rows,
         unseen_presses,
+        attribute_map: attribute_map.map(|m| AttributeFit {
+            lambda: m.lambda,
+            cv_rmse: m.cv_rmse,
+            cv_r2: m
+                .names
+                .iter()
+                .cloned()
+                .zip(m.cv_r2.iter().copied())
+                .collect(),
+            presses: m.presses,
+            fabrics: m.fabrics,
+        }),
+        unseen_presses_attr,
         attr_dist_random: (rd.1 > 0).then(|| rd.0 / rd.1 as f64),
     })
 }
@@ -786,6 +857,45 @@ fn press_choices(
             Some((class, best))
         })
         .collect()
+}
+
+/// The known textile each press of `items` feels most like, by a maker's
+/// attribute map: a ridge map from a press's mean embedding to the
+/// attributes `targets` (per known class; None: not measured), fitted on the
+/// `known` presses (class, summed embedding) alone; each press goes to the
+/// known class nearest in predicted attributes. The map (None when it cannot
+/// be fitted, and then no choices) and (press class, chosen class) in press
+/// order.
+fn attribute_choices(
+    known: &[(u32, Vec<f32>)],
+    targets: &[Option<Vec<f32>>],
+    names: &[String],
+    items: &[crate::data::FrameMeta],
+    emb: &[f32],
+    d: usize,
+) -> (Option<crate::attrmap::AttributeMap>, Vec<(u32, usize)>) {
+    let samples: Vec<crate::attrmap::Sample> = known
+        .iter()
+        .map(|(c, v)| crate::attrmap::Sample {
+            fabric: *c as usize,
+            embedding: v,
+        })
+        .collect();
+    let Some(map) = crate::attrmap::AttributeMap::fit(&samples, targets, names, d) else {
+        return (None, Vec::new());
+    };
+    let cands: Vec<(usize, &[f32])> = targets
+        .iter()
+        .enumerate()
+        .filter_map(|(k, a)| Some((k, a.as_deref()?)))
+        .collect();
+    let chosen = press_sums(items, emb, d, |_| true)
+        .into_iter()
+        .filter_map(|((class, ..), (sum, _))| {
+            Some((class, map.feels_like(&sum, cands.iter().copied())?.0))
+        })
+        .collect();
+    (Some(map), chosen)
 }
 
 /// Within-fabric whitening learned from `set`'s presses (frames passing
@@ -884,8 +994,13 @@ impl Report {
                 "\nMean attribute distance unseen -> nearest known: {mean:.3}; between random known pairs: {r:.3}; median attribute rank of the nearest: {}.\n",
                 crate::bench::median(&ranks)
             ));
-            if !self.unseen_presses.is_empty() {
-                let p = &self.unseen_presses;
+            for (p, how) in [
+                (&self.unseen_presses, "as the daemon decides one (each press's mean embedding against the known textiles' centroids"),
+                (&self.unseen_presses_attr, "by what it feels like (the known textile nearest in attributes to the press's attributes as predicted by a ridge map from its mean embedding, fitted on the known textiles' index presses"),
+            ] {
+                if p.is_empty() {
+                    continue;
+                }
                 let mean = p.iter().filter_map(|u| u.attr_dist).sum::<f64>() / p.len() as f64;
                 let ranks: Vec<f64> = p
                     .iter()
@@ -893,13 +1008,25 @@ impl Report {
                     .collect();
                 let within = |k: f64| ranks.iter().filter(|&&x| x <= k).count();
                 s.push_str(&format!(
-                    "\nPer press, as the daemon decides one (each press's mean embedding against the known textiles' centroids; {} presses of {} unseen textiles): median attribute rank of the chosen known textile {}, mean attribute distance {mean:.3}; rank 1: {} presses, rank <= 5: {}, rank <= 10: {}.\n",
+                    "\nPer press, {how}; {} presses of {} unseen textiles): median attribute rank of the chosen known textile {}, mean attribute distance {mean:.3}; rank 1: {} presses, rank <= 5: {}, rank <= 10: {}.\n",
                     p.len(),
                     self.unseen.len(),
                     crate::bench::median(&ranks),
                     within(1.0),
                     within(5.0),
                     within(10.0),
+                ));
+            }
+            if let Some(f) = &self.attribute_map {
+                let r2: Vec<String> = f.cv_r2.iter().map(|(n, r)| format!("{n} {r:.2}")).collect();
+                s.push_str(&format!(
+                    "\nAttribute map: ridge, strength {} chosen by {}-fold cross-validation over whole fabrics (held-out RMSE per attribute {:.3}), fitted on {} presses of {} known textiles. Share of each attribute's variance it predicts for fabrics left out of the fit (R²): {}.\n",
+                    f.lambda,
+                    crate::attrmap::FOLDS,
+                    f.cv_rmse,
+                    f.presses,
+                    f.fabrics,
+                    r2.join(", ")
                 ));
             }
         }
@@ -911,6 +1038,71 @@ impl Report {
 mod tests {
     use super::*;
     use crate::data::{FrameMeta, ImageKind};
+
+    /// A press of an unseen class goes to the known class nearest in the
+    /// attributes its embedding predicts, which need not be the one nearest
+    /// in embedding: known classes on a circle whose attribute is their
+    /// angle's cosine, plus a direction of their own that means nothing to
+    /// the touch.
+    #[test]
+    fn unseen_presses_go_to_the_known_class_nearest_in_predicted_attributes() {
+        let d = 16;
+        let n = 12;
+        let press = |class: usize, jitter: f32| {
+            let a = std::f32::consts::TAU * class as f32 / n as f32;
+            let mut v = vec![0.0f32; d];
+            v[0] = a.cos();
+            v[1] = a.sin();
+            v[2 + class % (d - 2)] += 2.0 + jitter;
+            v
+        };
+        let known: Vec<(u32, Vec<f32>)> = (0..n)
+            .flat_map(|c| [0.0, 0.2, -0.2].map(|j| (c as u32, press(c, j))))
+            .collect();
+        let targets: Vec<Option<Vec<f32>>> = (0..n)
+            .map(|c| {
+                let a = std::f32::consts::TAU * c as f32 / n as f32;
+                Some(vec![0.5 + 0.4 * a.cos(), 0.5 + 0.4 * a.sin()])
+            })
+            .collect();
+        let names = vec!["roughness".to_string(), "softness".to_string()];
+        // Unseen class 12: at known class 3's angle, but with class 7's own
+        // direction, so its embedding lies nearest class 7's presses.
+        let mut v = press(3, 0.0);
+        v[2 + 3] = 0.0;
+        v[2 + 7] = 2.0;
+        let cos = |a: &[f32], b: &[f32]| {
+            let dot: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+            dot / (a.iter().map(|x| x * x).sum::<f32>() * b.iter().map(|x| x * x).sum::<f32>())
+                .sqrt()
+        };
+        let nearest = (0..n)
+            .max_by(|&a, &b| cos(&v, &press(a, 0.0)).total_cmp(&cos(&v, &press(b, 0.0))))
+            .unwrap();
+        assert_eq!(nearest, 7, "nearest in embedding");
+        let items = vec![FrameMeta {
+            class: 12,
+            press: 0,
+            person: 9,
+            sensor: 4,
+            jig: true,
+            frame: 0,
+        }];
+        let (map, chosen) = attribute_choices(&known, &targets, &names, &items, &v, d);
+        let map = map.expect("a map");
+        assert_eq!(map.fabrics, 12);
+        // Class 3 or a neighbour on the circle (the fit is of 12 classes),
+        // never class 7, a third of the circle away.
+        assert_eq!(chosen.len(), 1);
+        assert!([2, 3, 4].contains(&chosen[0].1), "{chosen:?}");
+        assert_eq!(chosen[0].0, 12);
+        // Without attributes there is no map and no choice.
+        let none = vec![None; n];
+        assert_eq!(
+            attribute_choices(&known, &none, &names, &items, &v, d).1,
+            vec![]
+        );
+    }
 
     /// Each press is decided by its mean against the known centroids: a
     /// press whose frames straddle two textiles goes to the one its mean
