@@ -493,7 +493,7 @@ pub struct Report {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub attribute_map: Option<AttributeFit>,
     /// (c) per press of an unseen textile, decided by its predicted
-    /// attributes (`telextiles_index::AttributeMap::feels_like`).
+    /// attributes (`crate::attrmap::AttributeMap::feels_like`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub unseen_presses_attr: Vec<UnseenPress>,
     /// Mean attribute distance between random pairs of known textiles.
