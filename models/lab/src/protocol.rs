@@ -134,6 +134,43 @@ pub struct Sets {
     pub backgrounds: ImageSet,
 }
 
+/// [`FrameSource::contact_range`] of every press of `keys`, in their order,
+/// on up to `threads` threads (`done` is called once per press); the first
+/// error in press order if any fails.
+pub fn contact_ranges(
+    source: &dyn FrameSource,
+    keys: &[PressKey],
+    threads: usize,
+    done: &(dyn Fn() + Sync),
+) -> Result<Vec<(usize, usize)>> {
+    let threads = threads.clamp(1, keys.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut found: Vec<(usize, Result<(usize, usize)>)> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..threads)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut mine = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(key) = keys.get(i) else {
+                            break;
+                        };
+                        mine.push((i, source.contact_range(key)));
+                        done();
+                    }
+                    mine
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .flat_map(|w| w.join().expect("a contact-range worker panicked"))
+            .collect()
+    });
+    found.sort_by_key(|(i, _)| *i);
+    found.into_iter().map(|(_, r)| r).collect()
+}
+
 /// `n` frames spread evenly over `[lo, hi)`.
 pub fn spread(lo: usize, hi: usize, n: usize) -> Vec<usize> {
     if hi <= lo || n == 0 {
@@ -291,7 +328,9 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
     std::fs::write(dir.join("protocol.json"), serde_json::to_string_pretty(p)?)?;
     let nidx = |lo: usize, hi: usize| spread(lo, hi.min(INDEX_FRAMES as usize), p.index_frames);
     let nq = |lo: usize, hi: usize| spread(lo.max(INDEX_FRAMES as usize), hi, p.query_frames);
-    let plan_for = |textiles: &[String],
+    #[allow(clippy::too_many_arguments)]
+    let plan_for = |name: &str,
+                    textiles: &[String],
                     class0: usize,
                     people: &[(u32, u32)],
                     jig: bool,
@@ -299,7 +338,7 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
                     canvas: bool,
                     queries: bool|
      -> Result<Vec<PressPlan>> {
-        let mut out = Vec::new();
+        let mut keys = Vec::new();
         for (ti, t) in textiles.iter().enumerate() {
             for &(person, sensor) in people {
                 let key = PressKey {
@@ -309,24 +348,40 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
                     jig,
                     seed: seed0 + person as u64,
                 };
-                let (lo, hi) = source.contact_range(&key)?;
+                keys.push(((class0 + ti) as u32, key));
+            }
+        }
+        // Where each press is in contact (the simulator sets each press up
+        // to say): minutes for a whole catalogue, so on every thread, with
+        // progress.
+        let bar = telextiles_progress::Progress::new(
+            &format!("finding contact in {name}"),
+            keys.len() as u64,
+            "presses",
+        );
+        let only_keys: Vec<PressKey> = keys.iter().map(|(_, k)| k.clone()).collect();
+        let ranges = contact_ranges(source.as_ref(), &only_keys, threads, &|| bar.inc(1))?;
+        bar.finish();
+        Ok(keys
+            .into_iter()
+            .zip(ranges)
+            .map(|((class, key), (lo, hi))| {
                 let mut input_frames = nidx(lo, hi);
                 if queries {
                     input_frames.extend(nq(lo, hi));
                 }
-                out.push(PressPlan {
+                PressPlan {
                     key,
-                    class: (class0 + ti) as u32,
+                    class,
                     canvas_frames: if canvas {
                         spread(lo, hi, p.train_frames)
                     } else {
                         Vec::new()
                     },
                     input_frames,
-                });
-            }
-        }
-        Ok(out)
+                }
+            })
+            .collect())
     };
     let train_people: Vec<(u32, u32)> = p
         .train_people
@@ -357,19 +412,46 @@ pub fn load_base(p: &Protocol, kind: SourceKind, cache_dir: &Path, threads: usiz
     };
     let (train, train_index) = build(
         "train",
-        plan_for(&training, 0, &train_people, true, 1000, true, false)?,
+        plan_for(
+            "train",
+            &training,
+            0,
+            &train_people,
+            true,
+            1000,
+            true,
+            false,
+        )?,
     )?;
     let (_, heldout) = build(
         "heldout",
-        plan_for(&training, 0, &p.heldout, true, 2000, false, true)?,
+        plan_for("heldout", &training, 0, &p.heldout, true, 2000, false, true)?,
     )?;
     let (_, handheld) = build(
         "handheld",
-        plan_for(&training, 0, &p.handheld_people(), false, 3000, false, true)?,
+        plan_for(
+            "handheld",
+            &training,
+            0,
+            &p.handheld_people(),
+            false,
+            3000,
+            false,
+            true,
+        )?,
     )?;
     let (_, unseen_set) = build(
         "unseen",
-        plan_for(&unseen, training.len(), &p.heldout, true, 4000, false, true)?,
+        plan_for(
+            "unseen",
+            &unseen,
+            training.len(),
+            &p.heldout,
+            true,
+            4000,
+            false,
+            true,
+        )?,
     )?;
     // The no-contact reference of every sensor in the protocol.
     let mut sensors: Vec<u32> = train_people.iter().chain(&p.heldout).map(|x| x.1).collect();
@@ -1038,6 +1120,64 @@ impl Report {
 mod tests {
     use super::*;
     use crate::data::{FrameMeta, ImageKind};
+
+    /// A source whose presses are in contact over `[seed, seed + person)`,
+    /// and that fails on seed 13.
+    struct Ranges;
+    impl FrameSource for Ranges {
+        fn describe(&self) -> String {
+            "ranges".into()
+        }
+        fn frames_per_press(&self) -> usize {
+            150
+        }
+        fn frames(&self, _: &PressKey, _: &[usize]) -> Result<Vec<image::RgbImage>> {
+            Ok(Vec::new())
+        }
+        fn contact_range(&self, k: &PressKey) -> Result<(usize, usize)> {
+            anyhow::ensure!(k.seed != 13, "press {} cannot be set up", k.seed);
+            Ok((k.seed as usize, (k.seed + k.person as u64) as usize))
+        }
+        fn training_textiles(&self) -> Vec<String> {
+            Vec::new()
+        }
+        fn unseen_textiles(&self) -> Vec<String> {
+            Vec::new()
+        }
+    }
+
+    /// Contact ranges found on several threads are those of one thread, in
+    /// press order, each press counted once; a press that fails fails the
+    /// whole, whichever thread meets it.
+    #[test]
+    fn contact_ranges_on_every_thread_keep_press_order() {
+        let key = |seed: u64| PressKey {
+            textile: "T001".into(),
+            person: (seed % 5) as u32,
+            sensor: 0,
+            jig: true,
+            seed,
+        };
+        let keys: Vec<PressKey> = (20..80).map(key).collect();
+        let want: Vec<(usize, usize)> = keys
+            .iter()
+            .map(|k| (k.seed as usize, (k.seed + k.person as u64) as usize))
+            .collect();
+        for threads in [0, 1, 2, 3, 100] {
+            let n = std::sync::atomic::AtomicUsize::new(0);
+            let count = || {
+                n.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            };
+            let got = contact_ranges(&Ranges, &keys, threads, &count).unwrap();
+            assert_eq!(got, want, "{threads} threads");
+            assert_eq!(n.into_inner(), keys.len());
+        }
+        assert!(contact_ranges(&Ranges, &[], 2, &|| ()).unwrap().is_empty());
+        let mut bad = keys.clone();
+        bad[37] = key(13);
+        let e = contact_ranges(&Ranges, &bad, 3, &|| ()).unwrap_err();
+        assert!(e.to_string().contains("press 13"), "{e}");
+    }
 
     /// A press of an unseen class goes to the known class nearest in the
     /// attributes its embedding predicts, which need not be the one nearest
