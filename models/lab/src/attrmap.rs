@@ -20,9 +20,9 @@
 //!
 //! Pure and deterministic.
 
-/// Ridge strengths tried by [`AttributeMap::fit`] (on unit embeddings, whose
-/// coordinates are of order `1/sqrt(dim)`; the scale is that of the summed
-/// squares of the presses' coordinates, so these are relative).
+/// Ridge strengths tried by [`AttributeMap::fit`], relative: each is a
+/// multiple of the centred inputs' mean variance per dimension, so it means
+/// the same whatever the embedding's dimension and spread.
 pub const LAMBDAS: [f64; 9] = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0];
 
 /// Folds of the fabric-level cross-validation.
@@ -115,11 +115,15 @@ impl AttributeMap {
         for &lambda in &LAMBDAS {
             let mut se = vec![0.0; m];
             let mut count = 0usize;
+            let mut every_fold = true;
             for k in 0..FOLDS {
                 let train: Vec<usize> = (0..x.len()).filter(|&i| fold_of(fab[i]) != k).collect();
                 let test: Vec<usize> = (0..x.len()).filter(|&i| fold_of(fab[i]) == k).collect();
+                // A strength whose fit fails on a fold is not judged on the
+                // other folds alone (R² would count only their presses).
                 let Some((w, b)) = ridge(&x, &y, &train, dim, lambda) else {
-                    continue;
+                    every_fold = false;
+                    break;
                 };
                 for &i in &test {
                     let p = predict_f64(&w, &b, &x[i], dim);
@@ -129,7 +133,7 @@ impl AttributeMap {
                     count += 1;
                 }
             }
-            if count == 0 {
+            if !every_fold || count == 0 {
                 continue;
             }
             let rmse = (se.iter().sum::<f64>() / (count * m) as f64).sqrt();
