@@ -11,7 +11,7 @@ use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::front::References;
-use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport};
+use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport, PARTIAL_COVERAGE};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
 use telextiles_sim::PressSpec;
@@ -126,15 +126,25 @@ fn print(
             };
             writeln!(
                 out,
-                "  press began at {:.0} ms; decided {:.0} ms later{first} and stable from {:.0} ms after it ({} switches); press {:.0} ms, {} frames encoded, ended: {}",
+                "  press began at {:.0} ms; decided {:.0} ms later{first} and stable from {:.0} ms after it ({} switches); press {:.0} ms, {} frames encoded, ended: {}{}",
                 r.start_ms,
                 r.decision_ms.unwrap_or(f64::NAN),
                 r.stable_ms.unwrap_or(f64::NAN),
                 r.switches,
                 r.duration_ms,
                 r.frames,
-                r.ended
+                r.ended,
+                r.coverage
+                    .map(|c| format!("; touched {:.0} % of the gel", 100.0 * c))
+                    .unwrap_or_default()
             )?;
+            if let Some(c) = r.coverage.filter(|&c| c < PARTIAL_COVERAGE) {
+                writeln!(
+                    out,
+                    "  partial contact: the press touched {:.0} % of the gel (held tilted?); hold the sensor flat on the fabric, such presses are decided less reliably",
+                    100.0 * c
+                )?;
+            }
         }
         _ => writeln!(
             out,
@@ -175,6 +185,10 @@ struct Tally {
     first_changed: usize,
     /// Presses with no decision.
     undecided: usize,
+    /// Decided presses of fabrics the index holds that touched less than
+    /// [`PARTIAL_COVERAGE`] of the gel, and of them those decided right.
+    partial: usize,
+    partial_right: usize,
     /// Presses of fabrics the index does not hold, and of them flagged
     /// unknown.
     foreign: usize,
@@ -199,6 +213,10 @@ impl Tally {
             (Some(fabric), Some(d)) => {
                 self.decided.push((fabric, d));
                 self.known_flagged += usize::from(r.unknown);
+                if r.coverage.is_some_and(|c| c < PARTIAL_COVERAGE) {
+                    self.partial += 1;
+                    self.partial_right += usize::from(fabric == d);
+                }
                 let first = r
                     .first_textile
                     .as_deref()
@@ -238,6 +256,14 @@ impl Tally {
             1 => "1 press".to_string(),
             n => format!("{n} presses"),
         };
+        if self.partial > 0 {
+            text += &format!(
+                "; {} touched less than {:.0} % of the gel (partial contact), {} of them decided right",
+                presses(self.partial),
+                100.0 * PARTIAL_COVERAGE,
+                self.partial_right
+            );
+        }
         if self.undecided > 0 {
             text += &format!("; {} without a decision", presses(self.undecided));
         }
@@ -565,6 +591,8 @@ mod tests {
                 && text.contains("roller slot")
                 && text.contains("press began at ")
                 && text.contains(" ms later and stable from ")
+                && text.contains("% of the gel")
+                && !text.contains("partial contact")
                 && text.contains("encode"),
             "{text}"
         );
@@ -648,7 +676,7 @@ mod tests {
             "summary: 3 of 3 presses (100.0 %) decided as the fabric they are labelled with; more than one press in 1 of 2 recordings"
         );
         // Presses whose decision changed: where each went first counts.
-        let report = |last: &str, first: &str| PressReport {
+        let report_covering = |last: &str, first: &str, coverage: Option<f32>| PressReport {
             textile: Some(last.into()),
             slot: Some(0),
             distance: Some(0.1),
@@ -662,10 +690,12 @@ mod tests {
             switches: u32::from(first != last),
             duration_ms: 900.0,
             frames: 40,
+            coverage,
             ended: "released".into(),
             stages: Default::default(),
             frame_total: Default::default(),
         };
+        let report = |last: &str, first: &str| report_covering(last, first, Some(0.8));
         let mut tally = Tally::default();
         // Right throughout; wrong, then right; right, then wrong; wrong
         // throughout.
@@ -681,6 +711,75 @@ mod tests {
         assert_eq!(
             tally.line(&index),
             "summary: 2 of 4 presses (50.0 %) decided as the fabric they are labelled with; taken for another: T010 as T030 (1), T110 as T010 (1); first decided as their own fabric: 2 of 4 (the decision changed in 2)"
+        );
+        // Presses that touched less than half the gel are counted, with
+        // how many of them were right; one exactly at the bound and one
+        // with no frame in contact are not partial.
+        let mut tally = Tally::default();
+        for (label, last, coverage) in [
+            ("T030", "T030", Some(0.3)),
+            ("T080", "T010", Some(0.1)),
+            ("T110", "T110", Some(PARTIAL_COVERAGE)),
+            ("T010", "T010", None),
+        ] {
+            tally.press(label, &report_covering(last, last, coverage), &index);
+        }
+        assert_eq!((tally.partial, tally.partial_right), (2, 1));
+        assert_eq!(
+            tally.line(&index),
+            "summary: 3 of 4 presses (75.0 %) decided as the fabric they are labelled with; taken for another: T080 as T010 (1); 2 presses touched less than 50 % of the gel (partial contact), 1 of them decided right"
+        );
+    }
+
+    /// A press held tilted touches part of the gel: `classify` says so for
+    /// the press (text and JSON) and in its summary; the same press held
+    /// flat is not flagged.
+    #[test]
+    fn a_tilted_press_is_reported_as_a_partial_contact() {
+        let dir = tempfile::tempdir().unwrap();
+        let index = index_file(dir.path());
+        let sim = Simulator::new().unwrap();
+        for (name, tilt) in [("flat", 0.0), ("tilted", 5.0)] {
+            let p = sim
+                .render_press(&PressSpec {
+                    tilt_deg: Some([0.0, tilt]),
+                    ..PressSpec::new("T030", 4)
+                })
+                .unwrap();
+            telextiles_sim::recording::write_press(&dir.path().join(name).join("T030"), &p)
+                .unwrap();
+        }
+        let classify = |name: &str, json: bool| {
+            let mut out = Vec::new();
+            run_to(
+                Args {
+                    json,
+                    press: vec![dir.path().join(name)],
+                    ..args(fixture_model(), index.clone())
+                },
+                &mut out,
+            )
+            .unwrap();
+            String::from_utf8(out).unwrap()
+        };
+        let coverage = |name: &str| {
+            let v = json_lines(classify(name, true).as_bytes());
+            assert_eq!(v.len(), 1, "{v:?}");
+            v[0]["coverage"].as_f64().unwrap()
+        };
+        let (flat, tilted) = (coverage("flat"), coverage("tilted"));
+        assert!(flat >= 0.7 && tilted < 0.5, "{flat} {tilted}");
+        let text = classify("flat", false);
+        assert!(!text.contains("partial contact"), "{text}");
+        let text = classify("tilted", false);
+        let pct = format!("{:.0} % of the gel", 100.0 * tilted);
+        assert!(
+            text.contains(&format!("; touched {pct}"))
+                && text.contains(&format!(
+                    "partial contact: the press touched {pct} (held tilted?)"
+                ))
+                && text.contains("1 press touched less than 50 % of the gel (partial contact)"),
+            "{text}"
         );
     }
 

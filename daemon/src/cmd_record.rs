@@ -479,11 +479,12 @@ impl Guide {
 
     fn saved(&self, k: u32, path: &Path, s: &PressSummary) {
         self.line(&format!(
-            "saved press {k}{}: {} frames, {:.1} s, peak contact {:.1} ({}; reference {} frames, {:.1} fps)",
+            "saved press {k}{}: {} frames, {:.1} s, peak contact {:.1}, touched {:.0} % of the gel ({}; reference {} frames, {:.1} fps)",
             self.of(),
             s.frames,
             s.duration_ms / 1000.0,
             s.peak,
+            100.0 * s.coverage,
             path.display(),
             s.reference_frames,
             s.fps

@@ -1009,7 +1009,7 @@ pub enum Event {
     RecordWarning {
         textile: String,
         press: u32,
-        /// "too_short", "too_weak", "no_quiet_before", "too_long",
+        /// "too_short", "too_weak", "partial", "no_quiet_before", "too_long",
         /// "interrupted", "not_released".
         code: String,
         message: String,

@@ -281,6 +281,13 @@ pub struct ContactUpdate {
     pub depth: f32,
     /// Whether a press is in progress after this frame.
     pub in_contact: bool,
+    /// How much of the gel the contact covers on this frame, 0..=1: the
+    /// share of the frame's 4x4 blocks that it changed ([`coverage`]); 0
+    /// when no press is in progress. A press held flat covers most of the
+    /// gel; a tilted one touches a band or a corner, which tells the
+    /// encoder less about the cloth (`docs/benchmarks.md`, "How much of the
+    /// gel a press touches").
+    pub coverage: f32,
     /// What happened on this frame, if anything.
     pub event: Option<ContactEvent>,
     /// The frame counts as untouched: it went into the reference (captured,
@@ -616,6 +623,7 @@ impl ContactDetector {
                 score: 0.0,
                 depth: 0.0,
                 in_contact: false,
+                coverage: 0.0,
                 event,
                 quiet: true,
             };
@@ -812,10 +820,22 @@ impl ContactDetector {
                 }
             }
         };
+        let in_contact = self.in_contact();
+        let coverage = if in_contact {
+            let g = if self.cfg.gain_compensated {
+                channel_gains(&self.samples, &self.reference)
+            } else {
+                [1.0; 3]
+            };
+            coverage(&self.samples, &self.reference, g, enter)
+        } else {
+            0.0
+        };
         ContactUpdate {
             score,
             depth,
-            in_contact: self.in_contact(),
+            in_contact,
+            coverage,
             event,
             quiet,
         }
@@ -1006,6 +1026,45 @@ fn worst_tile(a: &[f32], b: &[f32], g: [f32; 3], tile: usize) -> (f32, f32) {
     (worst, sum.iter().sum::<f32>() / a.len().max(1) as f32)
 }
 
+/// A block counts as touched when its change is at least this share of
+/// the frame's 95th-percentile block change ([`coverage`]).
+pub const COVERAGE_SHARE: f32 = 0.2;
+
+/// The share of the blocks (4x4 px block means, `a` against `b` with each
+/// channel of `b` scaled by `g`) whose mean absolute change over the
+/// three channels reaches both `min_change` (the press threshold: less is
+/// camera noise) and [`COVERAGE_SHARE`] of the frame's 95th-percentile
+/// block change (relative, so that a soft fabric's weak change and a hard
+/// one's strong change both count where they are). 0 for empty input.
+pub fn coverage(a: &[f32], b: &[f32], g: [f32; 3], min_change: f32) -> f32 {
+    // On the stack (one value per block, 19 KB): nothing allocated per frame.
+    let mut change = [0.0f32; SAMPLES_X * SAMPLES_Y];
+    let n = (a.len().min(b.len()) / 3).min(change.len());
+    if n == 0 {
+        return 0.0;
+    }
+    for (c, (pa, pb)) in change
+        .iter_mut()
+        .zip(a.chunks_exact(3).zip(b.chunks_exact(3)))
+    {
+        *c = ((pa[0] - g[0] * pb[0]).abs()
+            + (pa[1] - g[1] * pb[1]).abs()
+            + (pa[2] - g[2] * pb[2]).abs())
+            / 3.0;
+    }
+    let change = &change[..n];
+    let mut sorted = [0.0f32; SAMPLES_X * SAMPLES_Y];
+    let sorted = &mut sorted[..n];
+    sorted.copy_from_slice(change);
+    let k = ((n - 1) as f32 * 0.95) as usize;
+    let (_, p95, _) = sorted.select_nth_unstable_by(k, f32::total_cmp);
+    let threshold = (COVERAGE_SHARE * *p95).max(min_change);
+    if !threshold.is_finite() {
+        return 0.0;
+    }
+    change.iter().filter(|&&c| c >= threshold).count() as f32 / n as f32
+}
+
 fn mad(a: &[f32], b: &[f32]) -> f32 {
     let s: f32 = a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum();
     s / a.len() as f32
@@ -1037,6 +1096,34 @@ mod tests {
             }
         }
         a
+    }
+
+    #[test]
+    fn coverage_is_the_share_of_the_frame_a_contact_changed() {
+        let b = background();
+        let g = [1.0; 3];
+        // the whole frame, a third of it (a tilted press's band), a corner
+        let whole = touched(&b, (0, SAMPLES_X), (0, SAMPLES_Y), 6.0);
+        assert!((coverage(&whole, &b, g, 0.75) - 1.0).abs() < 1e-6);
+        let band = touched(&b, (0, SAMPLES_X / 3), (0, SAMPLES_Y), 6.0);
+        assert!((coverage(&band, &b, g, 0.75) - 1.0 / 3.0).abs() < 1e-3);
+        let corner = touched(&b, (0, SAMPLES_X / 4), (0, SAMPLES_Y / 4), 6.0);
+        assert!((coverage(&corner, &b, g, 0.75) - 1.0 / 16.0).abs() < 1e-3);
+        // nothing changed: no block reaches the press threshold
+        assert_eq!(coverage(&b, &b, g, 0.75), 0.0);
+        // relative: a soft fabric's weak change over the whole gel counts
+        // in full, and a strong touch in one place does not make the
+        // faint rest of the frame count
+        let weak = touched(&b, (0, SAMPLES_X), (0, SAMPLES_Y), 1.0);
+        assert!((coverage(&weak, &b, g, 0.75) - 1.0).abs() < 1e-6);
+        let strong = touched(&band, (0, SAMPLES_X / 3), (0, SAMPLES_Y), 30.0);
+        let faint_rest = touched(&strong, (SAMPLES_X / 3, SAMPLES_X), (0, SAMPLES_Y), 1.0);
+        assert!((coverage(&faint_rest, &b, g, 0.75) - 1.0 / 3.0).abs() < 1e-3);
+        // below the press threshold everywhere: camera noise, not contact
+        let noise = touched(&b, (0, SAMPLES_X), (0, SAMPLES_Y), 0.5);
+        assert_eq!(coverage(&noise, &b, g, 0.75), 0.0);
+        // degenerate input
+        assert_eq!(coverage(&[], &[], g, 0.75), 0.0);
     }
 
     #[test]

@@ -141,8 +141,13 @@ pub struct PipelineConfig {
 pub struct FrameOutput {
     /// Contact score.
     pub score: f32,
+    /// Contact depth ([`crate::contact::ContactUpdate::depth`]).
+    pub depth: f32,
     /// In contact after this frame.
     pub in_contact: bool,
+    /// How much of the gel the contact covers on this frame
+    /// ([`crate::contact::ContactUpdate::coverage`]; 0 out of contact).
+    pub coverage: f32,
     /// Contact event on this frame.
     pub contact_event: Option<ContactEvent>,
     /// Decision step, if the frame was encoded.
@@ -276,7 +281,9 @@ impl<I: TextileIndex> Pipeline<I> {
         }
         Ok(FrameOutput {
             score: c.score,
+            depth: c.depth,
             in_contact: c.in_contact,
+            coverage: c.coverage,
             contact_event: c.event,
             step,
             ended,
@@ -323,6 +330,11 @@ pub struct PressReport {
     pub duration_ms: f64,
     /// Frames encoded in the press.
     pub frames: u32,
+    /// How much of the gel the press covered at its deepest frame, 0..=1
+    /// ([`crate::contact::ContactUpdate::coverage`]; None when no frame
+    /// was in contact). Below [`PARTIAL_COVERAGE`] the press touched only
+    /// part of the gel (tilted), and is decided less reliably.
+    pub coverage: Option<f32>,
     /// Why the press ended ("released", "end-of-recording", ...).
     pub ended: String,
     /// Per-stage timings over the press's frames.
@@ -342,11 +354,37 @@ pub struct RunSummary {
     pub presses: u64,
 }
 
+/// A press whose [`PressReport::coverage`] is below this touched only part
+/// of the gel: on simulated hand-held presses (catalogue 1, the shipped
+/// model) those are decided right about 70 % of the time, against 90 % and
+/// more for presses that cover more (`docs/benchmarks.md`, "How much of the
+/// gel a press touches").
+pub const PARTIAL_COVERAGE: f32 = 0.5;
+
+/// The deepest frame of a press so far: its depth and coverage.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Deepest {
+    depth: f32,
+    coverage: Option<f32>,
+}
+
+impl Deepest {
+    fn add(&mut self, depth: f32, coverage: f32) {
+        if self.coverage.is_none() || depth > self.depth {
+            *self = Deepest {
+                depth,
+                coverage: Some(coverage),
+            };
+        }
+    }
+}
+
 fn report<I: TextileIndex>(
     index: &I,
     o: &PressOutcome,
     ended: &str,
     stats: &StageStats,
+    deepest: Deepest,
 ) -> PressReport {
     let ms = |t: u64| t.saturating_sub(o.start_us) as f64 / 1000.0;
     let (per, total) = stats.summary();
@@ -364,6 +402,7 @@ fn report<I: TextileIndex>(
         switches: o.switches,
         duration_ms: ms(o.end_us),
         frames: o.frames,
+        coverage: deepest.coverage,
         ended: ended.to_string(),
         stages: per.into_iter().map(|(n, s)| (n.to_string(), s)).collect(),
         frame_total: total,
@@ -383,6 +422,7 @@ pub fn run_source<I: TextileIndex>(
     use crate::source::SourceError;
     let mut frame = Frame::blank();
     let mut stats = StageStats::with_capacity(1024);
+    let mut deepest = Deepest::default();
     let mut summary = RunSummary::default();
     let mut last_t = 0;
     loop {
@@ -417,9 +457,13 @@ pub fn run_source<I: TextileIndex>(
         last_t = frame.timestamp_us;
         if let Some(ContactEvent::PressStart { .. }) = out.contact_event {
             stats.clear();
+            deepest = Deepest::default();
         }
         if out.in_contact || out.ended.is_some() {
             stats.record(&times);
+        }
+        if out.in_contact {
+            deepest.add(out.depth, out.coverage);
         }
         if let Some((o, reason)) = out.ended {
             let why = match reason {
@@ -427,12 +471,18 @@ pub fn run_source<I: TextileIndex>(
                 EndReason::Recapture => "reference-recaptured",
                 EndReason::StaleReference => "stale-reference",
             };
-            on_press(report(&pipeline.index, &o, why, &stats));
+            on_press(report(&pipeline.index, &o, why, &stats, deepest));
             summary.presses += 1;
         }
     }
     if let Some(o) = pipeline.finish(last_t) {
-        on_press(report(&pipeline.index, &o, "end-of-frames", &stats));
+        on_press(report(
+            &pipeline.index,
+            &o,
+            "end-of-frames",
+            &stats,
+            deepest,
+        ));
         summary.presses += 1;
     }
     Ok(summary)

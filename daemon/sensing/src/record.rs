@@ -63,6 +63,9 @@ pub struct RecorderConfig {
     pub min_press_ms: f64,
     /// A press whose peak contact score stays below this is kept with a warning.
     pub min_peak: f32,
+    /// A press that covers less of the gel than this at its deepest frame
+    /// ([`ContactUpdate::coverage`]) is kept with a warning (held tilted).
+    pub min_coverage: f32,
     /// Frame rate to record in the metadata; None: measured from timestamps.
     pub fps: Option<f32>,
 }
@@ -78,6 +81,7 @@ impl Default for RecorderConfig {
             max_press_frames: 900,
             min_press_ms: 250.0,
             min_peak: 1.0,
+            min_coverage: crate::pipeline::PARTIAL_COVERAGE,
             fps: None,
         }
     }
@@ -131,6 +135,14 @@ pub enum RecordWarning {
         /// The minimum.
         min: f32,
     },
+    /// The press covered little of the gel at its deepest (kept): the
+    /// sensor was held tilted, and the press shows the encoder less cloth.
+    Partial {
+        /// Share of the gel the press covered at its deepest frame.
+        coverage: f32,
+        /// The minimum.
+        min: f32,
+    },
     /// Too few quiet frames right before contact: no reference (rejected).
     NoQuietBefore {
         /// Quiet frames found.
@@ -150,12 +162,13 @@ pub enum RecordWarning {
 }
 
 impl RecordWarning {
-    /// Short machine-readable name ("too_short", "too_weak", "no_quiet_before",
+    /// Short machine-readable name ("too_short", "too_weak", "partial", "no_quiet_before",
     /// "too_long", "interrupted", "not_released").
     pub fn code(&self) -> &'static str {
         match self {
             RecordWarning::TooShort { .. } => "too_short",
             RecordWarning::TooWeak { .. } => "too_weak",
+            RecordWarning::Partial { .. } => "partial",
             RecordWarning::NoQuietBefore { .. } => "no_quiet_before",
             RecordWarning::TooLong { .. } => "too_long",
             RecordWarning::Interrupted => "interrupted",
@@ -174,6 +187,12 @@ impl fmt::Display for RecordWarning {
             RecordWarning::TooWeak { peak, min } => write!(
                 f,
                 "press weak (peak contact {peak:.2}, below {min:.2}): press a little harder"
+            ),
+            RecordWarning::Partial { coverage, min } => write!(
+                f,
+                "partial contact (the press touched {:.0} % of the gel, below {:.0} %): hold the sensor flat on the fabric",
+                100.0 * coverage,
+                100.0 * min
             ),
             RecordWarning::NoQuietBefore {
                 quiet_frames,
@@ -207,6 +226,9 @@ pub struct PressSummary {
     pub held_ms: f64,
     /// Peak contact score.
     pub peak: f32,
+    /// Share of the gel the press covered at its deepest frame
+    /// ([`ContactUpdate::coverage`]).
+    pub coverage: f32,
     /// Leading quiet frames (the reference).
     pub reference_frames: u32,
     /// Frame rate written into the metadata.
@@ -288,6 +310,9 @@ struct Take {
     end_us: u64,
     peak: f32,
     in_contact: usize,
+    /// The deepest frame's depth and coverage.
+    deepest: f32,
+    coverage: f32,
 }
 
 enum State {
@@ -434,7 +459,7 @@ impl Recorder {
                 let was_ready = matches!(state, State::Ready);
                 self.push_ring(frame, update.quiet);
                 match update.event {
-                    Some(ContactEvent::PressStart { t_us }) => self.start(t_us, update.score),
+                    Some(ContactEvent::PressStart { t_us }) => self.start(t_us, update),
                     _ => {
                         if !was_ready && self.quiet_run >= self.cfg.ready_frames.max(1) {
                             self.events.push_back(RecordEvent::Ready);
@@ -461,6 +486,10 @@ impl Recorder {
                 });
                 take.in_contact += 1;
                 take.peak = take.peak.max(update.score);
+                if update.in_contact && update.depth > take.deepest {
+                    take.deepest = update.depth;
+                    take.coverage = update.coverage;
+                }
                 let held_ms = t.saturating_sub(take.start_us) as f64 / 1000.0;
                 match update.event {
                     Some(ContactEvent::PressEnd { reason, t_us, .. }) => {
@@ -510,7 +539,7 @@ impl Recorder {
                     // this one with what it has, then start the next.
                     self.complete(take, None);
                     self.push_ring(frame, update.quiet);
-                    self.start(t_us, update.score)
+                    self.start(t_us, update)
                 } else {
                     let image = self.copy(&frame.image);
                     take.frames.push(Held {
@@ -531,7 +560,8 @@ impl Recorder {
     }
 
     /// Contact started (the current frame is the ring's last).
-    fn start(&mut self, t_us: u64, score: f32) -> State {
+    fn start(&mut self, t_us: u64, update: &ContactUpdate) -> State {
+        let score = update.score;
         // The ring's tail: [.. quiet run][approach: not quiet .. current frame].
         let approach = self.ring.iter().rev().take_while(|h| !h.quiet).count();
         let quiet = self
@@ -572,6 +602,8 @@ impl Recorder {
             end_us: t_us,
             peak: score,
             in_contact,
+            deepest: update.depth,
+            coverage: update.coverage,
         })
     }
 
@@ -597,6 +629,12 @@ impl Recorder {
             warnings.push(RecordWarning::TooWeak {
                 peak: take.peak,
                 min: self.cfg.min_peak,
+            });
+        }
+        if take.coverage < self.cfg.min_coverage {
+            warnings.push(RecordWarning::Partial {
+                coverage: take.coverage,
+                min: self.cfg.min_coverage,
             });
         }
         warnings.extend(extra);
@@ -632,6 +670,7 @@ impl Recorder {
             duration_ms: t1.saturating_sub(t0) as f64 / 1000.0,
             held_ms,
             peak: take.peak,
+            coverage: take.coverage,
             reference_frames: take.reference as u32,
             fps,
             warnings,
@@ -826,6 +865,76 @@ mod tests {
         let kept = kept.expect("a press");
         assert_eq!(kept.meta.reference_frames, Some(8));
         assert!(kept.frames[..8].iter().all(|f| *f == press.frames[0]));
+    }
+
+    #[test]
+    fn a_tilted_press_is_kept_with_a_warning_that_it_touched_part_of_the_gel() {
+        let sim = Simulator::new().unwrap();
+        let bg = sim.background(0);
+        let mut covered = Vec::new();
+        for tilt in [0.0, 3.5] {
+            let spec = PressSpec {
+                release: Some(true),
+                tilt_deg: Some([tilt, 0.0]),
+                ..PressSpec::new("T030", 1)
+            };
+            let press = sim.render_press(&spec).unwrap();
+            let mut rig = Rig::new(RecorderConfig::default());
+            for _ in 0..40 {
+                rig.feed(&bg);
+            }
+            for f in &press.frames {
+                rig.feed(f);
+            }
+            for _ in 0..40 {
+                rig.feed(&bg);
+            }
+            let presses = rig.presses();
+            assert_eq!(presses.len(), 1, "tilt {tilt}: {:?}", rig.rejections());
+            let s = &presses[0].summary;
+            covered.push(s.coverage);
+            let partial: Vec<_> = s
+                .warnings
+                .iter()
+                .filter(|w| w.code() == "partial")
+                .collect();
+            if tilt == 0.0 {
+                assert!(s.coverage >= 0.7, "flat: {}", s.coverage);
+                assert!(partial.is_empty(), "{:?}", s.warnings);
+            } else {
+                assert!(s.coverage < 0.5, "tilted: {}", s.coverage);
+                assert_eq!(
+                    partial,
+                    [&RecordWarning::Partial {
+                        coverage: s.coverage,
+                        min: 0.5
+                    }]
+                );
+                assert!(
+                    partial[0].to_string().contains("hold the sensor flat"),
+                    "{}",
+                    partial[0]
+                );
+            }
+        }
+        // A stricter minimum warns about the flat press too; 0 never warns.
+        let (_, press) = sim_press("T030", 1);
+        for (min, warns) in [(1.01, true), (0.0, false)] {
+            let mut rig = Rig::new(RecorderConfig {
+                min_coverage: min,
+                ..RecorderConfig::default()
+            });
+            for _ in 0..40 {
+                rig.feed(&bg);
+            }
+            for f in &press.frames {
+                rig.feed(f);
+            }
+            rig.finish();
+            let p = rig.presses();
+            let w = p[0].summary.warnings.iter().any(|w| w.code() == "partial");
+            assert_eq!(w, warns, "min {min}: {:?} ({covered:?})", p[0].summary);
+        }
     }
 
     #[test]
