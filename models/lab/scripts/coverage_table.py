@@ -25,16 +25,36 @@ def rows(path):
             r = json.loads(line)
             src = r["source"]
             label = os.path.basename(os.path.dirname(src))
-            tilt = None
+            params = {}
             try:
                 with open(os.path.join(src, "press.json")) as pj:
                     params = json.load(pj).get("params") or {}
-                if "tilt_deg" in params:
-                    tilt = math.hypot(*params["tilt_deg"])
             except OSError:
                 pass
-            out.append((r.get("coverage"), r.get("textile") == label, tilt))
+            tilt = math.hypot(*params["tilt_deg"]) if "tilt_deg" in params else None
+            out.append((r.get("coverage"), r.get("textile") == label, tilt, params))
     return out
+
+
+# What the simulator drew for each press, banded: accuracy against each.
+FACTORS = [
+    ("tilt (°)", lambda p: math.hypot(*p["tilt_deg"]), [0, 1, 2, 3, 5, 90]),
+    ("force (N)", lambda p: p["force_n"], [0, 3, 4, 5, 6, 100]),
+    ("slip (mm)", lambda p: math.hypot(*p["slip_mm"]), [0, 0.2, 0.4, 0.6, 0.8, 10]),
+    ("wobble", lambda p: p["wobble"], [0, 0.08, 0.12, 0.16, 1]),
+]
+
+
+def factor_table(name, data):
+    if not data or not all(d[3] for d in data):
+        return
+    print(f"\n| {name}: factor | band | presses | right |\n|---|---|---:|---:|")
+    for fname, get, edges in FACTORS:
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            band = [d for d in data if lo <= get(d[3]) < hi]
+            if band:
+                right = 100.0 * sum(d[1] for d in band) / len(band)
+                print(f"| {fname} | {lo}–{hi} | {len(band)} | {right:.1f} % |")
 
 
 def main():
@@ -63,6 +83,9 @@ def main():
             cov = [d[0] for d in tilted]
             til = [d[2] for d in tilted]
             print(f"| {name} | correlation of coverage with tilt: {statistics.correlation(cov, til):.2f} | {len(tilted)} | | |")
+    for arg in sys.argv[1:]:
+        name, path = arg.split("=", 1)
+        factor_table(name, rows(path))
 
 
 if __name__ == "__main__":
