@@ -549,13 +549,16 @@ impl ContactDetector {
     }
 
     /// The score and the depth of the sampled frame (see
-    /// [`ContactConfig::gain_compensated`], [`ContactUpdate::depth`]).
-    fn score_samples(&self) -> (f32, f32) {
-        if self.cfg.gain_compensated {
-            self.gain_residual()
+    /// [`ContactConfig::gain_compensated`], [`ContactUpdate::depth`]),
+    /// and the per-channel gain they were taken after.
+    fn score_samples(&self) -> (f32, f32, [f32; 3]) {
+        let g = if self.cfg.gain_compensated {
+            channel_gains(&self.samples, &self.reference)
         } else {
-            self.score_with([1.0; 3])
-        }
+            [1.0; 3]
+        };
+        let (score, depth) = self.score_with(g);
+        (score, depth, g)
     }
 
     /// The score and the depth after the best per-channel gain has been
@@ -628,7 +631,7 @@ impl ContactDetector {
                 quiet: true,
             };
         }
-        let (score, depth) = self.score_samples();
+        let (score, depth, gains) = self.score_samples();
         let cfg = &self.cfg;
         let (enter, exit) = (self.floor + cfg.enter, self.floor + cfg.exit);
         let mut event = None;
@@ -821,13 +824,10 @@ impl ContactDetector {
             }
         };
         let in_contact = self.in_contact();
+        // Against the reference the frame was scored on (a stale one is
+        // re-captured above, and its press has ended).
         let coverage = if in_contact {
-            let g = if self.cfg.gain_compensated {
-                channel_gains(&self.samples, &self.reference)
-            } else {
-                [1.0; 3]
-            };
-            coverage(&self.samples, &self.reference, g, enter)
+            coverage(&self.samples, &self.reference, gains, enter)
         } else {
             0.0
         };
