@@ -773,6 +773,19 @@ mod tests {
                 self.events.push(e);
             }
         }
+        /// 40 untouched frames `bg`, the press's `frames`, then `after`
+        /// untouched frames.
+        fn feed_press(&mut self, bg: &RgbImage, frames: &[RgbImage], after: usize) {
+            for _ in 0..40 {
+                self.feed(bg);
+            }
+            for f in frames {
+                self.feed(f);
+            }
+            for _ in 0..after {
+                self.feed(bg);
+            }
+        }
         fn finish(&mut self) {
             self.rec.finish();
             while let Some(e) = self.rec.poll() {
@@ -880,15 +893,7 @@ mod tests {
             };
             let press = sim.render_press(&spec).unwrap();
             let mut rig = Rig::new(RecorderConfig::default());
-            for _ in 0..40 {
-                rig.feed(&bg);
-            }
-            for f in &press.frames {
-                rig.feed(f);
-            }
-            for _ in 0..40 {
-                rig.feed(&bg);
-            }
+            rig.feed_press(&bg, &press.frames, 40);
             let presses = rig.presses();
             assert_eq!(presses.len(), 1, "tilt {tilt}: {:?}", rig.rejections());
             let s = &presses[0].summary;
@@ -924,12 +929,7 @@ mod tests {
                 min_coverage: min,
                 ..RecorderConfig::default()
             });
-            for _ in 0..40 {
-                rig.feed(&bg);
-            }
-            for f in &press.frames {
-                rig.feed(f);
-            }
+            rig.feed_press(&bg, &press.frames, 0);
             rig.finish();
             let p = rig.presses();
             let w = p[0].summary.warnings.iter().any(|w| w.code() == "partial");
@@ -942,15 +942,7 @@ mod tests {
         let (sim, press) = sim_press("T030", 1);
         let bg = sim.background(0);
         let mut rig = Rig::new(RecorderConfig::default());
-        for _ in 0..40 {
-            rig.feed(&bg);
-        }
-        for f in &press.frames {
-            rig.feed(f);
-        }
-        for _ in 0..40 {
-            rig.feed(&bg);
-        }
+        rig.feed_press(&bg, &press.frames, 40);
         let kinds: Vec<&str> = rig
             .events
             .iter()
