@@ -361,21 +361,28 @@ pub struct RunSummary {
 /// gel a press touches").
 pub const PARTIAL_COVERAGE: f32 = 0.5;
 
-/// The deepest frame of a press so far: its depth and coverage.
+/// The deepest frame of a press so far: its depth and coverage (a press's
+/// coverage in [`PressReport`] and in the recorder's summary).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Deepest {
+pub(crate) struct Deepest {
     depth: f32,
     coverage: Option<f32>,
 }
 
 impl Deepest {
-    fn add(&mut self, depth: f32, coverage: f32) {
+    /// A frame in contact of depth `depth` and coverage `coverage`.
+    pub(crate) fn add(&mut self, depth: f32, coverage: f32) {
         if self.coverage.is_none() || depth > self.depth {
             *self = Deepest {
                 depth,
                 coverage: Some(coverage),
             };
         }
+    }
+
+    /// The deepest frame's coverage (None before a frame was added).
+    pub(crate) fn coverage(&self) -> Option<f32> {
+        self.coverage
     }
 }
 
@@ -402,7 +409,7 @@ fn report<I: TextileIndex>(
         switches: o.switches,
         duration_ms: ms(o.end_us),
         frames: o.frames,
-        coverage: deepest.coverage,
+        coverage: deepest.coverage(),
         ended: ended.to_string(),
         stages: per.into_iter().map(|(n, s)| (n.to_string(), s)).collect(),
         frame_total: total,

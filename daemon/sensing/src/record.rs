@@ -42,6 +42,7 @@ use telextiles_sim::{Press, PressMeta};
 
 use crate::contact::{ContactEvent, ContactUpdate, EndReason};
 use crate::frame::Frame;
+use crate::pipeline::Deepest;
 
 /// Recorder tuning (defaults for a 60 fps DIGIT).
 #[derive(Clone, Debug, PartialEq)]
@@ -310,9 +311,8 @@ struct Take {
     end_us: u64,
     peak: f32,
     in_contact: usize,
-    /// The deepest frame's depth and coverage.
-    deepest: f32,
-    coverage: f32,
+    /// The deepest frame in contact.
+    deepest: Deepest,
 }
 
 enum State {
@@ -486,9 +486,8 @@ impl Recorder {
                 });
                 take.in_contact += 1;
                 take.peak = take.peak.max(update.score);
-                if update.in_contact && update.depth > take.deepest {
-                    take.deepest = update.depth;
-                    take.coverage = update.coverage;
+                if update.in_contact {
+                    take.deepest.add(update.depth, update.coverage);
                 }
                 let held_ms = t.saturating_sub(take.start_us) as f64 / 1000.0;
                 match update.event {
@@ -562,6 +561,8 @@ impl Recorder {
     /// Contact started (the current frame is the ring's last).
     fn start(&mut self, t_us: u64, update: &ContactUpdate) -> State {
         let score = update.score;
+        let mut deepest = Deepest::default();
+        deepest.add(update.depth, update.coverage);
         // The ring's tail: [.. quiet run][approach: not quiet .. current frame].
         let approach = self.ring.iter().rev().take_while(|h| !h.quiet).count();
         let quiet = self
@@ -602,8 +603,7 @@ impl Recorder {
             end_us: t_us,
             peak: score,
             in_contact,
-            deepest: update.depth,
-            coverage: update.coverage,
+            deepest,
         })
     }
 
@@ -631,9 +631,10 @@ impl Recorder {
                 min: self.cfg.min_peak,
             });
         }
-        if take.coverage < self.cfg.min_coverage {
+        let coverage = take.deepest.coverage().unwrap_or(0.0);
+        if coverage < self.cfg.min_coverage {
             warnings.push(RecordWarning::Partial {
-                coverage: take.coverage,
+                coverage,
                 min: self.cfg.min_coverage,
             });
         }
@@ -670,7 +671,7 @@ impl Recorder {
             duration_ms: t1.saturating_sub(t0) as f64 / 1000.0,
             held_ms,
             peak: take.peak,
-            coverage: take.coverage,
+            coverage,
             reference_frames: take.reference as u32,
             fps,
             warnings,
