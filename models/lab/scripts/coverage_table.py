@@ -32,7 +32,9 @@ def rows(path):
             except OSError:
                 pass
             tilt = math.hypot(*params["tilt_deg"]) if "tilt_deg" in params else None
-            out.append((r.get("coverage"), r.get("textile") == label, tilt, params))
+            # p<person>-s<sensor>-<n>, as sim-presses names a press
+            who = os.path.basename(src).rsplit("-", 1)[0]
+            out.append((r.get("coverage"), r.get("textile") == label, tilt, params, who))
     return out
 
 
@@ -46,7 +48,14 @@ FACTORS = [
 
 
 def factor_table(name, data):
-    if not data or not all(d[3] for d in data):
+    if not data:
+        return
+    print(f"\n| {name}: person and unit | presses | right |\n|---|---:|---:|")
+    for who in sorted({d[4] for d in data}):
+        group = [d for d in data if d[4] == who]
+        right = 100.0 * sum(d[1] for d in group) / len(group)
+        print(f"| {who} | {len(group)} | {right:.1f} % |")
+    if not all(d[3] for d in data):
         return
     print(f"\n| {name}: factor | band | presses | right |\n|---|---|---:|---:|")
     for fname, get, edges in FACTORS:
