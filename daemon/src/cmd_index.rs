@@ -10,6 +10,7 @@ use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::front::{recording_reference, FrontEnd, References};
+use telextiles_sensing::pipeline::{Deepest, PARTIAL_COVERAGE};
 use telextiles_sim::catalogue::{Book, Catalogue};
 use telextiles_sim::dataset::Protocol;
 use telextiles_sim::{Press, Simulator};
@@ -294,6 +295,9 @@ fn check(a: CheckArgs) -> Result<()> {
             "metric_shrinkage": shrinkage,
             "models": models,
             "choice": a.models[choice].display().to_string(),
+            "partial": embedded.partial.iter().map(|(d, c)| serde_json::json!({
+                "recording": d.display().to_string(), "coverage": c,
+            })).collect::<Vec<_>>(),
         });
         writeln!(out, "{v}")?;
         return Ok(());
@@ -343,6 +347,9 @@ fn check(a: CheckArgs) -> Result<()> {
             )?;
         }
     }
+    if let Some(note) = partial_note(&embedded.partial, embedded.presses) {
+        eprintln!("{note}");
+    }
     Ok(())
 }
 
@@ -390,19 +397,22 @@ pub fn press_embeddings(
     press: &Press,
     stride: usize,
 ) -> Result<Vec<Vec<f32>>> {
-    embeddings_with(front, press, recording_reference(press).as_deref(), stride)
+    Ok(embeddings_with(front, press, recording_reference(press).as_deref(), stride)?.0)
 }
 
 /// [`press_embeddings`] with the reference to replay the press with
-/// (`References::for_press`; None: captured from its first steady frames).
+/// (`References::for_press`; None: captured from its first steady frames),
+/// and how much of the gel the press touched: its deepest frame's coverage
+/// (None when it was never in contact), as `classify` reports it.
 fn embeddings_with(
     front: &mut FrontEnd,
     press: &Press,
     reference: Option<&[f32]>,
     stride: usize,
-) -> Result<Vec<Vec<f32>>> {
+) -> Result<(Vec<Vec<f32>>, Option<f32>)> {
     front.reset(reference);
     let mut out = Vec::new();
+    let mut deepest = Deepest::default();
     let mut k = 0usize;
     for (i, (image, &t)) in press
         .frames
@@ -416,6 +426,9 @@ fn embeddings_with(
             seq: i as u64,
         };
         let o = front.process(&frame)?;
+        if o.contact.in_contact {
+            deepest.add(o.contact.depth, o.contact.coverage);
+        }
         let earlier = o.earlier.iter().map(|e| e.embedding.as_slice());
         for e in earlier.chain(o.embedding) {
             if k.is_multiple_of(stride.max(1)) {
@@ -424,7 +437,7 @@ fn embeddings_with(
             k += 1;
         }
     }
-    Ok(out)
+    Ok((out, deepest.coverage()))
 }
 
 fn record(
@@ -504,6 +517,10 @@ struct Embedded {
     names: BTreeMap<String, String>,
     /// Recordings read.
     presses: usize,
+    /// Recordings in contact that touched less than [`PARTIAL_COVERAGE`]
+    /// of the gel (the first front end's detector, shared by all), with
+    /// their coverage, in the order read.
+    partial: Vec<(PathBuf, f32)>,
 }
 
 /// Read every recording under `root` (the walk every command shares) and
@@ -523,6 +540,7 @@ fn embed_recordings(
         by_textile: vec![BTreeMap::new(); fronts.len()],
         names: BTreeMap::new(),
         presses: 0,
+        partial: Vec::new(),
     };
     for rec in recordings {
         let d = rec.path();
@@ -532,15 +550,19 @@ fn embed_recordings(
         }
         let reference = references.for_press(&press);
         for (k, front) in fronts.iter_mut().enumerate() {
-            let embs = embeddings_with(front, &press, reference.as_deref(), stride)?;
+            let (embs, coverage) = embeddings_with(front, &press, reference.as_deref(), stride)?;
             // Contact is the front end's detector's, the same for every
-            // model: warn once.
+            // model: warn once, note once.
             if embs.is_empty() && k == 0 {
                 progress.println(&format!(
                     "warning: {}: no contact detected, press skipped{}",
                     d.display(),
                     crate::cmd_classify::no_reference_hint(reference.is_some())
                 ));
+            }
+            let partial = coverage.filter(|&c| k == 0 && c < PARTIAL_COVERAGE && !embs.is_empty());
+            if let Some(c) = partial {
+                out.partial.push((d.clone(), c));
             }
             add_press(&mut out.by_textile[k], &press.meta.textile, embs);
         }
@@ -557,6 +579,33 @@ fn none_in_contact(root: &Path, to: &str) -> anyhow::Error {
         "no press under {} was seen in contact: nothing to {to} (see the warnings above)",
         root.display()
     )
+}
+
+/// Recordings named in full in [`partial_note`]; the rest are counted.
+const PARTIAL_NAMED: usize = 10;
+
+/// The note on presses that touched less than [`PARTIAL_COVERAGE`] of the
+/// gel (None when there are none): `index build --presses` and `index
+/// check` keep them, as the live daemon decides such presses too, but an
+/// owner building an index wants to know which to press again.
+fn partial_note(partial: &[(PathBuf, f32)], presses: usize) -> Option<String> {
+    if partial.is_empty() {
+        return None;
+    }
+    let mut named: Vec<String> = partial
+        .iter()
+        .take(PARTIAL_NAMED)
+        .map(|(d, c)| format!("{} ({:.0} %)", d.display(), 100.0 * c))
+        .collect();
+    if partial.len() > PARTIAL_NAMED {
+        named.push(format!("and {} more", partial.len() - PARTIAL_NAMED));
+    }
+    Some(format!(
+        "note: {} of {presses} presses touched less than {:.0} % of the gel (partial contact: held tilted?): {}. They are kept, but a partial press shows the encoder less cloth and is decided right less often; press those fabrics again with the sensor flat on them (docs/recording.md)",
+        partial.len(),
+        100.0 * PARTIAL_COVERAGE,
+        named.join(", ")
+    ))
 }
 
 fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
@@ -580,6 +629,8 @@ fn build(a: BuildArgs) -> Result<()> {
     // Names of the user's own fabrics (`telextilesd record --name`).
     let mut names: BTreeMap<String, String> = BTreeMap::new();
     let mut presses = 0usize;
+    // The owner's presses that touched only part of the gel.
+    let mut partial = Vec::new();
     if let Some(root) = &a.presses {
         let references = References::from_args(&a.references)?;
         let mut embedded = embed_recordings(
@@ -593,6 +644,7 @@ fn build(a: BuildArgs) -> Result<()> {
         by_textile = embedded.by_textile.remove(0);
         names = embedded.names;
         presses = embedded.presses;
+        partial = embedded.partial;
         if by_textile.is_empty() {
             return Err(none_in_contact(root, "index"));
         }
@@ -687,6 +739,9 @@ fn build(a: BuildArgs) -> Result<()> {
             index.entries.len(),
             thin.join(", ")
         );
+    }
+    if let Some(note) = partial_note(&partial, presses) {
+        eprintln!("{note}");
     }
     if learn_metric(&a) && index.metric.is_none() {
         eprintln!(
@@ -980,6 +1035,73 @@ mod tests {
                 (m, w.filter_map(|x| x.parse().ok()).collect())
             })
             .collect()
+    }
+
+    /// The walk `index build --presses` and `index check` share names the
+    /// presses that touched less than half of the gel, with their coverage
+    /// as `classify` reports it; a press held flat is not named, and a long
+    /// list is cut after ten.
+    #[test]
+    fn partial_presses_are_named_with_their_coverage() {
+        let dir = tempfile::tempdir().unwrap();
+        let sim = Simulator::new().unwrap();
+        for (name, tilt) in [("flat", 0.0), ("tilted", 5.0)] {
+            let p = sim
+                .render_press(&telextiles_sim::PressSpec {
+                    tilt_deg: Some([0.0, tilt]),
+                    ..telextiles_sim::PressSpec::new("T030", 4)
+                })
+                .unwrap();
+            telextiles_sim::recording::write_press(&dir.path().join("T030").join(name), &p)
+                .unwrap();
+        }
+        let enc = open_encoder(&fixture_model(), 1).unwrap();
+        let mut fronts = [FrontEnd::new(enc, Default::default(), None)];
+        let embedded = embed_recordings(
+            &mut fronts,
+            dir.path(),
+            &References::none(),
+            None,
+            4,
+            "test",
+        )
+        .unwrap();
+        assert_eq!(embedded.presses, 2);
+        assert_eq!(
+            embedded.by_textile[0]["T030"].1.len(),
+            2,
+            "both presses kept"
+        );
+        assert_eq!(embedded.partial.len(), 1, "{:?}", embedded.partial);
+        let (d, c) = &embedded.partial[0];
+        assert!(
+            d.ends_with("T030/tilted") && *c < PARTIAL_COVERAGE,
+            "{d:?} {c}"
+        );
+        let note = partial_note(&embedded.partial, embedded.presses).unwrap();
+        assert!(
+            note.starts_with("note: 1 of 2 presses touched less than 50 % of the gel")
+                && note.contains(&format!("tilted ({:.0} %)", 100.0 * c))
+                && note.contains("press those fabrics again with the sensor flat"),
+            "{note}"
+        );
+        assert!(partial_note(&[], 2).is_none());
+        // The control socket's contact end event says "partial" at the same
+        // coverage.
+        assert_eq!(
+            telextiles_control::format::PARTIAL_COVERAGE,
+            PARTIAL_COVERAGE
+        );
+        let many: Vec<(PathBuf, f32)> = (0..12)
+            .map(|k| (PathBuf::from(format!("p{k}")), 0.25))
+            .collect();
+        let note = partial_note(&many, 40).unwrap();
+        assert!(
+            note.contains("12 of 40 presses")
+                && note.contains("p9 (25 %), and 2 more.")
+                && !note.contains("p10"),
+            "{note}"
+        );
     }
 
     #[test]

@@ -121,7 +121,7 @@ async fn record_start_over_the_control_socket_writes_presses_and_reports() {
     let mut ctl = connect(&d).await;
     let mut c = connect(&d).await;
     c.subscribe(SubscribeArgs {
-        events: Some(vec![EventKind::Record]),
+        events: Some(vec![EventKind::Record, EventKind::Contact]),
     })
     .await
     .expect("io")
@@ -206,6 +206,24 @@ async fn record_start_over_the_control_socket_writes_presses_and_reports() {
                 .any(|e| matches!(e, Event::Record { state, .. } if *state == want)),
             "no {want:?} in {events:?}"
         );
+    }
+    // Each press's contact end says how much of the gel it touched: the
+    // simulated DIGIT presses flat, in the jig (the first press's end
+    // comes before the second press; the last one's may follow `done`).
+    let ends: Vec<Option<f32>> = events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Contact {
+                phase: telextiles_control::ContactPhase::End,
+                coverage,
+                ..
+            } => Some(*coverage),
+            _ => None,
+        })
+        .collect();
+    assert!(!ends.is_empty(), "{events:?}");
+    for c in ends {
+        assert!(c.is_some_and(|c| (0.5..=1.0).contains(&c)), "{events:?}");
     }
     let info = std::fs::read_to_string(out.join("T030/textile.json")).expect("textile.json");
     assert!(info.contains("twill"), "{info}");

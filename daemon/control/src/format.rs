@@ -86,18 +86,34 @@ fn write_block(out: &mut String, v: &Value, indent: usize) {
     }
 }
 
+/// A press's coverage below which the line says it was partial: the
+/// sensing pipeline's `PARTIAL_COVERAGE` (telextiles-sensing, which this
+/// crate does not depend on; equal by a test in the daemon).
+pub const PARTIAL_COVERAGE: f32 = 0.5;
+
 /// One line for an event, e.g. `decision  T012 -> slot 3  distance 0.213  latency 41.5 ms`.
 pub fn human_event(e: &Event) -> String {
     match e {
-        Event::Contact { phase, score } => {
+        Event::Contact {
+            phase,
+            score,
+            coverage,
+        } => {
             let what = match phase {
                 ContactPhase::Start => "start",
                 ContactPhase::End => "end",
             };
-            match score {
+            let mut line = match score {
                 Some(s) => format!("contact   {what} (score {s:.3})"),
                 None => format!("contact   {what}"),
+            };
+            if let Some(c) = coverage {
+                line += &format!("  touched {:.0} % of the gel", 100.0 * c);
+                if *c < PARTIAL_COVERAGE {
+                    line += " (partial contact: hold the sensor flat)";
+                }
             }
+            line
         }
         Event::Decision {
             textile,
@@ -299,6 +315,20 @@ empty: (none)
             *unknown = true;
         }
         assert!(human_event(&far).ends_with("after contact  (unknown textile: nearest known)"));
+        let end = |coverage| Event::Contact {
+            phase: ContactPhase::End,
+            score: Some(0.21),
+            coverage,
+        };
+        assert_eq!(human_event(&end(None)), "contact   end (score 0.210)");
+        assert_eq!(
+            human_event(&end(Some(0.82))),
+            "contact   end (score 0.210)  touched 82 % of the gel"
+        );
+        assert_eq!(
+            human_event(&end(Some(0.31))),
+            "contact   end (score 0.210)  touched 31 % of the gel (partial contact: hold the sensor flat)"
+        );
         assert_eq!(
             human_event(&Event::RollerArrived {
                 slot: 5,

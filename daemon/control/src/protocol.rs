@@ -918,6 +918,11 @@ pub enum Event {
         /// Contact score of the detector (difference to the background).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         score: Option<f32>,
+        /// On `end`: how much of the gel the press touched, 0..=1 (its
+        /// deepest frame's share of the gel, as `classify` and `record`
+        /// report it); below 0.5 the press was partial (held tilted?).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        coverage: Option<f32>,
     },
     /// The receiver resolved a textile and chose a roller slot.
     Decision {

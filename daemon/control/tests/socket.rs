@@ -414,6 +414,7 @@ async fn subscription_filter_and_events_during_a_running_command() {
         .send(Event::Contact {
             phase: telextiles_control::protocol::ContactPhase::Start,
             score: Some(0.5),
+            coverage: None,
         })
         .unwrap();
     srv.events
@@ -457,11 +458,23 @@ async fn subscription_filter_and_events_during_a_running_command() {
         .send(Event::Contact {
             phase: telextiles_control::protocol::ContactPhase::End,
             score: None,
+            coverage: None,
         })
         .unwrap();
     assert_eq!(
         read_json(&mut r).await.unwrap(),
         json!({"event": "contact", "phase": "end"})
+    );
+    srv.events
+        .send(Event::Contact {
+            phase: telextiles_control::protocol::ContactPhase::End,
+            score: Some(2.0),
+            coverage: Some(0.375),
+        })
+        .unwrap();
+    assert_eq!(
+        read_json(&mut r).await.unwrap(),
+        json!({"event": "contact", "phase": "end", "score": 2.0, "coverage": 0.375})
     );
     drop((r, w));
     srv.stop().await;

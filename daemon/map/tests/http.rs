@@ -425,10 +425,12 @@ fn every_control_event_converts_except_dropped() {
         Event::Contact {
             phase: Cp::Start,
             score: Some(0.5),
+            coverage: None,
         },
         Event::Contact {
             phase: Cp::End,
             score: None,
+            coverage: Some(0.8),
         },
         Event::Decision {
             textile: "T012".into(),
@@ -481,7 +483,7 @@ fn every_control_event_converts_except_dropped() {
         let m = MapEvent::from_control_json(&line).unwrap_or_else(|e| panic!("{line}: {e}"));
         let ok = match (ev, &m) {
             (
-                Event::Contact { phase, score },
+                Event::Contact { phase, score, .. },
                 MapEvent::Contact {
                     phase: p,
                     score: s,

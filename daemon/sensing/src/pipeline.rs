@@ -362,16 +362,17 @@ pub struct RunSummary {
 pub const PARTIAL_COVERAGE: f32 = 0.5;
 
 /// The deepest frame of a press so far: its depth and coverage (a press's
-/// coverage in [`PressReport`] and in the recorder's summary).
+/// coverage in [`PressReport`], in the recorder's summary and in `index
+/// build`'s and `index check`'s note on partial presses).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub(crate) struct Deepest {
+pub struct Deepest {
     depth: f32,
     coverage: Option<f32>,
 }
 
 impl Deepest {
     /// A frame in contact of depth `depth` and coverage `coverage`.
-    pub(crate) fn add(&mut self, depth: f32, coverage: f32) {
+    pub fn add(&mut self, depth: f32, coverage: f32) {
         if self.coverage.is_none() || depth > self.depth {
             *self = Deepest {
                 depth,
@@ -381,7 +382,7 @@ impl Deepest {
     }
 
     /// The deepest frame's coverage (None before a frame was added).
-    pub(crate) fn coverage(&self) -> Option<f32> {
+    pub fn coverage(&self) -> Option<f32> {
         self.coverage
     }
 }

@@ -14,6 +14,7 @@ use telextiles_sensing::contact::{ContactConfig, ContactEvent};
 use telextiles_sensing::encoder::Encoder;
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{FrontEnd, References};
+use telextiles_sensing::pipeline::Deepest;
 use telextiles_sensing::source::recorded::{Pace, RecordingsSource};
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::{FrameSource, SourceError};
@@ -183,6 +184,9 @@ pub(crate) fn sensing_thread(
     let mut actions = Vec::new();
     // A recording asked for over the control socket, fed below.
     let mut recording: Option<crate::cmd_record::LiveRecording> = None;
+    // The press's deepest frame so far: its coverage goes with the
+    // contact end event.
+    let mut deepest = Deepest::default();
     loop {
         while let Ok(cmd) = cmds.try_recv() {
             match cmd {
@@ -249,6 +253,7 @@ pub(crate) fn sensing_thread(
                 let _ = state.events.send(Event::Contact {
                     phase: ContactPhase::End,
                     score: None,
+                    coverage: deepest.coverage(),
                 });
             }
             tracing::debug!(recording = %rec.name, "replaying the next recording");
@@ -267,6 +272,12 @@ pub(crate) fn sensing_thread(
             }
         };
         let up = out.contact;
+        if matches!(up.event, Some(ContactEvent::PressStart { .. })) {
+            deepest = Deepest::default();
+        }
+        if up.in_contact {
+            deepest.add(up.depth, up.coverage);
+        }
         if let Some(r) = recording.as_mut() {
             if r.push(&frame, &up, &mut |e| {
                 let _ = state.events.send(e);
@@ -293,6 +304,9 @@ pub(crate) fn sensing_thread(
             let _ = state.events.send(Event::Contact {
                 phase,
                 score: Some(up.score),
+                coverage: (phase == ContactPhase::End)
+                    .then(|| deepest.coverage())
+                    .flatten(),
             });
         }
         // On the frame that starts a press, the run's earlier frames go
