@@ -205,12 +205,20 @@ fn half_plane_dft(b: &mut Builder, x: &str, n: usize) -> (String, String) {
 }
 
 /// `x` (`[N, C, n, n]`) minus each image's mean per channel, times the 2D
-/// Hann window.
-fn centred_windowed(b: &mut Builder, x: &str, n: usize) -> String {
+/// Hann window, or the Tukey window of `taper` % ([`crate::wspec::tukey`])
+/// below 100.
+fn centred_windowed(b: &mut Builder, x: &str, n: usize, taper: u32) -> String {
     let hw = b.i64s("axes_hw", vec![2, 3]);
     let mean = b.op("ReduceMean", &[x, &hw], vec![attr_int("keepdims", 1)]);
     let centred = b.op("Sub", &[x, &mean], vec![]);
-    let h = hann(n);
+    let h: Vec<f32> = if taper >= 100 {
+        hann(n)
+    } else {
+        crate::wspec::tukey(n, taper as f64 / 100.0)
+            .into_iter()
+            .map(|v| v as f32)
+            .collect()
+    };
     let win: Vec<f32> = (0..n * n).map(|i| h[i / n] * h[i % n]).collect();
     let win = b.f32s("hann2d", &[n as i64, n as i64], win);
     b.op("Mul", &[&centred, &win], vec![])
@@ -327,7 +335,7 @@ fn append_head(b: &mut Builder, x: &str, h: &MlpHead) -> String {
 /// normalised frame minus the normalised reference): radial log bins and
 /// angular harmonics, `[N, wspec::dim(n)]`, as
 /// [`crate::wspec::reference_with`] computes them with the same `window`.
-fn wspec_graph(b: &mut Builder, n: usize, window: crate::wspec::Window) -> String {
+fn wspec_graph(b: &mut Builder, n: usize, window: crate::wspec::Window, taper: u32) -> String {
     use crate::wspec::{self, BANDS, HARMONICS, SECTORS};
     let plane = (n * n) as i64;
     // Back to grey levels (the reference's offset is already gone).
@@ -335,7 +343,7 @@ fn wspec_graph(b: &mut Builder, n: usize, window: crate::wspec::Window) -> Strin
     let w = b.f32s("dn_scale", &[1, 3, 1, 1], w);
     let x = b.op("Mul", &[INPUT_NAME, &w], vec![]);
     let xw = match window {
-        crate::wspec::Window::Centre => centred_windowed(b, &x, n),
+        crate::wspec::Window::Centre => centred_windowed(b, &x, n, taper),
         crate::wspec::Window::Contact => contact_windowed(b, &x, n),
     };
     // Colour covariance [N, 3, 3] of the windowed difference, with the ridge.
@@ -488,6 +496,10 @@ pub struct DescriptorSpec {
     /// values drop the coarsest scales, where illumination gradients and
     /// the background's own pattern live).
     pub min_bin: u32,
+    /// The window's taper in % (`fft`, `wspec`): 100 is the 2D Hann window
+    /// every shipped descriptor uses; below, the flatter Tukey window
+    /// ([`crate::wspec::tukey`]), named `-t<taper>` in the arch.
+    pub taper: u32,
 }
 
 impl DescriptorSpec {
@@ -503,11 +515,14 @@ impl DescriptorSpec {
             BaselineKind::MStats => "mstats",
         };
         let bg = if self.subtract { "-bg" } else { "" };
-        let r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
+        let mut r = if self.kind == BaselineKind::Fft && self.min_bin > 1 {
             format!("-r{}", self.min_bin)
         } else {
             String::new()
         };
+        if self.taper < 100 {
+            r += &format!("-t{}", self.taper);
+        }
         if self.crop == self.input {
             format!("{k}-c{}{r}{bg}", self.crop)
         } else {
@@ -697,6 +712,11 @@ fn build_descriptor(
         n / 4
     );
     ensure!(
+        (1..=100).contains(&spec.taper),
+        "taper {} % must be in 1..=100 (100: the Hann window)",
+        spec.taper
+    );
+    ensure!(
         spec.crop >= spec.input && spec.crop <= 240,
         "crop {} must be in input size..=240",
         spec.crop
@@ -711,7 +731,7 @@ fn build_descriptor(
             let w = b.f32s("grey_w", &[1, 3, 1, 1], w);
             let bias = b.f32s("grey_b", &[1], vec![bias]);
             let grey = b.op("Conv", &[INPUT_NAME, &w, &bias], vec![]);
-            let x = centred_windowed(&mut b, &grey, n);
+            let x = centred_windowed(&mut b, &grey, n, spec.taper);
             let (re, im) = half_plane_dft(&mut b, &x, n);
             let re2 = b.op("Mul", &[&re, &re], vec![]);
             let im2 = b.op("Mul", &[&im, &im], vec![]);
@@ -756,7 +776,12 @@ fn build_descriptor(
                 "wspec is defined on frame minus reference: export it with the reference subtracted"
             );
             let window = spec.kind.wspec_window().expect("a wspec kind");
-            let spectrum = wspec_graph(&mut b, n, window);
+            ensure!(
+                spec.taper >= 100 || window == crate::wspec::Window::Centre,
+                "a window on the contact is a Hann window: taper {} is for the centred window",
+                spec.taper
+            );
+            let spectrum = wspec_graph(&mut b, n, window, spec.taper);
             if let Some(h) = head {
                 append_head(&mut b, &spectrum, h);
             }
@@ -845,6 +870,7 @@ mod tests {
                 input: n as u32,
                 subtract: false,
                 min_bin: 1,
+                taper: 100,
             };
             let bytes = descriptor_model(&spec).unwrap();
             let mut enc = OrtEncoder::from_bytes(&bytes, 1).unwrap();
@@ -921,6 +947,7 @@ mod tests {
             input: 48,
             subtract: false,
             min_bin: 1,
+            taper: 100,
         };
         let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
         let imgs = images(n, 2);
@@ -961,6 +988,7 @@ mod tests {
             input: 64,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         };
         let mut enc = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
         let imgs = images(n, 2);
@@ -989,6 +1017,7 @@ mod tests {
             input: 32,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         };
         let (i, h, o) = (spec.dim(), 8, 5);
         let w = |n: usize, k: usize| -> Vec<f32> {
@@ -1048,6 +1077,7 @@ mod tests {
             input: n as u32,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         };
         assert_eq!(spec.arch(), "wspec-c64-s32-bg");
         let imgs = images(n, 3);
@@ -1126,7 +1156,7 @@ mod tests {
         let d = spec.dim();
         for (k, pair) in pairs.into_iter().enumerate() {
             let diff = planar_diff(&imgs[pair.0], &imgs[pair.1], n);
-            let want = crate::wspec::reference_with(&diff, n, window);
+            let want = crate::wspec::reference_tapered(&diff, n, window, spec.taper as f64 / 100.0);
             let err = got[k * d..(k + 1) * d]
                 .iter()
                 .zip(&want)
@@ -1135,6 +1165,49 @@ mod tests {
             assert!(err < 2e-3, "{}, frame {k}: max diff {err}", spec.arch());
         }
         (x, enc)
+    }
+
+    /// A Tukey window (`--taper 50`): the graph computes the f64 reference
+    /// under the same window, is named for it, differs from the Hann
+    /// window's, and is refused on the contact window and outside 1..=100.
+    #[test]
+    fn a_tapered_wspec_graph_computes_its_reference() {
+        let n = 32;
+        let spec = DescriptorSpec {
+            kind: BaselineKind::WSpec,
+            crop: 64,
+            input: n as u32,
+            subtract: true,
+            min_bin: 1,
+            taper: 50,
+        };
+        assert_eq!(spec.arch(), "wspec-c64-s32-t50-bg");
+        let imgs = images(n, 3);
+        let (x, mut enc) = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
+        assert_eq!(enc.meta["telextiles.arch"], "wspec-c64-s32-t50-bg");
+        let tapered = enc.embed(&x).unwrap();
+        let hann = DescriptorSpec { taper: 100, ..spec };
+        let mut h = OrtEncoder::from_bytes(&descriptor_model(&hann).unwrap(), 1).unwrap();
+        let plain = h.embed(&x).unwrap();
+        let diff = tapered
+            .iter()
+            .zip(&plain)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(diff > 1e-2, "the window changed nothing: {diff}");
+        for (kind, taper) in [
+            (BaselineKind::WSpecCw, 50),
+            (BaselineKind::WSpec, 0),
+            (BaselineKind::WSpec, 101),
+        ] {
+            let e = descriptor_model(&DescriptorSpec {
+                kind,
+                taper,
+                ..spec
+            })
+            .unwrap_err();
+            assert!(e.to_string().contains("taper"), "{e}");
+        }
     }
 
     #[test]
@@ -1146,6 +1219,7 @@ mod tests {
             input: n as u32,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         };
         assert_eq!(spec.arch(), "wspec-cw-c64-s32-bg");
         // Whole-frame differences, and a contact in one corner (frame 0
@@ -1184,6 +1258,7 @@ mod tests {
                 input,
                 subtract: true,
                 min_bin: 1,
+                taper: 100,
             };
             let (i, o) = (spec.dim(), 3);
             let first = if hidden == 0 { o } else { hidden };
@@ -1217,6 +1292,7 @@ mod tests {
             input: 32,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         })
         .unwrap();
         assert!(read_head(&plain).unwrap().is_none());
@@ -1231,6 +1307,7 @@ mod tests {
             input,
             subtract: false,
             min_bin: 1,
+            taper: 100,
         };
         let e = descriptor_model(&spec(BaselineKind::Fft, 64, 47)).unwrap_err();
         assert!(e.to_string().contains("even"), "{e}");

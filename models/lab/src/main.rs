@@ -281,6 +281,10 @@ struct SpectralArgs {
     /// a window centred on the contact).
     #[arg(long, default_value = "fft")]
     front: telextiles_lab::spectral::Front,
+    /// The front end's window taper in % (`wspec`): 100 is the Hann window
+    /// of the shipped model; below, a flatter Tukey window.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..=100))]
+    taper: u32,
     /// Hidden units of the head (0: a linear head).
     #[arg(long, default_value_t = 256)]
     hidden: usize,
@@ -454,6 +458,11 @@ struct ExportDescriptorArgs {
     /// `fft`: the lowest radius bin kept (1 keeps all but DC).
     #[arg(long, default_value_t = 1)]
     min_bin: u32,
+    /// The window's taper in % (`fft`, `wspec`): 100 is the Hann window of
+    /// every shipped descriptor; below, a flatter Tukey window that keeps
+    /// more of the crop (`wspec::tukey`).
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..=100))]
+    taper: u32,
     /// Output ONNX file.
     #[arg(long)]
     out: PathBuf,
@@ -792,6 +801,7 @@ fn main() -> Result<()> {
             cfg.data.seed = a.seed;
             cfg.augs_per_frame = a.augs;
             cfg.front = a.front;
+            cfg.taper = a.taper;
             cfg.steps = a.steps;
             cfg.hidden = a.hidden;
             cfg.out = a.dim;
@@ -1598,6 +1608,7 @@ fn export_descriptor(a: ExportDescriptorArgs) -> Result<()> {
         input: a.input.unwrap_or(a.crop),
         subtract: a.subtract,
         min_bin: a.min_bin,
+        taper: a.taper,
     };
     let bytes = descriptor_model(&spec)?;
     // Load it back through ONNX Runtime (the contract checks) before writing.

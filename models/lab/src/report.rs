@@ -80,6 +80,7 @@ pub fn descriptor_methods() -> Result<Vec<Method>> {
             input: crop,
             subtract,
             min_bin: 1,
+            taper: 100,
         };
         v.push(Method::onnx(spec.arch(), descriptor_model(&spec)?)?);
     }
@@ -91,6 +92,7 @@ pub fn descriptor_methods() -> Result<Vec<Method>> {
         input: 120,
         subtract: true,
         min_bin: 1,
+        taper: 100,
     };
     v.push(Method::onnx(wspec.arch(), descriptor_model(&wspec)?)?);
     for bgsub in [false, true] {

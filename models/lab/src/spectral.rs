@@ -143,6 +143,11 @@ pub struct SpectralConfig {
     /// The fixed descriptor under the head.
     #[serde(default)]
     pub front: Front,
+    /// Its window's taper in % (`wspec`; 100: the Hann window, left out of
+    /// the settings' record so that models trained before it keep their
+    /// hash).
+    #[serde(default = "hann_taper", skip_serializing_if = "is_hann_taper")]
+    pub taper: u32,
     /// Augmented copies of every rendered frame.
     pub augs_per_frame: usize,
     pub hidden: usize,
@@ -161,6 +166,14 @@ pub struct SpectralConfig {
     pub attr_weight: f32,
 }
 
+fn hann_taper() -> u32 {
+    100
+}
+
+fn is_hann_taper(t: &u32) -> bool {
+    *t == 100
+}
+
 impl SpectralConfig {
     pub fn new() -> Self {
         let mut data = SupConConfig::new(
@@ -170,6 +183,7 @@ impl SpectralConfig {
         SpectralConfig {
             data,
             front: Front::Fft,
+            taper: 100,
             augs_per_frame: 3,
             hidden: 256,
             out: 128,
@@ -192,6 +206,7 @@ impl SpectralConfig {
                 input: self.data.crop,
                 subtract: true,
                 min_bin: 1,
+                taper: 100,
             },
             Front::WSpec | Front::WSpecCw => DescriptorSpec {
                 kind: if self.front == Front::WSpec {
@@ -203,6 +218,7 @@ impl SpectralConfig {
                 input: 120,
                 subtract: true,
                 min_bin: 1,
+                taper: self.taper,
             },
         }
     }

@@ -1858,6 +1858,7 @@ mod tests {
             input: 64,
             subtract: true,
             min_bin: 1,
+            taper: 100,
         };
         let m = Method::onnx(spec.arch(), crate::graph::descriptor_model(&spec).unwrap()).unwrap();
         let cfg = SuiteConfig {

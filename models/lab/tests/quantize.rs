@@ -85,6 +85,7 @@ fn int8_models_with_non_finite_output_are_refused_unless_allowed() {
         input: 32,
         subtract: true,
         min_bin: 1,
+        taper: 100,
     })
     .unwrap();
     let calib = view_set(&sets.train_index, 32, 32).unwrap();

@@ -39,6 +39,7 @@ fn wspec_spec() -> DescriptorSpec {
         input: 120,
         subtract: true,
         min_bin: 1,
+        taper: 100,
     }
 }
 
@@ -82,6 +83,7 @@ fn the_previous_descriptor_is_still_written_byte_for_byte() {
         input: 192,
         subtract: true,
         min_bin: 1,
+        taper: 100,
     };
     let bytes = telextiles_lab::graph::descriptor_model(&spec).unwrap();
     assert_eq!(
