@@ -1071,14 +1071,7 @@ mod tests {
     #[test]
     fn wspec_graph_computes_its_reference_with_and_without_a_linear_head() {
         let n = 32;
-        let spec = DescriptorSpec {
-            kind: BaselineKind::WSpec,
-            crop: 64,
-            input: n as u32,
-            subtract: true,
-            min_bin: 1,
-            taper: 100,
-        };
+        let spec = wspec_64_to_32(100);
         assert_eq!(spec.arch(), "wspec-c64-s32-bg");
         let imgs = images(n, 3);
         let (x, mut enc) = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
@@ -1167,20 +1160,25 @@ mod tests {
         (x, enc)
     }
 
+    /// `wspec` of the 64-px crop at 32 px under a window of `taper` %.
+    fn wspec_64_to_32(taper: u32) -> DescriptorSpec {
+        DescriptorSpec {
+            kind: BaselineKind::WSpec,
+            crop: 64,
+            input: 32,
+            subtract: true,
+            min_bin: 1,
+            taper,
+        }
+    }
+
     /// A Tukey window (`--taper 50`): the graph computes the f64 reference
     /// under the same window, is named for it, differs from the Hann
     /// window's, and is refused on the contact window and outside 1..=100.
     #[test]
     fn a_tapered_wspec_graph_computes_its_reference() {
         let n = 32;
-        let spec = DescriptorSpec {
-            kind: BaselineKind::WSpec,
-            crop: 64,
-            input: n as u32,
-            subtract: true,
-            min_bin: 1,
-            taper: 50,
-        };
+        let spec = wspec_64_to_32(50);
         assert_eq!(spec.arch(), "wspec-c64-s32-t50-bg");
         let imgs = images(n, 3);
         let (x, mut enc) = wspec_matches_reference(&spec, &imgs, crate::wspec::Window::Centre);
