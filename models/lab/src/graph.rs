@@ -211,6 +211,8 @@ fn centred_windowed(b: &mut Builder, x: &str, n: usize, taper: u32) -> String {
     let hw = b.i64s("axes_hw", vec![2, 3]);
     let mean = b.op("ReduceMean", &[x, &hw], vec![attr_int("keepdims", 1)]);
     let centred = b.op("Sub", &[x, &mean], vec![]);
+    // Tukey 1 is the Hann window; the Hann table stays as it was so that
+    // every model exported before the taper writes the same bytes.
     let h: Vec<f32> = if taper >= 100 {
         hann(n)
     } else {

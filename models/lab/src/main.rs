@@ -281,8 +281,9 @@ struct SpectralArgs {
     /// a window centred on the contact).
     #[arg(long, default_value = "fft")]
     front: telextiles_lab::spectral::Front,
-    /// The front end's window taper in % (`wspec`): 100 is the Hann window
-    /// of the shipped model; below, a flatter Tukey window.
+    /// The front end's window taper in %: 100 is the Hann window of the
+    /// shipped model; below, a flatter Tukey window (the centred windows,
+    /// `fft` and `wspec`; `wspec-cw` refuses it).
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..=100))]
     taper: u32,
     /// Hidden units of the head (0: a linear head).

@@ -143,7 +143,7 @@ pub struct SpectralConfig {
     /// The fixed descriptor under the head.
     #[serde(default)]
     pub front: Front,
-    /// Its window's taper in % (`wspec`; 100: the Hann window, left out of
+    /// Its window's taper in % (every front end; 100: the Hann window, left out of
     /// the settings' record so that models trained before it keep their
     /// hash).
     #[serde(default = "hann_taper", skip_serializing_if = "is_hann_taper")]
@@ -206,7 +206,7 @@ impl SpectralConfig {
                 input: self.data.crop,
                 subtract: true,
                 min_bin: 1,
-                taper: 100,
+                taper: self.taper,
             },
             Front::WSpec | Front::WSpecCw => DescriptorSpec {
                 kind: if self.front == Front::WSpec {
