@@ -205,6 +205,11 @@ struct SupconArgs {
     /// the hold).
     #[arg(long, default_value_t = 4)]
     frames_per_press: usize,
+    /// How many of the kept frames come from the contact ramp: 1 is one
+    /// frame late in the ramp; more are spread over the whole ramp from the
+    /// first frame in contact (the press's first tenth of a second).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    ramp_frames: u32,
     /// Validation query presses per textile (person 7 on unit 15).
     #[arg(long, default_value_t = 1)]
     val_presses: usize,
@@ -267,6 +272,11 @@ struct SpectralArgs {
     /// hold).
     #[arg(long, default_value_t = 4)]
     frames_per_press: usize,
+    /// How many of the kept frames come from the contact ramp: 1 is one
+    /// frame late in the ramp; more are spread over the whole ramp from the
+    /// first frame in contact (the press's first tenth of a second).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    ramp_frames: u32,
     /// Validation presses per textile (person 7 on unit 15; each a query).
     #[arg(long, default_value_t = 1)]
     val_presses: usize,
@@ -796,6 +806,7 @@ fn main() -> Result<()> {
             let mut cfg = telextiles_lab::spectral::SpectralConfig::new();
             cfg.data.presses_per_textile = a.presses_per_textile;
             cfg.data.frames_per_press = a.frames_per_press;
+            cfg.data.ramp_frames = a.ramp_frames as usize;
             cfg.data.val_presses = a.val_presses;
             cfg.data.max_textiles = a.textiles;
             cfg.data.catalogue = a.catalogue;
@@ -984,6 +995,7 @@ fn train_supcon(a: SupconArgs) -> Result<()> {
     cfg.generator = a.generator;
     cfg.presses_per_textile = a.presses_per_textile;
     cfg.frames_per_press = a.frames_per_press;
+    cfg.ramp_frames = a.ramp_frames as usize;
     cfg.val_presses = a.val_presses;
     cfg.max_textiles = a.textiles;
     cfg.steps = a.steps;

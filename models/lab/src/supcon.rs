@@ -61,6 +61,13 @@ pub struct SupConConfig {
     pub presses_per_textile: usize,
     /// Frames kept per press (spread over ramp and hold).
     pub frames_per_press: usize,
+    /// How many of them come from the contact ramp: 1 (the recipe so far) is
+    /// one frame late in the ramp; more are spread over the whole ramp, from
+    /// the first frame in contact, where the first tenth of a second of a
+    /// press lies. Left out of the saved settings at 1, so earlier runs keep
+    /// their hashes.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub ramp_frames: usize,
     /// Share of hand-held presses.
     pub handheld_share: f32,
     /// Only the first N training textiles (quick runs).
@@ -103,6 +110,7 @@ impl SupConConfig {
             units: vec![0, 1, 2, 3, 6, 7, 8, 9, 10, 11, 12, 13, 14],
             presses_per_textile: 14,
             frames_per_press: 4,
+            ramp_frames: 1,
             handheld_share: 0.5,
             max_textiles: None,
             val_person: 7,
@@ -138,6 +146,10 @@ impl SupConConfig {
     fn stored_crop(&self) -> u32 {
         (self.stored_side() as f32 * self.crop as f32 / self.arch.input as f32).round() as u32
     }
+}
+
+fn is_one(v: &usize) -> bool {
+    *v == 1
 }
 
 fn one() -> usize {
@@ -333,20 +345,19 @@ pub(crate) fn render_press(
         .press_meta(&spec)
         .map_err(|e| anyhow::anyhow!("{}: {e}", p.textile))?;
     let n = meta.timestamps_us.len();
-    let (hold, release) = match meta.params {
+    let (contact, hold, release) = match meta.params {
         Some(q) => (
+            q.contact_frame as usize,
             q.hold_frame as usize,
             q.release_frame.map_or(n, |r| r as usize).min(n),
         ),
-        None => (0, n),
+        None => (0, 0, n),
     };
-    // One frame from the ramp (contact building up), the rest over the hold.
-    let ramp_lo = hold.saturating_sub(6);
-    let mut frames = vec![(ramp_lo + hold) / 2];
+    let mut frames = ramp_frames(contact, hold, cfg.ramp_frames);
     frames.extend(crate::protocol::spread(
         hold,
         release.max(hold + 1),
-        cfg.frames_per_press.saturating_sub(1),
+        cfg.frames_per_press.saturating_sub(frames.len()),
     ));
     let reference = sim
         .background_for(&spec)
@@ -360,6 +371,24 @@ pub(crate) fn render_press(
             diff_input(&f, &reference, crop, side as u32)
         })
         .collect()
+}
+
+/// The training frames taken from a press's contact ramp (`contact`: its
+/// first frame in contact, `hold`: the first of the hold). One (the recipe
+/// so far): a frame late in the ramp, 3 frames before the hold. More: `n`
+/// frames spread over the whole ramp, the first of them the first frame in
+/// contact, so the light touches of a press's first tenth of a second are
+/// trained on too.
+pub fn ramp_frames(contact: usize, hold: usize, n: usize) -> Vec<usize> {
+    if n <= 1 {
+        let ramp_lo = hold.saturating_sub(6);
+        return vec![(ramp_lo + hold) / 2];
+    }
+    let lo = contact.min(hold.saturating_sub(1));
+    let hi = hold.max(lo + 1);
+    let mut v: Vec<usize> = (0..n).map(|i| lo + i * (hi - lo) / n).collect();
+    v.dedup();
+    v
 }
 
 /// One augmented view of a stored difference frame (`side` x `side`, CHW),
@@ -818,6 +847,31 @@ pub fn load_best(run: &Path) -> Result<(Encoder, SupConConfig)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ramp_frames_keep_the_old_frame_at_one_and_cover_the_ramp_above() {
+        // One: the recipe so far, 3 frames before the hold.
+        assert_eq!(ramp_frames(20, 32, 1), vec![29]);
+        assert_eq!(ramp_frames(0, 2, 1), vec![1]);
+        // More: from the first frame in contact, spread over the ramp,
+        // never reaching the hold.
+        assert_eq!(ramp_frames(20, 32, 3), vec![20, 24, 28]);
+        assert_eq!(ramp_frames(20, 26, 4), vec![20, 21, 23, 24]);
+        // A ramp shorter than the frames asked for gives each frame once.
+        assert_eq!(ramp_frames(20, 22, 4), vec![20, 21]);
+        // A press with no ramp (or no timeline) still gives a frame.
+        assert_eq!(ramp_frames(5, 5, 3), vec![4]);
+        assert_eq!(ramp_frames(0, 0, 3), vec![0]);
+        // The setting is left out of saved configs at 1 (earlier runs keep
+        // their hashes) and recorded above.
+        let mut c = SupConConfig::new(ArchConfig::parse("resnet-d1111-w16-s96").unwrap());
+        assert!(!serde_json::to_string(&c).unwrap().contains("ramp_frames"));
+        c.ramp_frames = 3;
+        let j = serde_json::to_string(&c).unwrap();
+        assert!(j.contains("\"ramp_frames\":3"));
+        let back: SupConConfig = serde_json::from_str(&j).unwrap();
+        assert_eq!(back.ramp_frames, 3);
+    }
 
     #[test]
     fn a_batch_takes_each_view_from_another_press_of_its_textile() {
