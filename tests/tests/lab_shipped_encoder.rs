@@ -1,6 +1,6 @@
 //! The shipped encoder `models/encoder.onnx` (the shipped-default rule's
 //! pick, docs/benchmarks.md: the colour-whitened spectrum of the 240-px
-//! crop at 120 px minus the no-contact reference, with a trained linear
+//! crop at 120 px under a Tukey window, minus the no-contact reference, with a trained linear
 //! head; models/MODEL_CARD.md) against the daemon's own encoder loader and
 //! preprocessing (real ONNX Runtime): it passes the contract checks, gives
 //! unit-norm 128-d embeddings, and frames of one press of a simulated
@@ -24,7 +24,7 @@ fn cos(a: &[f32], b: &[f32]) -> f32 {
 fn shipped_encoder_loads_in_the_daemon_and_separates_presses() {
     let mut enc = Encoder::open(&shipped_model(), &EncoderOptions::default()).unwrap();
     assert_eq!(enc.dim(), 128);
-    assert_eq!(enc.info().arch, "wspec-c240-s120-bg+lin128");
+    assert_eq!(enc.info().arch, "wspec-c240-s120-t25-bg+lin128");
     assert_eq!(enc.info().background, "subtract");
     assert_eq!(enc.info().preprocess.crop, 240);
     assert_eq!(enc.info().preprocess.size, 120);
