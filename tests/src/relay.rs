@@ -167,7 +167,23 @@ impl Relay {
                         );
                         let back = tokio::spawn(async move {
                             let mut b = vec![0u8; 65536];
-                            while let Ok(n) = up2.recv(&mut b).await {
+                            loop {
+                                let n = match up2.recv(&mut b).await {
+                                    Ok(n) => n,
+                                    // A packet relayed before the target
+                                    // listened came back as ICMP port
+                                    // unreachable, which a connected UDP
+                                    // socket reports on its next receive.
+                                    // The target may listen now: keep
+                                    // relaying its replies (a daemon that
+                                    // dials before its peer is up is
+                                    // otherwise never answered again from
+                                    // the same source port).
+                                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                                        continue
+                                    }
+                                    Err(_) => break,
+                                };
                                 schedule(
                                     imp,
                                     &rng2,
@@ -293,5 +309,54 @@ mod tests {
         let c = lossy.counts();
         assert_eq!(c.received, 400);
         assert!((120..280).contains(&c.dropped), "{c:?}");
+    }
+
+    /// A client that sends before the target listens (as a daemon dials a
+    /// peer still starting up) is answered once the target is up: the ICMP
+    /// port unreachable that the first packet drew does not end the
+    /// relay's reply path for that client.
+    #[tokio::test]
+    async fn replies_flow_after_the_target_starts_listening() {
+        let target = std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap(); // closed again: nothing listens there yet
+        let relay = Relay::start(
+            "127.0.0.1:0".parse().unwrap(),
+            target,
+            Impairment::delay(0, 0),
+        )
+        .await
+        .unwrap();
+        let client = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        client.send_to(b"early", relay.local_addr()).await.unwrap();
+        // The relay forwards it to the closed port and the kernel answers
+        // with port unreachable; give it time to arrive.
+        let t0 = std::time::Instant::now();
+        while relay.counts().forwarded < 1 && t0.elapsed() < Duration::from_secs(2) {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let server = UdpSocket::bind(target).await.unwrap();
+        let mut buf = [0u8; 16];
+        // Each try sends again until the server has one (the early packet
+        // is gone), then the server answers through the relay.
+        let from = loop {
+            client.send_to(b"ping", relay.local_addr()).await.unwrap();
+            match tokio::time::timeout(Duration::from_millis(200), server.recv_from(&mut buf)).await
+            {
+                Ok(r) => break r.unwrap().1,
+                Err(_) => assert!(
+                    t0.elapsed() < Duration::from_secs(5),
+                    "the relay forwards nothing"
+                ),
+            }
+        };
+        server.send_to(b"pong", from).await.unwrap();
+        let (n, f) = tokio::time::timeout(Duration::from_secs(2), client.recv_from(&mut buf))
+            .await
+            .expect("the target's reply is relayed after the early packet's port unreachable")
+            .unwrap();
+        assert_eq!((&buf[..n], f), (&b"pong"[..], relay.local_addr()));
     }
 }
