@@ -275,8 +275,9 @@ struct Offline {
     start_ms: f64,
     /// The first decision: textile, ms after the start.
     first: Option<(String, f64)>,
-    /// The press's final decision.
+    /// The press's final decision, and its margin over the runner-up.
     last: Option<String>,
+    margin: Option<f64>,
 }
 
 /// `telextilesd classify --json` over the set, one entry per recording in
@@ -322,6 +323,7 @@ fn classify_set(dir: &Path, flags: &[String]) -> Vec<Offline> {
                     start_ms: v["start_ms"].as_f64().expect("start_ms"),
                     first,
                     last: textile("textile"),
+                    margin: v["margin"].as_f64(),
                 },
             )
         })
@@ -351,6 +353,7 @@ struct Compared {
     live: Vec<(String, f64, bool)>,
     offline_first: Option<(String, f64)>,
     offline_last: Option<String>,
+    offline_margin: Option<f64>,
 }
 
 /// The sender's presses that began in `[t0, t1 - 3 s)`, with the
@@ -391,6 +394,7 @@ fn compare(from: &Traces, to: &Side, set: &[Offline], t0: u64, t1: u64) -> Vec<C
                 live: live.remove(k).unwrap_or_default(),
                 offline_first: o.first.clone(),
                 offline_last: o.last.clone(),
+                offline_margin: o.margin,
             }
         })
         .collect()
@@ -480,6 +484,24 @@ fn print_decisions(results: &[Result1]) {
             pct(&added, 95.0),
             pc(at_100, n),
         );
+    }
+    // Which presses ended otherwise than `classify` ended them, so a
+    // difference can be looked into rather than only counted.
+    for r in results {
+        for c in &r.presses {
+            let last = c.live.iter().rev().find(|d| d.2).map(|d| d.0.as_str());
+            if last.is_none() || last != c.offline_last.as_deref() {
+                println!(
+                    "\n{}: a press of {} ended live as {}, by `classify` as {} (its margin over the runner-up {}).",
+                    r.name,
+                    c.label,
+                    last.unwrap_or("no final decision"),
+                    c.offline_last.as_deref().unwrap_or("no final decision"),
+                    c.offline_margin
+                        .map_or("not given".to_string(), |m| format!("{m:.4}")),
+                );
+            }
+        }
     }
 }
 
