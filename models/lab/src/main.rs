@@ -201,8 +201,8 @@ struct SupconArgs {
     /// Presses rendered per training textile.
     #[arg(long, default_value_t = 14)]
     presses_per_textile: usize,
-    /// Frames kept per training press (one from the ramp, the rest over
-    /// the hold).
+    /// Frames kept per training press: `--ramp-frames` of them from the
+    /// contact ramp, the rest over the hold.
     #[arg(long, default_value_t = 4)]
     frames_per_press: usize,
     /// How many of the kept frames come from the contact ramp: 1 is one
@@ -268,8 +268,8 @@ struct SpectralArgs {
     /// Augmented copies of every kept frame.
     #[arg(long, default_value_t = 3)]
     augs: usize,
-    /// Frames kept per press (one from the contact ramp, the rest over the
-    /// hold).
+    /// Frames kept per training press: `--ramp-frames` of them from the
+    /// contact ramp, the rest over the hold.
     #[arg(long, default_value_t = 4)]
     frames_per_press: usize,
     /// How many of the kept frames come from the contact ramp: 1 is one

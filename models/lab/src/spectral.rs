@@ -143,9 +143,9 @@ pub struct SpectralConfig {
     /// The fixed descriptor under the head.
     #[serde(default)]
     pub front: Front,
-    /// Its window's taper in % (every front end; 100: the Hann window, left out of
-    /// the settings' record so that models trained before it keep their
-    /// hash).
+    /// Its window's taper in % (the centred front ends, `fft` and `wspec`;
+    /// `wspec-cw` refuses it; 100: the Hann window, left out of the
+    /// settings' record so that models trained before it keep their hash).
     #[serde(default = "hann_taper", skip_serializing_if = "is_hann_taper")]
     pub taper: u32,
     /// Augmented copies of every rendered frame.
@@ -466,6 +466,7 @@ pub fn train(
     cache_dir: &Path,
     threads: usize,
 ) -> Result<(Vec<u8>, f64, f64)> {
+    cfg.data.check_frames()?;
     std::fs::create_dir_all(run).with_context(|| format!("cannot create {}", run.display()))?;
     crate::data::write_atomic(
         &run.join("config.json"),

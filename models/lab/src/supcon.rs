@@ -146,6 +146,18 @@ impl SupConConfig {
     fn stored_crop(&self) -> u32 {
         (self.stored_side() as f32 * self.crop as f32 / self.arch.input as f32).round() as u32
     }
+
+    /// The frames kept per press add up: the ramp's are among them, and at
+    /// least one is left for the hold.
+    pub fn check_frames(&self) -> Result<()> {
+        ensure!(
+            self.ramp_frames >= 1 && self.ramp_frames < self.frames_per_press,
+            "--ramp-frames {} must be at least 1 and below --frames-per-press {} (the rest are hold frames)",
+            self.ramp_frames,
+            self.frames_per_press
+        );
+        Ok(())
+    }
 }
 
 fn is_one(v: &usize) -> bool {
@@ -680,6 +692,7 @@ pub struct StepMetrics {
 /// best checkpoint (`best.bpk`, by validation top-1 per press) into `run`.
 /// Returns the best encoder and its validation top-1.
 pub fn train(cfg: &SupConConfig, run: &Path, threads: usize) -> Result<(Encoder, f64)> {
+    cfg.check_frames()?;
     ensure!(
         cfg.views_per_class >= 2 && cfg.classes_per_batch >= 2,
         "a batch needs at least 2 textiles with 2 views each"
@@ -871,6 +884,18 @@ mod tests {
         assert!(j.contains("\"ramp_frames\":3"));
         let back: SupConConfig = serde_json::from_str(&j).unwrap();
         assert_eq!(back.ramp_frames, 3);
+        // The ramp's frames are among those kept, one left for the hold.
+        c.frames_per_press = 6;
+        assert!(c.check_frames().is_ok());
+        for (ramp, kept) in [(4, 4), (6, 4), (0, 4)] {
+            c.ramp_frames = ramp;
+            c.frames_per_press = kept;
+            let e = c.check_frames().unwrap_err().to_string();
+            assert!(
+                e.contains("--ramp-frames") && e.contains("--frames-per-press"),
+                "{e}"
+            );
+        }
     }
 
     #[test]
