@@ -1,6 +1,7 @@
 //! Building an index from per-textile embeddings.
 
 use crate::map::{self, MapLayout};
+use crate::metric::{Moments, Shrinkage};
 use crate::select::{self, SelectionMethod};
 use crate::vecmath::{distance, l2_normalise, normalised_mean};
 use crate::{Entry, Index, IndexError, Metric, RollerLayout, UnknownDistance};
@@ -21,8 +22,192 @@ pub struct TextileRecord {
     /// Embeddings of this textile's frames (any length; normalised here).
     pub embeddings: Vec<Vec<f32>>,
     /// Per-press mean embeddings (optional): kept as exemplars unless the
-    /// builder's `keep_exemplars` is off, and what its metric learns from.
+    /// builder's `keep_exemplars` is off, and what its metric is checked
+    /// on (each press left out in turn).
     pub exemplars: Vec<Vec<f32>>,
+    /// The frame embeddings of each press, in the order of `exemplars`
+    /// (optional): what a metric fitted on frames learns from
+    /// ([`MetricFit::Frames`]). Empty: each press is its mean alone.
+    pub press_frames: Vec<Vec<Vec<f32>>>,
+}
+
+/// How an index's distance is fitted to its presses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MetricFit {
+    /// Plain cosine distance: nothing fitted.
+    Cosine,
+    /// Within-fabric whitening of the presses' mean embeddings at a fixed
+    /// shrinkage (the index's learned distance before fits on frames).
+    PressMeans(f32),
+    /// Within-fabric whitening of every frame of the presses (a shrinkage
+    /// LDA: the pooled scatter of each fabric's frames about the fabric's
+    /// mean), shrunk by this much, or by the Ledoit–Wolf estimate (None).
+    Frames(Option<f32>),
+    /// Whichever of [`MetricFit::CANDIDATES`] decides the most presses
+    /// right, each press left out in turn with the fit made again without
+    /// it ([`left_out_fitted`]); ties go to the earlier, simpler one, so
+    /// plain cosine wins unless a fit does better on the owner's own
+    /// presses.
+    Auto,
+}
+
+impl MetricFit {
+    /// What [`MetricFit::Auto`] chooses among, simplest first.
+    pub const CANDIDATES: [MetricFit; 5] = [
+        MetricFit::Cosine,
+        MetricFit::PressMeans(crate::metric::DEFAULT_SHRINKAGE),
+        MetricFit::Frames(None),
+        MetricFit::Frames(Some(0.1)),
+        MetricFit::Frames(Some(0.3)),
+    ];
+
+    /// The fit from a shrinkage of press means (None: cosine): what an
+    /// index learned before fits on frames.
+    pub fn press_means(shrinkage: Option<f32>) -> MetricFit {
+        shrinkage.map_or(MetricFit::Cosine, MetricFit::PressMeans)
+    }
+
+    /// In words, for tables and summaries.
+    pub fn label(&self) -> String {
+        match self {
+            MetricFit::Cosine => "cosine".into(),
+            MetricFit::PressMeans(a) => format!("press means, shrinkage {a}"),
+            MetricFit::Frames(None) => "frames, Ledoit-Wolf shrinkage".into(),
+            MetricFit::Frames(Some(a)) => format!("frames, shrinkage {a}"),
+            MetricFit::Auto => "chosen on the presses".into(),
+        }
+    }
+
+    /// A shrinkage outside 0..=1, as an error.
+    fn check(&self) -> Result<(), IndexError> {
+        match *self {
+            MetricFit::PressMeans(a) | MetricFit::Frames(Some(a)) if !(0.0..=1.0).contains(&a) => {
+                Err(IndexError::Invalid(format!(
+                    "metric shrinkage {a} is outside 0..=1"
+                )))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The metric this fit makes of each fabric's presses (None: cosine,
+    /// or nothing to learn from). [`MetricFit::Auto`] is not a fit of its
+    /// own: it fits nothing here.
+    pub fn fit(&self, fabrics: &[Vec<&PressData>], dim: usize) -> Option<Metric> {
+        let (frames, shrinkage) = match *self {
+            MetricFit::Cosine | MetricFit::Auto => return None,
+            MetricFit::PressMeans(a) => (false, Shrinkage::Fixed(a)),
+            MetricFit::Frames(a) => (true, a.map_or(Shrinkage::LedoitWolf, Shrinkage::Fixed)),
+        };
+        let mut presses = 0;
+        let moments: Vec<Moments> = fabrics
+            .iter()
+            .map(|f| {
+                let mut m = Moments::zero(dim);
+                for p in f {
+                    m.add(if frames { &p.frames } else { &p.mean_moments });
+                }
+                if (frames && m.n >= 2) || f.len() >= 2 {
+                    presses += f.len();
+                }
+                m
+            })
+            .collect();
+        Metric::from_moments(&moments, dim, shrinkage, presses)
+    }
+}
+
+/// One press as the index learns from it: its mean embedding and the
+/// [`Moments`] of its mean and of its frames.
+#[derive(Clone, Debug)]
+pub struct PressData {
+    /// Its mean embedding (encoder space, any length).
+    pub mean: Vec<f32>,
+    /// The moments of its mean alone.
+    pub mean_moments: Moments,
+    /// The moments of its frames (of its mean alone when they are not
+    /// known).
+    pub frames: Moments,
+}
+
+impl PressData {
+    /// From a press's mean and its frames' embeddings (empty: its mean
+    /// stands for them). None when a vector is of another dimension, not
+    /// finite or of zero length.
+    pub fn new(mean: &[f32], frames: &[Vec<f32>], dim: usize) -> Option<PressData> {
+        let mean_moments = Moments::of([mean], dim)?;
+        let frames = if frames.is_empty() {
+            mean_moments.clone()
+        } else {
+            Moments::of(frames.iter().map(Vec::as_slice), dim)?
+        };
+        Some(PressData {
+            mean: mean.to_vec(),
+            mean_moments,
+            frames,
+        })
+    }
+}
+
+/// Each fabric's presses as [`PressData`] (presses of another dimension or
+/// with non-finite values are left out, as [`left_out`] leaves them).
+pub fn press_data(
+    fabrics: &[(Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>)],
+    dim: usize,
+) -> Vec<Vec<PressData>> {
+    fabrics
+        .iter()
+        .map(|(means, frames)| {
+            means
+                .iter()
+                .enumerate()
+                .filter_map(|(i, m)| {
+                    let f = frames.get(i).map_or(&[][..], Vec::as_slice);
+                    PressData::new(m, f, dim)
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// A fit and how it did on the presses left out ([`left_out_fitted`]).
+#[derive(Clone, Debug)]
+pub struct FitCheck {
+    /// The fit.
+    pub fit: MetricFit,
+    /// Every press left out and decided with the fit made without it.
+    pub left: Vec<LeftOut>,
+}
+
+impl FitCheck {
+    /// Presses decided right.
+    pub fn right(&self) -> usize {
+        self.left.iter().filter(|l| l.decided == l.fabric).count()
+    }
+}
+
+/// Each fit checked on the same presses, and the one chosen: the most
+/// presses right, the earlier (simpler) one on a tie.
+pub fn choose_fit(
+    fabrics: &[Vec<PressData>],
+    dim: usize,
+    exemplars: bool,
+    fits: &[MetricFit],
+) -> (usize, Vec<FitCheck>) {
+    let checks: Vec<FitCheck> = fits
+        .iter()
+        .map(|&fit| FitCheck {
+            fit,
+            left: left_out_fitted(fabrics, dim, exemplars, fit),
+        })
+        .collect();
+    let mut best = 0;
+    for (k, c) in checks.iter().enumerate() {
+        if c.right() > checks[best].right() {
+            best = k;
+        }
+    }
+    (best, checks)
 }
 
 /// Collects textiles, then lays out the roller and the map.
@@ -41,11 +226,11 @@ pub struct IndexBuilder {
     pub seed: u64,
     /// Keep the records' per-press embeddings as exemplars (default: on).
     pub keep_exemplars: bool,
-    /// Learn a within-fabric metric from the records' per-press embeddings
-    /// with this shrinkage ([`Metric::within_fabric`]); None (the default):
-    /// plain cosine distance. Without two presses of some fabric there is
+    /// How the index's distance is fitted to the records' presses
+    /// ([`MetricFit`]); [`MetricFit::Cosine`] (the default): plain cosine
+    /// distance. Without two presses (or frames) of some fabric there is
     /// nothing to learn and the index has no metric.
-    pub metric_shrinkage: Option<f32>,
+    pub metric: MetricFit,
     /// Calibrate the index's unknown-textile distance on the records'
     /// per-press embeddings: the share `q` (0 < q <= 1) of presses that
     /// should count as known, leaving each out in turn
@@ -53,6 +238,10 @@ pub struct IndexBuilder {
     /// the decider's fixed one. Without [`MIN_CALIBRATION_PRESSES`] presses
     /// of fabrics with two or more the index has none.
     pub unknown_quantile: Option<f32>,
+    /// What the records' vectors are made of ([`crate::Features`]; the
+    /// encoder's embedding alone by default): recorded in the index, so
+    /// every daemon holding it makes its queries alike.
+    pub features: crate::Features,
 }
 
 /// The quantile `telextilesd index build --presses` calibrates at by
@@ -107,8 +296,9 @@ impl IndexBuilder {
             method: SelectionMethod::KMedoids,
             seed: 0,
             keep_exemplars: true,
-            metric_shrinkage: None,
+            metric: MetricFit::Cosine,
             unknown_quantile: None,
+            features: crate::Features::Encoder,
         }
     }
 
@@ -124,6 +314,7 @@ impl IndexBuilder {
             .embeddings
             .iter()
             .chain(&record.exemplars)
+            .chain(record.press_frames.iter().flatten())
             .find(|v| v.len() != self.dim)
         {
             return Err(IndexError::Invalid(format!(
@@ -131,6 +322,14 @@ impl IndexBuilder {
                 record.id,
                 v.len(),
                 self.dim
+            )));
+        }
+        if !record.press_frames.is_empty() && record.press_frames.len() != record.exemplars.len() {
+            return Err(IndexError::Invalid(format!(
+                "textile {}: frames of {} presses for {} press means",
+                record.id,
+                record.press_frames.len(),
+                record.exemplars.len()
             )));
         }
         if self.records.iter().any(|r| r.id == record.id) {
@@ -148,7 +347,7 @@ impl IndexBuilder {
     /// none is marked seen.
     pub fn build(self) -> Result<Index, IndexError> {
         let measure = self.unknown_quantile.is_some();
-        self.build_inner(measure).map(|(index, _)| index)
+        self.build_inner(measure).map(|r| r.index)
     }
 
     /// [`IndexBuilder::build`], also returning the left-out press distances
@@ -157,7 +356,7 @@ impl IndexBuilder {
     /// set, so a study can try several quantiles on one build).
     pub fn build_calibrated(self) -> Result<(Index, Vec<f32>), IndexError> {
         self.build_inner(true)
-            .map(|(index, left)| (index, sorted_distances(&left)))
+            .map(|r| (r.index, sorted_distances(&r.left)))
     }
 
     /// [`IndexBuilder::build`], also returning every press left out of the
@@ -165,10 +364,17 @@ impl IndexBuilder {
     /// order of fabrics; the same presses the unknown distance is
     /// calibrated on): how well the index tells its own fabrics apart.
     pub fn build_checked(self) -> Result<(Index, Vec<LeftOut>), IndexError> {
+        self.build_inner(true).map(|r| (r.index, r.left))
+    }
+
+    /// [`IndexBuilder::build_checked`], with every fit that was checked
+    /// (with [`MetricFit::Auto`], each candidate's left-out presses) and the
+    /// one chosen.
+    pub fn build_report(self) -> Result<BuildReport, IndexError> {
         self.build_inner(true)
     }
 
-    fn build_inner(self, measure: bool) -> Result<(Index, Vec<LeftOut>), IndexError> {
+    fn build_inner(self, measure: bool) -> Result<BuildReport, IndexError> {
         let dim = self.dim;
         if let Some(q) = self.unknown_quantile {
             if !is_quantile(q) {
@@ -177,27 +383,49 @@ impl IndexBuilder {
                 )));
             }
         }
-        // Each fabric's per-press embeddings: what the metric learns from
-        // and the calibration measures.
-        let presses: Vec<Vec<Vec<f32>>> =
-            self.records.iter().map(|r| r.exemplars.clone()).collect();
-        let metric = match self.metric_shrinkage {
-            Some(a) if !(0.0..=1.0).contains(&a) => {
-                return Err(IndexError::Invalid(format!(
-                    "metric shrinkage {a} is outside 0..=1"
-                )))
-            }
-            Some(a) => Metric::within_fabric(&presses, dim, a),
-            None => None,
+        self.metric.check()?;
+        // Each fabric's presses: what the metric learns from and the
+        // calibration measures.
+        let presses: Vec<Vec<PressData>> = self
+            .records
+            .iter()
+            .map(|r| {
+                r.exemplars
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, m)| {
+                        let frames = r.press_frames.get(i).map_or(&[][..], Vec::as_slice);
+                        PressData::new(m, frames, dim)
+                    })
+                    .collect()
+            })
+            .collect();
+        let keep_exemplars = self.keep_exemplars;
+        // The fit: the one asked for, or the best of the candidates on the
+        // presses left out in turn.
+        let (chosen_fit, fits) = match self.metric {
+            MetricFit::Auto => choose_fit(&presses, dim, keep_exemplars, &MetricFit::CANDIDATES),
+            fit if measure => (
+                0,
+                vec![FitCheck {
+                    fit,
+                    left: left_out_fitted(&presses, dim, keep_exemplars, fit),
+                }],
+            ),
+            fit => (
+                0,
+                vec![FitCheck {
+                    fit,
+                    left: Vec::new(),
+                }],
+            ),
         };
+        let fit = fits[chosen_fit].fit;
+        let all: Vec<Vec<&PressData>> = presses.iter().map(|f| f.iter().collect()).collect();
+        let metric = fit.fit(&all, dim);
         // Every vector in the metric's space (normalised either way).
         let map_in = |v: &[f32]| in_space(metric.as_ref().filter(|_| v.len() == dim), v);
-        let keep_exemplars = self.keep_exemplars;
-        let left = if measure {
-            left_out(&presses, dim, keep_exemplars, self.metric_shrinkage)
-        } else {
-            Vec::new()
-        };
+        let left = fits[chosen_fit].left.clone();
         let press_d = sorted_distances(&left);
         let unknown = self.unknown_quantile.and_then(|q| {
             Some(UnknownDistance {
@@ -271,13 +499,33 @@ impl IndexBuilder {
             },
             metric,
             unknown,
+            features: self.features,
         };
         for (e, p) in index.entries.iter_mut().zip(xy) {
             e.map_xy = [p[0], p[1]];
         }
         index.validate()?;
-        Ok((index, left))
+        Ok(BuildReport {
+            index,
+            left,
+            fits,
+            chosen: chosen_fit,
+        })
     }
+}
+
+/// What [`IndexBuilder::build_report`] returns.
+#[derive(Clone, Debug)]
+pub struct BuildReport {
+    /// The index.
+    pub index: Index,
+    /// The chosen fit's left-out presses (what the unknown distance is
+    /// calibrated on, and the index's self-check).
+    pub left: Vec<LeftOut>,
+    /// Every fit checked (one unless [`MetricFit::Auto`]).
+    pub fits: Vec<FitCheck>,
+    /// Which of `fits` the index uses.
+    pub chosen: usize,
 }
 
 /// How many folds [`press_distances`] leaves out in turn, at most.
@@ -304,7 +552,8 @@ type FoldEntry = (Vec<f32>, Vec<Vec<f32>>);
 /// Every press of a fabric with another press, left out of the index and
 /// decided against an index of the others: what a new press of a known
 /// fabric is likely to be, measured on the owner's own presses.
-/// `fabrics`: each fabric's per-press embeddings (encoder space).
+/// `fabrics`: each fabric's per-press embeddings (encoder space); with
+/// their frames, [`left_out_fitted`].
 /// The presses are dealt into folds (press `i` of a fabric into fold
 /// `i mod F`, `F` = the most presses of a fabric, at most
 /// [`MAX_CALIBRATION_FOLDS`]); for each fold the index is made again without
@@ -322,42 +571,73 @@ pub fn left_out(
     exemplars: bool,
     shrinkage: Option<f32>,
 ) -> Vec<LeftOut> {
-    let folds = fabrics
-        .iter()
-        .map(Vec::len)
-        .max()
-        .unwrap_or(0)
-        .min(MAX_CALIBRATION_FOLDS);
     // Each fabric's usable presses, with their positions in the input.
-    let fabrics: Vec<Vec<(usize, &Vec<f32>)>> = fabrics
+    let data: Vec<Vec<(usize, PressData)>> = fabrics
         .iter()
         .map(|f| {
             f.iter()
                 .enumerate()
-                .filter(|(_, v)| v.len() == dim)
+                .filter_map(|(i, v)| Some((i, PressData::new(v, &[], dim)?)))
                 .collect()
         })
         .collect();
+    let folds = fabrics.iter().map(Vec::len).max().unwrap_or(0);
+    left_out_indexed(
+        &data,
+        folds,
+        dim,
+        exemplars,
+        MetricFit::press_means(shrinkage),
+    )
+}
+
+/// [`left_out`] for presses with their frames, the metric fitted by `fit`
+/// on the presses kept in each fold ([`MetricFit::fit`]; `Auto` is
+/// cosine). A press's `press` is its position in `fabrics`.
+pub fn left_out_fitted(
+    fabrics: &[Vec<PressData>],
+    dim: usize,
+    exemplars: bool,
+    fit: MetricFit,
+) -> Vec<LeftOut> {
+    let data: Vec<Vec<(usize, PressData)>> = fabrics
+        .iter()
+        .map(|f| f.iter().cloned().enumerate().collect())
+        .collect();
+    let folds = fabrics.iter().map(Vec::len).max().unwrap_or(0);
+    left_out_indexed(&data, folds, dim, exemplars, fit)
+}
+
+/// [`left_out`] over each fabric's usable presses (with their positions in
+/// the input), in `folds` folds at most [`MAX_CALIBRATION_FOLDS`].
+fn left_out_indexed(
+    fabrics: &[Vec<(usize, PressData)>],
+    folds: usize,
+    dim: usize,
+    exemplars: bool,
+    fit: MetricFit,
+) -> Vec<LeftOut> {
+    let folds = folds.min(MAX_CALIBRATION_FOLDS);
     let mut out = Vec::new();
     for fold in 0..folds {
-        let kept: Vec<Vec<Vec<f32>>> = fabrics
+        let kept: Vec<Vec<&PressData>> = fabrics
             .iter()
             .map(|f| {
                 f.iter()
                     .enumerate()
                     .filter(|&(i, _)| i % folds != fold)
-                    .map(|(_, (_, v))| v.to_vec())
+                    .map(|(_, (_, p))| p)
                     .collect()
             })
             .collect();
-        let metric = shrinkage.and_then(|a| Metric::within_fabric(&kept, dim, a));
+        let metric = fit.fit(&kept, dim);
         let map_in = |v: &[f32]| in_space(metric.as_ref(), v);
         // Each fabric's entry in this fold: its centroid, then its presses.
         let entries: Vec<Option<FoldEntry>> = kept
             .iter()
             .map(|k| {
                 (!k.is_empty()).then(|| {
-                    let others: Vec<Vec<f32>> = k.iter().map(|v| map_in(v)).collect();
+                    let others: Vec<Vec<f32>> = k.iter().map(|p| map_in(&p.mean)).collect();
                     (normalised_mean(&others, dim), others)
                 })
             })
@@ -375,8 +655,8 @@ pub fn left_out(
             let Some(own) = &entries[fabric] else {
                 continue;
             };
-            for (_, &(press, p)) in f.iter().enumerate().filter(|&(i, _)| i % folds == fold) {
-                let p = map_in(p);
+            for (_, (press, p)) in f.iter().enumerate().filter(|&(i, _)| i % folds == fold) {
+                let p = map_in(&p.mean);
                 let own_distance = to_entry(&p, own);
                 if !own_distance.is_finite() {
                     continue;
@@ -394,7 +674,7 @@ pub fn left_out(
                 }
                 out.push(LeftOut {
                     fabric,
-                    press,
+                    press: *press,
                     decided: decided.0,
                     own_distance,
                 });

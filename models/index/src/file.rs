@@ -6,13 +6,15 @@
 //! Version 1's payload is the [`Index`] without a metric; version 2's is the
 //! index followed by its [`Metric`](crate::Metric); version 3's is the index
 //! followed by its optional metric and its optional calibrated
-//! unknown-textile distance. Each index is written in the oldest version
-//! that holds it: without either as version 1, byte for byte as before
+//! unknown-textile distance; version 4's is the index followed by its
+//! optional metric, its optional unknown distance and its [`Features`]
+//! (an index of texture features beside the encoder's). Each index is
+//! written in the oldest version that holds it: without either as version 1, byte for byte as before
 //! version 2 existed (same fingerprint, readable by older builds); with a
-//! metric only as version 2; with a calibrated distance as version 3. This
-//! build reads all three.
+//! metric only as version 2; with a calibrated distance as version 3; with
+//! texture features as version 4. This build reads all four.
 
-use crate::{Index, Metric, UnknownDistance};
+use crate::{Features, Index, Metric, UnknownDistance};
 use sha2::{Digest, Sha256};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -22,7 +24,7 @@ pub const MAGIC: [u8; 4] = *b"TLXI";
 /// Newest format version (an index with a calibrated unknown-textile
 /// distance); older indexes are written in the oldest version that holds
 /// them (see the module docs).
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 const HEADER: usize = 4 + 4 + 8;
 const MAX_PAYLOAD: u64 = 256 << 20;
 
@@ -86,6 +88,13 @@ fn config() -> impl bincode::config::Config {
 }
 
 pub(crate) fn payload(index: &Index) -> Vec<u8> {
+    if index.features != Features::Encoder {
+        return bincode::serde::encode_to_vec(
+            (index, &index.metric, index.unknown, index.features),
+            config(),
+        )
+        .expect("an index always encodes");
+    }
     match (&index.metric, index.unknown) {
         (None, None) => bincode::serde::encode_to_vec(index, config()),
         (Some(m), None) => bincode::serde::encode_to_vec((index, m), config()),
@@ -95,6 +104,9 @@ pub(crate) fn payload(index: &Index) -> Vec<u8> {
 }
 
 fn version_of(index: &Index) -> u32 {
+    if index.features != Features::Encoder {
+        return 4;
+    }
     match (&index.metric, index.unknown) {
         (None, None) => 1,
         (Some(_), None) => 2,
@@ -181,6 +193,15 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
             let ((mut index, metric), used): ((Index, Metric), usize) =
                 bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
             index.metric = Some(metric);
+            (index, used)
+        }
+        4 => {
+            type V4 = (Index, Option<Metric>, Option<UnknownDistance>, Features);
+            let ((mut index, metric, unknown, features), used): (V4, usize) =
+                bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
+            index.metric = metric;
+            index.unknown = unknown;
+            index.features = features;
             (index, used)
         }
         _ => {

@@ -28,6 +28,7 @@ pub use file::{from_bytes, to_bytes, IndexError, FORMAT_VERSION, MAGIC};
 pub use map::MapLayout;
 pub use metric::Metric;
 pub use select::{Coverage, SelectionMethod};
+// `Features` and `LBP_DIM` are defined below.
 pub use vecmath::{distance, l2_normalise};
 
 use serde::{Deserialize, Serialize};
@@ -99,6 +100,52 @@ pub struct Index {
     /// default. File format version 3, encoded after the rest.
     #[serde(skip)]
     pub unknown: Option<UnknownDistance>,
+    /// What a query is made of ([`Features`]); the encoder's embedding
+    /// alone unless the index says otherwise (file format version 4,
+    /// encoded after the rest).
+    #[serde(skip)]
+    pub features: Features,
+}
+
+/// What an index's query vectors are made of, which every daemon holding
+/// the index computes the same way (the sender streams them as latents):
+/// the encoder's embedding alone, or beside it the texture features of
+/// the same preprocessed frame minus its reference
+/// (`telextiles_sensing::texture`), each part of unit length and the whole
+/// scaled to unit length.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Features {
+    /// The encoder's embedding alone.
+    #[default]
+    Encoder,
+    /// The encoder's embedding, then rotation-invariant LBP histograms
+    /// ([`LBP_DIM`] values).
+    EncoderLbp,
+}
+
+/// Values the LBP texture features add to a query
+/// (`telextiles_sensing::texture::LBP_DIM`, which is tested equal).
+pub const LBP_DIM: usize = 28;
+
+impl Features {
+    /// Every kind, simplest first.
+    pub const ALL: [Features; 2] = [Features::Encoder, Features::EncoderLbp];
+
+    /// Values added to the encoder's embedding.
+    pub fn extra_dim(self) -> usize {
+        match self {
+            Features::Encoder => 0,
+            Features::EncoderLbp => LBP_DIM,
+        }
+    }
+
+    /// In words.
+    pub fn label(self) -> &'static str {
+        match self {
+            Features::Encoder => "encoder",
+            Features::EncoderLbp => "encoder + LBP",
+        }
+    }
 }
 
 /// An unknown-textile distance calibrated on an index's presses.
@@ -246,8 +293,12 @@ impl Index {
         if self.entries.is_empty() {
             return bad("the index has no textiles".into());
         }
-        if self.dim == 0 {
-            return bad("embedding dimension is 0".into());
+        if self.dim <= self.features.extra_dim() {
+            return bad(format!(
+                "embedding dimension {} leaves nothing of the encoder's beside {} features",
+                self.dim,
+                self.features.label()
+            ));
         }
         for e in &self.entries {
             if e.centroid.len() != self.dim || e.exemplars.iter().any(|x| x.len() != self.dim) {

@@ -33,51 +33,158 @@ pub struct Metric {
     pub shrinkage: f32,
 }
 
+/// Sums of a set of vectors, each L2-normalised first (one press's
+/// frames, or a press's mean): how many, their sum and the sum of their
+/// outer products. What a within-fabric scatter is made of: summing the
+/// moments of a fabric's presses gives the fabric's, so cross-validation
+/// over whole presses never goes back to the frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Moments {
+    /// Vectors summed.
+    pub n: usize,
+    /// Σ x (length `dim`).
+    pub sum: Vec<f64>,
+    /// Σ x xᵀ (`dim` x `dim`, row-major).
+    pub outer: Vec<f64>,
+}
+
+impl Moments {
+    /// No vectors yet, of dimension `dim`.
+    pub fn zero(dim: usize) -> Moments {
+        Moments {
+            n: 0,
+            sum: vec![0.0; dim],
+            outer: vec![0.0; dim * dim],
+        }
+    }
+
+    /// The moments of `vectors`, each normalised. None when one is of
+    /// another dimension, not finite or of zero length.
+    pub fn of<'a>(vectors: impl IntoIterator<Item = &'a [f32]>, dim: usize) -> Option<Moments> {
+        let mut m = Moments::zero(dim);
+        for v in vectors {
+            if v.len() != dim || v.iter().any(|x| !x.is_finite()) {
+                return None;
+            }
+            let u = unit_f64(v);
+            if u.iter().all(|&x| x == 0.0) {
+                return None;
+            }
+            for i in 0..dim {
+                m.sum[i] += u[i];
+                let row = &mut m.outer[i * dim..(i + 1) * dim];
+                for (o, uj) in row.iter_mut().zip(&u) {
+                    *o += u[i] * uj;
+                }
+            }
+            m.n += 1;
+        }
+        Some(m)
+    }
+
+    /// Add another set's moments (of the same dimension).
+    pub fn add(&mut self, other: &Moments) {
+        self.n += other.n;
+        self.sum
+            .iter_mut()
+            .zip(&other.sum)
+            .for_each(|(a, b)| *a += b);
+        self.outer
+            .iter_mut()
+            .zip(&other.outer)
+            .for_each(|(a, b)| *a += b);
+    }
+}
+
+/// How much a fitted metric is shrunk towards the identity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shrinkage {
+    /// This much (0..=1).
+    Fixed(f32),
+    /// As much as the Ledoit–Wolf estimate says the data need: the
+    /// shrinkage that minimises the expected squared error of the
+    /// covariance, estimated from the vectors themselves (scikit-learn's
+    /// `ledoit_wolf_shrinkage`, on the deviations from each fabric's mean).
+    LedoitWolf,
+}
+
 impl Metric {
     /// Within-fabric whitening from each fabric's press embeddings (any
     /// length; normalised here). None when no fabric has two presses (there
     /// is nothing to learn from), when the shrinkage is outside 0..=1, or
     /// when a vector is of another dimension or not finite.
     pub fn within_fabric(fabrics: &[Vec<Vec<f32>>], dim: usize, shrinkage: f32) -> Option<Metric> {
-        if dim == 0 || !(0.0..=1.0).contains(&shrinkage) {
+        let mut moments = Vec::with_capacity(fabrics.len());
+        let mut presses = 0;
+        for f in fabrics {
+            let m = Moments::of(f.iter().map(Vec::as_slice), dim)?;
+            if m.n >= 2 {
+                presses += m.n;
+            }
+            moments.push(m);
+        }
+        Metric::from_moments(&moments, dim, Shrinkage::Fixed(shrinkage), presses)
+    }
+
+    /// Within-fabric whitening from each fabric's [`Moments`] (of its press
+    /// means, or of every frame of its presses): the scatter of each
+    /// fabric's vectors about their own mean, pooled over the fabrics with
+    /// two vectors or more, scaled to unit mean variance and shrunk towards
+    /// the identity. `presses` is recorded as what the metric came from.
+    /// None when no fabric has two vectors, the shrinkage is outside 0..=1,
+    /// a fabric's moments are of another dimension, or the shrunk scatter
+    /// has no inverse (vectors that agree exactly, no shrinkage).
+    pub fn from_moments(
+        fabrics: &[Moments],
+        dim: usize,
+        shrinkage: Shrinkage,
+        presses: usize,
+    ) -> Option<Metric> {
+        if dim == 0 {
             return None;
         }
-        let mut cov = vec![0.0f64; dim * dim];
-        let (mut dof, mut presses, mut used) = (0usize, 0usize, 0usize);
-        for presses_of in fabrics {
-            if presses_of
-                .iter()
-                .any(|v| v.len() != dim || v.iter().any(|x| !x.is_finite()))
-            {
+        if let Shrinkage::Fixed(a) = shrinkage {
+            if !(0.0..=1.0).contains(&a) {
                 return None;
             }
-            if presses_of.len() < 2 {
+        }
+        let mut cov = vec![0.0f64; dim * dim];
+        let (mut rows, mut used, mut fourth) = (0usize, 0usize, 0.0f64);
+        for f in fabrics {
+            if f.sum.len() != dim || f.outer.len() != dim * dim {
+                return None;
+            }
+            if f.n < 2 {
                 continue;
             }
-            let rows: Vec<Vec<f64>> = presses_of.iter().map(|v| unit_f64(v)).collect();
-            let mut mean = vec![0.0f64; dim];
-            for r in &rows {
-                for (m, x) in mean.iter_mut().zip(r) {
-                    *m += x / rows.len() as f64;
+            let n = f.n as f64;
+            let mu: Vec<f64> = f.sum.iter().map(|s| s / n).collect();
+            for i in 0..dim {
+                for j in 0..dim {
+                    cov[i * dim + j] += f.outer[i * dim + j] - n * mu[i] * mu[j];
                 }
             }
-            for r in &rows {
-                let d: Vec<f64> = r.iter().zip(&mean).map(|(x, m)| x - m).collect();
-                for i in 0..dim {
-                    for j in 0..dim {
-                        cov[i * dim + j] += d[i] * d[j];
-                    }
-                }
+            // Σ_k |x_k - μ|⁴ from the moments (|x_k| = 1):
+            // |x_k - μ|² = c - 2 x_k·μ with c = 1 + |μ|².
+            let c = 1.0 + mu.iter().map(|m| m * m).sum::<f64>();
+            let s_mu: f64 = f.sum.iter().zip(&mu).map(|(s, m)| s * m).sum();
+            let mut q_mu = 0.0;
+            for i in 0..dim {
+                let row: f64 = (0..dim).map(|j| f.outer[i * dim + j] * mu[j]).sum();
+                q_mu += mu[i] * row;
             }
-            dof += rows.len() - 1;
-            presses += rows.len();
+            fourth += (n * c * c - 4.0 * c * s_mu + 4.0 * q_mu).max(0.0);
+            rows += f.n;
             used += 1;
         }
-        if dof == 0 {
+        if used == 0 {
             return None;
         }
         let trace: f64 = (0..dim).map(|i| cov[i * dim + i]).sum();
-        let a = shrinkage as f64;
+        let a = match shrinkage {
+            Shrinkage::Fixed(a) => a as f64,
+            Shrinkage::LedoitWolf => ledoit_wolf(&cov, dim, rows, fourth, trace),
+        };
         let scale = if trace > 0.0 {
             (1.0 - a) * dim as f64 / trace
         } else {
@@ -106,7 +213,7 @@ impl Metric {
             matrix,
             presses,
             fabrics: used,
-            shrinkage,
+            shrinkage: a as f32,
         })
     }
 
@@ -171,6 +278,30 @@ impl Metric {
             && self.matrix.iter().all(|x| x.is_finite())
             && (0.0..=1.0).contains(&self.shrinkage)
     }
+}
+
+/// The Ledoit–Wolf shrinkage (0..=1) of the scatter `cov` (the sum of
+/// `rows` deviations' outer products, trace `trace`; `fourth` = Σ |d|⁴ of
+/// the deviations), as scikit-learn's `ledoit_wolf_shrinkage` computes it
+/// for centred data: with `S = cov / rows` and `μ = tr S / p`,
+/// `δ = |S - μI|²_F / p`, `β = (Σ|d|⁴ / rows - |S|²_F) / (p · rows)`, and the
+/// shrinkage `min(β, δ) / δ`. Frames of one press are not independent
+/// draws, so this tends to shrink too little; the index's choice among fits
+/// ([`crate::build::MetricFit`]) is made on whole presses left out.
+fn ledoit_wolf(cov: &[f64], dim: usize, rows: usize, fourth: f64, trace: f64) -> f64 {
+    if rows == 0 || trace <= 0.0 {
+        return 1.0;
+    }
+    let (n, p) = (rows as f64, dim as f64);
+    let s2: f64 = cov.iter().map(|c| (c / n) * (c / n)).sum();
+    let tr = trace / n;
+    let mu = tr / p;
+    let delta = (s2 - 2.0 * mu * tr + p * mu * mu) / p;
+    if delta.is_nan() || delta <= 0.0 {
+        return 1.0;
+    }
+    let beta = ((fourth / n - s2) / (p * n)).clamp(0.0, delta);
+    (beta / delta).clamp(0.0, 1.0)
 }
 
 fn unit_f64(v: &[f32]) -> Vec<f64> {
@@ -321,5 +452,49 @@ mod tests {
             Metric::within_fabric(&[vec![v(&[1.0, 0.0]), v(&[f32::NAN, 0.0])]], 2, 0.5).is_none()
         );
         assert!(Metric::within_fabric(&[vec![v(&[1.0, 0.0]), v(&[1.0])]], 2, 0.5).is_none());
+    }
+
+    #[test]
+    fn ledoit_wolf_shrinkage_is_scikit_learns() {
+        // Two fabrics' vectors (normalised here); scikit-learn 1.x on the
+        // deviations from each fabric's mean:
+        // ledoit_wolf_shrinkage(D, assume_centered=True) = 0.20636690752737308.
+        let fabrics = [
+            vec![
+                v(&[1.0, 0.2, 0.5, 0.1]),
+                v(&[0.9, 0.3, -0.4, 0.0]),
+                v(&[1.1, 0.1, 0.2, -0.2]),
+                v(&[1.0, 0.25, -0.1, 0.3]),
+            ],
+            vec![
+                v(&[0.1, 1.0, 0.45, 0.2]),
+                v(&[0.2, 0.9, -0.55, -0.1]),
+                v(&[0.0, 1.1, 0.1, 0.0]),
+            ],
+        ];
+        let moments: Vec<Moments> = fabrics
+            .iter()
+            .map(|f| Moments::of(f.iter().map(Vec::as_slice), 4).unwrap())
+            .collect();
+        let m = Metric::from_moments(&moments, 4, Shrinkage::LedoitWolf, 7).unwrap();
+        assert!((m.shrinkage - 0.206_366_9).abs() < 1e-5, "{}", m.shrinkage);
+        assert_eq!((m.presses, m.fabrics), (7, 2));
+        // The same scatter at that shrinkage, fixed, is the same metric.
+        let fixed = Metric::from_moments(&moments, 4, Shrinkage::Fixed(m.shrinkage), 7).unwrap();
+        for (a, b) in m.matrix.iter().zip(&fixed.matrix) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        // Moments add up: two halves of a fabric are the fabric.
+        let mut half = Moments::of(fabrics[0][..2].iter().map(Vec::as_slice), 4).unwrap();
+        half.add(&Moments::of(fabrics[0][2..].iter().map(Vec::as_slice), 4).unwrap());
+        assert_eq!(half.n, moments[0].n);
+        for (a, b) in half.outer.iter().zip(&moments[0].outer) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        // Bad vectors are refused, not a NaN matrix.
+        assert!(Moments::of([&[1.0, f32::NAN, 0.0, 0.0][..]], 4).is_none());
+        assert!(Moments::of([&[0.0; 4][..]], 4).is_none());
+        assert!(Moments::of([&[1.0; 3][..]], 4).is_none());
+        assert!(Metric::from_moments(&moments, 3, Shrinkage::LedoitWolf, 7).is_none());
     }
 }

@@ -28,6 +28,7 @@ fn clustered(clusters: usize, per: usize, seed: u64) -> Vec<TextileRecord> {
                 attributes: vec![("roughness".into(), c as f32 / clusters as f32)],
                 embeddings,
                 exemplars: vec![],
+                press_frames: vec![],
             });
         }
     }
@@ -292,6 +293,7 @@ fn nuisance_records() -> Vec<TextileRecord> {
                 attributes: vec![],
                 embeddings: presses.clone(),
                 exemplars: presses,
+                press_frames: vec![],
             }
         })
         .collect()
@@ -313,7 +315,7 @@ fn nuisance_builder(shrinkage: Option<f32>, quantile: Option<f32>) -> IndexBuild
     }
     b.roller_n = 4;
     b.keep_exemplars = false;
-    b.metric_shrinkage = shrinkage;
+    b.metric = telextiles_index::build::MetricFit::press_means(shrinkage);
     b.unknown_quantile = quantile;
     b
 }
@@ -506,4 +508,213 @@ fn the_shipped_version_1_index_still_reads_and_encodes_byte_for_byte() {
     let index = Index::read(&path).unwrap();
     assert!(index.metric.is_none());
     assert_eq!(telextiles_index::to_bytes(&index), bytes);
+}
+
+/// Fabrics `0..n` that differ a little along their own axis, pressed
+/// `presses` times with `frames` frames each; every frame wanders far
+/// along `NUISANCE_AXES` more axes (a nuisance: another place on the
+/// cloth, the gel's tilt), each press around its own offset there.
+fn nuisance_frames(
+    n: usize,
+    presses: usize,
+    frames: usize,
+    nuisance: f32,
+    seed: u64,
+) -> Vec<TextileRecord> {
+    let dim = n + NUISANCE_AXES;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|t| {
+            let press_frames: Vec<Vec<Vec<f32>>> = (0..presses)
+                .map(|_| {
+                    let offset: Vec<f32> = (0..NUISANCE_AXES)
+                        .map(|k| rng.gen_range(-1.0..1.0) / (1.0 + k as f32 / 4.0))
+                        .collect();
+                    (0..frames)
+                        .map(|_| {
+                            let mut v = vec![1.0f32; dim];
+                            v[t] += 0.35;
+                            for x in v.iter_mut().take(n) {
+                                *x += rng.gen_range(-0.04..0.04);
+                            }
+                            for (k, o) in offset.iter().enumerate() {
+                                v[n + k] = nuisance * (o + rng.gen_range(-1.0..1.0));
+                            }
+                            v
+                        })
+                        .collect()
+                })
+                .collect();
+            let means: Vec<Vec<f32>> = press_frames
+                .iter()
+                .map(|f| {
+                    let mut m = vec![0.0f32; dim];
+                    for v in f {
+                        m.iter_mut().zip(v).for_each(|(a, b)| *a += b);
+                    }
+                    m
+                })
+                .collect();
+            TextileRecord {
+                id: format!("F{t}"),
+                name: format!("fabric {t}"),
+                seen: true,
+                structure: String::new(),
+                attributes: vec![],
+                embeddings: press_frames.iter().flatten().cloned().collect(),
+                exemplars: means,
+                press_frames,
+            }
+        })
+        .collect()
+}
+
+/// Axes the frames of [`nuisance_frames`] wander along.
+const NUISANCE_AXES: usize = 16;
+
+fn auto_report(records: Vec<TextileRecord>) -> telextiles_index::build::BuildReport {
+    let dim = records[0].embeddings[0].len();
+    let mut b = IndexBuilder::new("abc123", "test", dim, 0);
+    for r in records {
+        b.add(r).unwrap();
+    }
+    b.roller_n = 4;
+    b.metric = telextiles_index::build::MetricFit::Auto;
+    b.unknown_quantile = Some(0.9);
+    b.build_report().unwrap()
+}
+
+#[test]
+fn a_metric_fitted_on_every_frame_learns_what_three_press_means_cannot() {
+    use telextiles_index::build::MetricFit;
+    // Eight fabrics, three presses each: 16 degrees of freedom of press
+    // means for a 24-d covariance, but 240 frames.
+    let r = auto_report(nuisance_frames(8, 3, 10, 0.6, 1));
+    assert_eq!(r.fits.len(), MetricFit::CANDIDATES.len());
+    let right: Vec<usize> = r.fits.iter().map(|f| f.right()).collect();
+    let cosine = right[0];
+    let frames_lw = right[2];
+    assert!(frames_lw > cosine + 3, "{right:?}");
+    assert!(frames_lw > right[1] + 4, "{right:?}");
+    // The chosen fit is the best, and the index carries its metric.
+    assert_eq!(right[r.chosen], *right.iter().max().unwrap(), "{right:?}");
+    assert!(
+        matches!(r.fits[r.chosen].fit, MetricFit::Frames(_)),
+        "{right:?}"
+    );
+    let m = r.index.metric.as_ref().expect("a frames fit");
+    assert_eq!((m.presses, m.fabrics), (24, 8));
+    // Its left-out presses are the index's self-check and calibrate its
+    // unknown distance.
+    assert_eq!(r.left.len(), 24);
+    assert_eq!(
+        r.left.iter().filter(|l| l.decided == l.fabric).count(),
+        right[r.chosen]
+    );
+    assert!(r.index.unknown.is_some());
+    // The Ledoit-Wolf fit chose its own shrinkage from the frames.
+    let lw = MetricFit::Frames(None)
+        .fit(
+            &telextiles_index::build::press_data(
+                &nuisance_frames(8, 3, 10, 0.6, 1)
+                    .into_iter()
+                    .map(|r| (r.exemplars, r.press_frames))
+                    .collect::<Vec<_>>(),
+                24,
+            )
+            .iter()
+            .map(|f| f.iter().collect())
+            .collect::<Vec<_>>(),
+            24,
+        )
+        .unwrap();
+    assert!(lw.shrinkage > 0.0 && lw.shrinkage < 0.5, "{}", lw.shrinkage);
+}
+
+#[test]
+fn the_fit_chosen_on_the_presses_is_never_behind_plain_cosine_on_them() {
+    use telextiles_index::build::MetricFit;
+    // With no nuisance at all there is nothing for a fit to learn; with
+    // one, there is. Either way the choice is at least as right as cosine
+    // on the presses left out, and cosine when nothing beats it.
+    for (seed, nuisance) in [(2, 0.0), (3, 0.05), (4, 0.3), (5, 1.0)] {
+        let r = auto_report(nuisance_frames(6, 3, 6, nuisance, seed));
+        let right: Vec<usize> = r.fits.iter().map(|f| f.right()).collect();
+        assert!(right[r.chosen] >= right[0], "{seed}: {right:?}");
+        if right.iter().all(|&x| x <= right[0]) {
+            assert_eq!(r.fits[r.chosen].fit, MetricFit::Cosine, "{right:?}");
+            assert!(r.index.metric.is_none());
+        }
+    }
+}
+
+#[test]
+fn frames_must_match_the_presses_they_belong_to() {
+    let mut records = nuisance_frames(4, 3, 4, 0.5, 6);
+    records[1].press_frames.pop();
+    let mut b = IndexBuilder::new("abc123", "test", 4 + NUISANCE_AXES, 0);
+    let mut refused = None;
+    for r in records {
+        if let Err(e) = b.add(r) {
+            refused = Some(e.to_string());
+        }
+    }
+    let e = refused.expect("two frame lists for three presses");
+    assert!(e.contains("frames of 2 presses for 3 press means"), "{e}");
+    // A shrinkage outside 0..=1 is refused by name.
+    let mut b = IndexBuilder::new("abc123", "test", 4 + NUISANCE_AXES, 0);
+    for r in nuisance_frames(4, 3, 4, 0.5, 6) {
+        b.add(r).unwrap();
+    }
+    b.roller_n = 4;
+    b.metric = telextiles_index::build::MetricFit::Frames(Some(1.5));
+    let e = b.build().unwrap_err().to_string();
+    assert!(e.contains("shrinkage 1.5 is outside 0..=1"), "{e}");
+}
+
+#[test]
+fn an_index_of_texture_features_is_format_version_4_and_says_so() {
+    use telextiles_index::Features;
+    let dim = 40;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    let mut b = IndexBuilder::new("abc123", "test", dim, 0);
+    for t in 0..3 {
+        let v = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f32> {
+            (0..dim)
+                .map(|k| f32::from(k == t) + rng.gen_range(-0.1..0.1))
+                .collect()
+        };
+        let presses: Vec<Vec<f32>> = (0..3).map(|_| v(&mut rng)).collect();
+        b.add(TextileRecord {
+            id: format!("F{t}"),
+            name: format!("fabric {t}"),
+            seen: true,
+            structure: String::new(),
+            attributes: vec![],
+            embeddings: presses.clone(),
+            exemplars: presses,
+            press_frames: vec![],
+        })
+        .unwrap();
+    }
+    b.roller_n = 3;
+    b.features = Features::EncoderLbp;
+    let index = b.build().unwrap();
+    assert_eq!(index.features, Features::EncoderLbp);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lbp.tlxi");
+    index.write(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(u32::from_le_bytes(bytes[4..8].try_into().unwrap()), 4);
+    let back = Index::read(&path).unwrap();
+    assert_eq!(back, index);
+    // The features are part of what peers compare.
+    let mut plain = index.clone();
+    plain.features = Features::Encoder;
+    assert_ne!(plain.fingerprint(), index.fingerprint());
+    // An index too narrow to hold the texture features beside an
+    // encoder's embedding is refused, on write and on read.
+    let mut narrow = nuisance_index(None).unwrap();
+    narrow.features = Features::EncoderLbp;
+    refused_on_write_and_read(&narrow, dir.path(), "leaves nothing of the encoder's");
 }
