@@ -35,8 +35,10 @@ fn replayed_presses_resolve_through_an_index_file() {
     b.roller_n = 4;
     for id in TEXTILES {
         let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
-        let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
-        let embeddings = p.frames[hold..]
+        // Every frame from first contact on, as `index build` takes a
+        // press.
+        let contact = p.meta.params.as_ref().unwrap().contact_frame as usize;
+        let embeddings = p.frames[contact..]
             .iter()
             .map(|f| enc.encode(f).unwrap().to_vec())
             .collect();
@@ -48,6 +50,7 @@ fn replayed_presses_resolve_through_an_index_file() {
             attributes: Vec::new(),
             embeddings,
             exemplars: Vec::new(),
+            press_frames: Vec::new(),
         })
         .unwrap();
     }
@@ -107,6 +110,7 @@ fn an_index_for_another_dimension_is_refused() {
             attributes: Vec::new(),
             embeddings: vec![v],
             exemplars: Vec::new(),
+            press_frames: Vec::new(),
         })
         .unwrap();
     }

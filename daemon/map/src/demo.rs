@@ -283,6 +283,7 @@ pub fn catalogue_index(
                 .collect(),
             embeddings,
             exemplars: Vec::new(),
+            press_frames: Vec::new(),
         })?;
     }
     builder.build()

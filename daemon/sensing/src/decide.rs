@@ -23,6 +23,11 @@
 //! `unknown_distance`) is reported as its nearest known textile with
 //! `unknown = true`.
 //!
+//! The press's final decision ([`Decider::press_end`]) is the textile
+//! nearest the whole press's mean, whatever the switching rule held last:
+//! the receiving daemon decides a press's end the same way from the
+//! sender's final latent.
+//!
 //! Confidence is `(d2 - d1) / d2` in 0..=1, where `d1` is the distance to
 //! the decided textile and `d2` to the nearest other one: 0 for a tie, 1 for
 //! an exact match.
@@ -65,6 +70,11 @@ pub trait TextileIndex {
     /// otherwise.
     fn unknown_distance(&self) -> Option<f32> {
         None
+    }
+    /// What a query is made of (the encoder's embedding alone unless the
+    /// index says otherwise): [`crate::encoder::Encoder::set_features`].
+    fn features(&self) -> telextiles_index::Features {
+        telextiles_index::Features::Encoder
     }
     /// Nearest and second-nearest entries; None for a query of another
     /// dimension, a non-finite one, or an empty index.
@@ -110,6 +120,9 @@ impl TextileIndex for telextiles_index::Index {
     }
     fn unknown_distance(&self) -> Option<f32> {
         telextiles_index::Index::unknown_distance(self)
+    }
+    fn features(&self) -> telextiles_index::Features {
+        self.features
     }
     fn nearest2(&self, q: &[f32]) -> Option<Nearest2> {
         self.nearest(q).map(|n| Nearest2 {
@@ -451,7 +464,8 @@ pub struct PressOutcome {
     pub start_us: u64,
     /// Press end timestamp.
     pub end_us: u64,
-    /// Final decision (None if the press was too short to decide).
+    /// Final decision: the textile nearest the whole press's mean (None
+    /// only for a press with no embedding).
     pub decision: Option<Decision>,
     /// Timestamp of the first decision.
     pub first_decision_us: Option<u64>,
@@ -460,7 +474,8 @@ pub struct PressOutcome {
     pub first_entry: Option<usize>,
     /// Timestamp of the last change of decision.
     pub stable_since_us: Option<u64>,
-    /// How many times the decision changed after the first one.
+    /// How many times the decision changed after the first one (the
+    /// press's end counts when its final textile is not the one held).
     pub switches: u32,
     /// Embeddings seen.
     pub frames: u32,
@@ -540,6 +555,12 @@ impl Decider {
     /// The decision so far in this press.
     pub fn current(&self) -> Option<Decision> {
         self.current
+    }
+
+    /// Changes of decision so far in this press, after the first (the
+    /// switching rule's; [`Decider::press_end`] may add the press's end).
+    pub fn switches(&self) -> u32 {
+        self.switches
     }
 
     /// The running mean (L2-normalised) of this press's embeddings.
@@ -736,12 +757,42 @@ impl Decider {
         }
     }
 
-    /// End the press; returns its outcome (None if no press was in progress).
-    pub fn press_end(&mut self, t_us: u64) -> Option<PressOutcome> {
+    /// End the press; returns its outcome (None if no press was in
+    /// progress). The press's final decision is the textile nearest the
+    /// mean of the whole press, whatever the switching rule still held:
+    /// the answer the receiving daemon gives from the sender's final
+    /// latent, so `classify`, the lab and a live pair end every press
+    /// alike. A final textile other than the one held counts as a change
+    /// (made at `t_us`); a press that ended before its first decision is
+    /// decided then, from every frame it had.
+    pub fn press_end<I: TextileIndex + ?Sized>(
+        &mut self,
+        index: &I,
+        t_us: u64,
+    ) -> Option<PressOutcome> {
         if !self.in_press {
             return None;
         }
         self.in_press = false;
+        let nearest = (self.frames > 0)
+            .then(|| index.nearest2(&self.mean))
+            .flatten();
+        if let Some(n) = nearest {
+            match self.current {
+                Some(cur) if cur.entry == n.best => {
+                    self.current = Some(self.make(index, cur.entry, cur.since_us, &n));
+                }
+                Some(_) => {
+                    self.current = Some(self.make(index, n.best, t_us, &n));
+                    self.switches += 1;
+                }
+                None => {
+                    self.current = Some(self.make(index, n.best, t_us, &n));
+                    self.first_decision_us = Some(t_us);
+                    self.first_entry = Some(n.best);
+                }
+            }
+        }
         Some(PressOutcome {
             start_us: self.start_us,
             end_us: t_us,

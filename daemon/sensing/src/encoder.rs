@@ -30,6 +30,7 @@ use sha2::{Digest, Sha256};
 
 use crate::frame::Frame;
 use crate::preprocess::{PreprocessSpec, Preprocessor};
+use telextiles_index::Features;
 
 /// Where ONNX Runtime is loaded from when `ORT_DYLIB_PATH` is not set.
 pub const DEFAULT_ORT_LIBRARY: &str = "/usr/local/lib/libonnxruntime.so.1.31.1";
@@ -156,6 +157,10 @@ pub struct Encoder {
     subtract: bool,
     /// The preprocessed no-contact reference (subtracting models).
     reference: Option<Vec<f32>>,
+    /// What an embedding is made of beside the model's output (the
+    /// index's [`Features`]), and the texture features' state.
+    features: Features,
+    texture: Option<crate::texture::Lbp>,
 }
 
 fn contract(path: &Path, msg: impl Into<String>) -> EncoderError {
@@ -343,6 +348,8 @@ impl Encoder {
             info,
             subtract,
             reference: None,
+            features: Features::Encoder,
+            texture: None,
         };
         // Dry run: shape and finiteness of the output, before any frame (a
         // subtracting model sees a blank frame against a blank reference). A
@@ -386,9 +393,31 @@ impl Encoder {
         &self.info
     }
 
-    /// Embedding dimension.
+    /// Embedding dimension: the model's, plus the texture features' when
+    /// the index asks for them ([`Encoder::set_features`]).
     pub fn dim(&self) -> usize {
-        self.info.dim
+        self.info.dim + self.features.extra_dim()
+    }
+
+    /// Make embeddings of `features` (the index's, which every daemon
+    /// holding it computes alike): the model's output alone, or beside it
+    /// the texture features of the same preprocessed input
+    /// ([`crate::texture`]), each part of unit length and the whole scaled
+    /// to unit length. Changes [`Encoder::dim`].
+    pub fn set_features(&mut self, features: Features) {
+        self.features = features;
+        self.texture = match features {
+            Features::Encoder => None,
+            Features::EncoderLbp => {
+                Some(crate::texture::Lbp::new(self.info.preprocess.size as usize))
+            }
+        };
+        self.embedding.resize(self.dim(), 0.0);
+    }
+
+    /// What an embedding is made of ([`Encoder::set_features`]).
+    pub fn features(&self) -> Features {
+        self.features
     }
 
     /// Whether the model takes the frame minus the no-contact reference.
@@ -464,8 +493,21 @@ impl Encoder {
                 "the embedding has norm {norm}"
             )));
         }
-        for (o, v) in self.embedding.iter_mut().zip(data) {
+        let d = self.info.dim;
+        for (o, v) in self.embedding[..d].iter_mut().zip(data) {
             *o = v / norm;
+        }
+        if let Some(lbp) = &mut self.texture {
+            let (_, input) = self.input.extract_tensor();
+            if !lbp.features(input, 3, &mut self.embedding[d..]) {
+                return Err(EncoderError::Inference(
+                    "the texture features of the preprocessed frame are not finite".into(),
+                ));
+            }
+            // Both parts are of unit length: the whole is too after this.
+            self.embedding
+                .iter_mut()
+                .for_each(|v| *v *= std::f32::consts::FRAC_1_SQRT_2);
         }
         Ok(&self.embedding)
     }

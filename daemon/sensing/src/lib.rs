@@ -12,3 +12,4 @@ pub mod pipeline;
 pub mod preprocess;
 pub mod record;
 pub mod source;
+pub mod texture;

@@ -169,11 +169,13 @@ impl<I: TextileIndex> Pipeline<I> {
     /// [`crate::front::recording_reference`]), else the first frames are
     /// captured as one.
     pub fn new(
-        encoder: Encoder,
+        mut encoder: Encoder,
         index: I,
         cfg: PipelineConfig,
         reference: Option<&[f32]>,
     ) -> Result<Pipeline<I>, String> {
+        // Queries are made of what the index says (its texture features).
+        encoder.set_features(index.features());
         if index.dim() != encoder.dim() {
             return Err(format!(
                 "the index holds {}-d embeddings but the encoder {} produces {}-d ones (built for another encoder?)",
@@ -245,7 +247,10 @@ impl<I: TextileIndex> Pipeline<I> {
         match c.event {
             Some(ContactEvent::PressStart { t_us }) => self.decider.press_start(t_us),
             Some(ContactEvent::PressEnd { t_us, reason, .. }) => {
-                ended = self.decider.press_end(t_us).map(|o| (o, reason));
+                ended = self
+                    .decider
+                    .press_end(&self.index, t_us)
+                    .map(|o| (o, reason));
             }
             _ => {}
         }
@@ -294,7 +299,7 @@ impl<I: TextileIndex> Pipeline<I> {
     /// The contact detector keeps its reference but forgets the contact.
     pub fn finish(&mut self, t_us: u64) -> Option<PressOutcome> {
         self.front.end_of_frames();
-        self.decider.press_end(t_us)
+        self.decider.press_end(&self.index, t_us)
     }
 }
 

@@ -529,7 +529,7 @@ fn no_decision_outside_a_press() {
     for k in 0..50 {
         assert_eq!(d.on_embedding(&idx, k * P, &a).unwrap().decision, None);
     }
-    assert_eq!(d.press_end(60 * P), None);
+    assert_eq!(d.press_end(&idx, 60 * P), None);
     d.press_start(100 * P);
     let mut first = None;
     for k in 100..130 {
@@ -543,7 +543,7 @@ fn no_decision_outside_a_press() {
     // from frame 100 to 103 at 60 fps).
     assert_eq!(cfg.min_ms, 0.0);
     assert_eq!(first, Some(103));
-    let out = d.press_end(130 * P).unwrap();
+    let out = d.press_end(&idx, 130 * P).unwrap();
     assert_eq!(
         (out.first_decision_us, out.switches),
         (first.map(|k| k * P), 0)
@@ -703,7 +703,7 @@ fn noisy_press(cfg: DecideConfig) -> (Vec<u64>, PressOutcome) {
             changes.push(t);
         }
     }
-    (changes, d.press_end(600).unwrap())
+    (changes, d.press_end(&idx, 600).unwrap())
 }
 
 #[test]
@@ -756,7 +756,7 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     let t = switched_at.expect("switched");
     assert!(t > 40 && t <= 60, "switched at {t}");
     // The outcome keeps where the press went first, and where it ended.
-    let o = d.press_end(201 * 16_667).unwrap();
+    let o = d.press_end(&idx, 201 * 16_667).unwrap();
     let id = |e: Option<usize>| e.map(|e| idx.id(e));
     assert_eq!(
         (
@@ -768,7 +768,7 @@ fn a_real_change_of_textile_switches_after_k_frames() {
     );
     // A new press forgets it.
     d.press_start(300 * 16_667);
-    assert_eq!(d.press_end(301 * 16_667).unwrap().first_entry, None);
+    assert_eq!(d.press_end(&idx, 301 * 16_667).unwrap().first_entry, None);
 }
 
 /// A press on A for 20 frames, then C, then B: the frames (60 fps) of
@@ -818,7 +818,7 @@ fn each_change_of_decision_makes_the_next_wait_longer_by_the_backoff() {
     // After two changes a third would wait 16 x 117 ms; a new press starts
     // over at 117 ms.
     assert_eq!(d.switch_wait_ms(), 16.0 * 117.0);
-    d.press_end(400 * 16_667);
+    d.press_end(&toy_index(), 400 * 16_667);
     d.press_start(500 * 16_667);
     assert_eq!(d.switch_wait_ms(), 117.0);
     // Infinite backoff: one change per press, then never again.
@@ -864,6 +864,7 @@ fn the_index_s_own_unknown_distance_overrides_the_fixed_one() {
             attributes: vec![],
             embeddings: vec![v],
             exemplars: vec![],
+            press_frames: Vec::new(),
         })
         .unwrap();
     }

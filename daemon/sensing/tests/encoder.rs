@@ -85,6 +85,48 @@ fn embeddings_are_normalised_deterministic_and_depend_on_the_frame() {
 }
 
 #[test]
+fn texture_features_join_the_embedding_as_the_index_asks() {
+    use telextiles_index::Features;
+    let sim = common::sim();
+    let mut enc = common::fixture_encoder();
+    let a = sim
+        .render_frame(&telextiles_sim::PressSpec::new("T030", 1), 100)
+        .unwrap();
+    let b = sim
+        .render_frame(&telextiles_sim::PressSpec::new("T110", 1), 100)
+        .unwrap();
+    let plain = enc.encode(&a).unwrap().to_vec();
+    assert_eq!(enc.features(), Features::Encoder);
+    enc.set_features(Features::EncoderLbp);
+    assert_eq!(enc.dim(), 64 + telextiles_sensing::texture::LBP_DIM);
+    assert_eq!(enc.info().dim, 64);
+    let ea = enc.encode(&a).unwrap().to_vec();
+    let eb = enc.encode(&b).unwrap().to_vec();
+    assert_eq!(ea.len(), enc.dim());
+    let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    // Unit length as a whole; each part is half of it, the encoder's part
+    // the same direction as before.
+    assert!((norm(&ea) - 1.0).abs() < 1e-5);
+    assert!((norm(&ea[..64]) - std::f32::consts::FRAC_1_SQRT_2).abs() < 1e-5);
+    for (x, y) in ea[..64].iter().zip(&plain) {
+        assert!((x * std::f32::consts::SQRT_2 - y).abs() < 1e-5);
+    }
+    // Two fabrics differ in their texture part too, and it is the same
+    // on the same frame.
+    let d: f32 = ea[64..]
+        .iter()
+        .zip(&eb[64..])
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f32>()
+        .sqrt();
+    assert!(d > 1e-3, "{d}");
+    assert_eq!(enc.encode(&a).unwrap(), &ea[..]);
+    // Back to the encoder alone.
+    enc.set_features(Features::Encoder);
+    assert_eq!(enc.encode(&a).unwrap(), &plain[..]);
+}
+
+#[test]
 fn models_breaking_the_contract_are_refused_at_start_up() {
     let m = contract_msg("bad_no_metadata.onnx");
     assert!(

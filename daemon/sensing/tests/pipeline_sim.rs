@@ -11,15 +11,16 @@ use telextiles_sim::{Press, PressSpec};
 
 const TEXTILES: [&str; 6] = ["T010", "T030", "T040", "T050", "T080", "T110"];
 
-/// Index from one press per textile: the embeddings of its hold frames
-/// (seed 1); queries are other presses (seed 2).
+/// Index from one press per textile: the embeddings of its frames from
+/// first contact on, as `index build` takes a press (seed 1); queries are
+/// other presses (seed 2).
 fn build_index(enc: &mut Encoder) -> FlatIndex {
     let sim = common::sim();
     let mut textiles = Vec::new();
     for id in TEXTILES {
         let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
-        let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
-        let embs = p.frames[hold..]
+        let contact = p.meta.params.as_ref().unwrap().contact_frame as usize;
+        let embs = p.frames[contact..]
             .iter()
             .map(|f| enc.encode(f).unwrap().to_vec())
             .collect();
@@ -177,12 +178,18 @@ fn injected_pixel_noise_does_not_make_the_decision_flip_flop() {
         press.frames[n / 2] = image::RgbImage::new(240, 320);
         press.frames[n / 2 + 1] = image::RgbImage::new(240, 320);
         let reports = classify(&mut pipeline, press);
-        // One press, decided once and never switched. (Which textile: this
-        // much noise is beyond the fixture encoder, whose high-pass front
-        // end amplifies pixel noise; it is not asserted here.)
+        // One press, decided once and never switched while it lasted; at
+        // its end it may take the textile nearest its whole mean, once.
+        // (Which textile: this much noise is beyond the fixture encoder,
+        // whose high-pass front end amplifies pixel noise; it is not
+        // asserted here.)
         assert_eq!(reports.len(), 1, "{id}: {reports:#?}");
-        assert!(reports[0].textile.is_some(), "{id}: {reports:#?}");
-        assert_eq!(reports[0].switches, 0, "{id}: {reports:#?}");
+        let r = &reports[0];
+        assert!(r.textile.is_some(), "{id}: {reports:#?}");
+        assert!(r.switches <= 1, "{id}: {reports:#?}");
+        if r.switches == 1 {
+            assert_eq!(r.stable_ms, Some(r.duration_ms), "{id}: {reports:#?}");
+        }
     }
 }
 
@@ -242,8 +249,8 @@ fn a_background_subtracting_model_follows_the_untouched_frames() {
     for id in TEXTILES {
         let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
         enc.set_reference(&p.frames[0]).unwrap();
-        let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
-        let embs = p.frames[hold..]
+        let contact = p.meta.params.as_ref().unwrap().contact_frame as usize;
+        let embs = p.frames[contact..]
             .iter()
             .map(|f| enc.encode(f).unwrap().to_vec())
             .collect();

@@ -295,14 +295,16 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 st.finished.push_back(press_id);
                 // The sender's mean of the whole press decides the final
                 // answer, so lost datagrams never change it; without a
-                // usable one, this side's own running decision stands.
+                // usable one, the mean of the latents that arrived does,
+                // by the same rule (`Decider::press_end`).
                 let fin = match &good {
                     Some((l, t)) => index
                         .nearest2(l.as_slice())
                         .map(|n| (n.best, n.best_dist, *t)),
                     None => p
                         .decider
-                        .current()
+                        .press_end(&*index, capture_us)
+                        .and_then(|o| o.decision)
                         .map(|d| (d.entry, d.distance, capture_us)),
                 };
                 if let Some((entry, distance, t)) = fin {

@@ -417,12 +417,16 @@ pub fn run_press(
             }
         }
     }
-    let end = d.press_end(us(WINDOW_MS));
+    // The switching rule's changes within the window: what this study
+    // measures (the press's end, which decides on the whole mean, is not
+    // one of its frames).
+    let switches = d.switches();
+    d.press_end(index, us(WINDOW_MS));
     PressRun {
         at: at.into_iter().map(|a| a.unwrap_or(current)).collect(),
         first,
         last: current,
-        switches: end.map_or(0, |o| o.switches),
+        switches,
         from_right,
     }
 }

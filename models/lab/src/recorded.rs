@@ -926,13 +926,14 @@ fn press_index(
                 attributes: Vec::new(),
                 embeddings,
                 exemplars,
+                press_frames: Vec::new(),
             })
             .ok()?;
         n += 1;
     }
     builder.roller_n = n.min(16);
     builder.keep_exemplars = exemplars;
-    builder.metric_shrinkage = metric;
+    builder.metric = telextiles_index::build::MetricFit::press_means(metric);
     if calibrate {
         builder.build_calibrated().ok()
     } else {
@@ -951,7 +952,7 @@ fn decide_press(index: &impl TextileIndex, e: &PressEmbedding) -> Decided {
         d.on_embedding_weighted(index, t_us, e.row(k), w);
     }
     let end = e.t_ms.last().map_or(0, |t| (t * 1000.0).round() as u64);
-    match d.press_end(end) {
+    match d.press_end(index, end) {
         Some(o) => Decided {
             textile: o.decision.map(|x| index.id(x.entry).to_string()),
             unknown: o.decision.is_some_and(|x| x.unknown),
