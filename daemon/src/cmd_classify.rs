@@ -82,6 +82,32 @@ pub struct Args {
     pub decision: crate::config::DecisionArgs,
 }
 
+/// The row of a recording `classify` could not decide (no press
+/// detected in it), with the reason: one row per recording at least, so a
+/// press is never lost from a table of results.
+fn print_undecided(
+    out: &mut dyn Write,
+    args: &Args,
+    source: &str,
+    n: usize,
+    label: &str,
+    why: &str,
+) -> Result<()> {
+    if args.json {
+        let v = serde_json::json!({
+            "source": source,
+            "press": n,
+            "label": label,
+            "textile": null,
+            "undecided": why,
+        });
+        writeln!(out, "{v}")?;
+    } else {
+        writeln!(out, "press {n} ({source}): not decided: {why}")?;
+    }
+    Ok(())
+}
+
 fn print(
     out: &mut dyn Write,
     args: &Args,
@@ -397,8 +423,12 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         err?;
         tally.recordings += 1;
         if n == before {
+            // Never left out: a row that says why it has no decision.
             tally.silent += 1;
-            progress.println(&format!("warning: {name}: no press detected{hint}"));
+            n += 1;
+            let why = format!("no press detected{hint}");
+            progress.println(&format!("warning: {name}: {why}"));
+            print_undecided(out, &args, &name, n, &label, &why)?;
         } else if n - before > 1 {
             // Each is decided on its own, as the live daemon would: the
             // contact was released and made again within the recording.
@@ -467,8 +497,10 @@ mod tests {
         b.roller_n = 4;
         for id in TEXTILES {
             let p = sim.render_press(&PressSpec::new(id, 1)).unwrap();
-            let hold = p.meta.params.as_ref().unwrap().hold_frame as usize;
-            let embeddings = p.frames[hold..]
+            // Every frame from first contact on, as `index build` takes
+            // a press.
+            let contact = p.meta.params.as_ref().unwrap().contact_frame as usize;
+            let embeddings = p.frames[contact..]
                 .iter()
                 .map(|f| enc.encode(f).unwrap().to_vec())
                 .collect();
@@ -480,6 +512,7 @@ mod tests {
                 attributes: Vec::new(),
                 embeddings,
                 exemplars: Vec::new(),
+                press_frames: Vec::new(),
             })
             .unwrap();
         }
@@ -623,12 +656,107 @@ mod tests {
         )
         .unwrap();
         let text = String::from_utf8(out).unwrap();
+        // The quiet recording is a row of its own, with the reason.
+        assert!(
+            text.lines().any(|l| l.starts_with("press ")
+                && l.contains("T030-quiet): not decided: no press detected")),
+            "{text}"
+        );
         let last = text.lines().last().unwrap();
         assert!(
             last.starts_with("summary: 2 of 2 presses (100.0 %) decided as the fabric they are labelled with; 1 press of fabrics the index does not hold (")
                 && last.ends_with("; no press detected in 1 of 4 recordings"),
             "{text}"
         );
+    }
+
+    /// A press's final decision is the index's nearest textile to the
+    /// press's whole depth-weighted mean, computed here independently of
+    /// the decider from the front end's embeddings and contact depths
+    /// (hand-held presses, which the switching rule can leave on another
+    /// textile), on every press of the set.
+    #[test]
+    fn every_final_decision_is_the_nearest_textile_to_the_whole_press() {
+        use telextiles_sensing::contact::ContactEvent;
+        use telextiles_sensing::decide::{contact_weight, DecideConfig, PressMean};
+        use telextiles_sensing::front::{recording_reference, FrontEnd};
+        let dir = tempfile::tempdir().unwrap();
+        let index_path = index_file(dir.path());
+        let index = Index::read(&index_path).unwrap();
+        let sim = Simulator::new().unwrap();
+        let mut recordings = Vec::new();
+        for (k, id) in ["T010", "T030", "T080", "T110", "T030", "T080"]
+            .iter()
+            .enumerate()
+        {
+            let p = sim
+                .render_press(&PressSpec {
+                    person: 8 + (k as u32 % 3),
+                    jig: false,
+                    ..PressSpec::new(*id, 40 + k as u64)
+                })
+                .unwrap();
+            let d = dir.path().join("presses").join(id).join(format!("{k}"));
+            telextiles_sim::recording::write_press(&d, &p).unwrap();
+            recordings.push(p);
+        }
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                press: vec![dir.path().join("presses")],
+                ..args(fixture_model(), index_path.clone())
+            },
+            &mut out,
+        )
+        .unwrap();
+        let mut got: Vec<(String, String)> = json_lines(&out)
+            .iter()
+            .map(|v| {
+                let src = v["source"].as_str().unwrap().to_string();
+                (src, v["textile"].as_str().unwrap_or("-").to_string())
+            })
+            .collect();
+        got.sort();
+        // The same presses, decided offline by the rule.
+        let cfg = DecideConfig::default();
+        let mut front = FrontEnd::new(
+            Encoder::open(&fixture_model(), &EncoderOptions::default()).unwrap(),
+            Default::default(),
+            None,
+        );
+        let mut want = Vec::new();
+        for (k, p) in recordings.iter().enumerate() {
+            front.reset(recording_reference(p).as_deref());
+            let mut mean = PressMean::new(index.dim, cfg.depth_power);
+            let mut in_press = false;
+            for (i, (image, &t)) in p.frames.iter().zip(&p.meta.timestamps_us).enumerate() {
+                let f = telextiles_sensing::frame::Frame {
+                    image: image.clone(),
+                    timestamp_us: t,
+                    seq: i as u64,
+                };
+                let o = front.process(&f).unwrap();
+                match o.contact.event {
+                    Some(ContactEvent::PressStart { .. }) => in_press = true,
+                    Some(ContactEvent::PressEnd { .. }) => in_press = false,
+                    _ => {}
+                }
+                if let (true, Some(e)) = (in_press, o.embedding) {
+                    mean.add(e, contact_weight(o.contact.depth));
+                }
+            }
+            let n = index.nearest(mean.sum()).expect("a press in contact");
+            let src = dir
+                .path()
+                .join("presses")
+                .join(&p.meta.textile)
+                .join(format!("{k}"))
+                .display()
+                .to_string();
+            want.push((src, index.entries[n.best].id.clone()));
+        }
+        want.sort();
+        assert_eq!(got, want);
     }
 
     /// The summary's counts: right of decided, the fabrics taken for
@@ -946,6 +1074,7 @@ mod tests {
                 attributes: Vec::new(),
                 embeddings,
                 exemplars: Vec::new(),
+                press_frames: Vec::new(),
             })
             .unwrap();
         }

@@ -5,7 +5,8 @@ use clap::{Args as ClapArgs, Subcommand};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use telextiles_index::build::{Paired, SelfCheck};
+use telextiles_index::build::{FitCheck, MetricFit, Paired, SelfCheck};
+use telextiles_index::Features;
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
@@ -15,8 +16,196 @@ use telextiles_sim::catalogue::{Book, Catalogue};
 use telextiles_sim::dataset::Protocol;
 use telextiles_sim::{Press, Simulator};
 
-/// Frame embeddings and per-press means of one textile.
-type FrameAndPressEmbeddings = (Vec<Vec<f32>>, Vec<Vec<f32>>);
+/// The frame embeddings of each press of one textile, and each press's
+/// mean.
+type FrameAndPressEmbeddings = (Vec<Vec<Vec<f32>>>, Vec<Vec<f32>>);
+
+/// `--fit`: how the index's distance is fitted to the presses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FitArg {
+    /// Whichever of the fits below decides the most of your presses right,
+    /// each press left out in turn with the fit made again without it;
+    /// plain cosine on a tie.
+    Auto,
+    /// Within-fabric whitening of every frame of the presses (shrinkage
+    /// LDA), shrunk by the Ledoit-Wolf estimate unless --metric-shrinkage.
+    Frames,
+    /// Within-fabric whitening of the presses' means at --metric-shrinkage.
+    PressMeans,
+    /// Plain cosine distance (as --no-metric).
+    Cosine,
+}
+
+/// The fit `--fit`, `--metric`/`--no-metric` and `--metric-shrinkage` ask
+/// for (`learn`: whether a distance is learned at all).
+fn metric_fit(learn: bool, fit: Option<FitArg>, shrinkage: Option<f32>, own: bool) -> MetricFit {
+    let press_means =
+        || MetricFit::PressMeans(shrinkage.unwrap_or(telextiles_index::metric::DEFAULT_SHRINKAGE));
+    match (learn, fit) {
+        (false, _) | (_, Some(FitArg::Cosine)) => MetricFit::Cosine,
+        (true, Some(FitArg::Auto)) => MetricFit::Auto,
+        (true, Some(FitArg::Frames)) => MetricFit::Frames(shrinkage),
+        (true, Some(FitArg::PressMeans)) => press_means(),
+        // An owner's presses: chosen on them, unless a shrinkage of press
+        // means is asked for as before; --sim --metric: press means.
+        (true, None) if own && shrinkage.is_none() => MetricFit::Auto,
+        (true, None) => press_means(),
+    }
+}
+
+/// `--features`: what the index's queries are made of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FeaturesArg {
+    /// The encoder's embedding alone, or beside it the LBP texture
+    /// features, whichever decides more of your presses right (with the
+    /// fit chosen for each); the encoder alone on a tie.
+    Auto,
+    /// The encoder's embedding alone.
+    Encoder,
+    /// The encoder's embedding and rotation-invariant LBP histograms of
+    /// the same frame minus its reference.
+    Lbp,
+}
+
+/// The features `--features` asks for (None: chosen on the presses; the
+/// default with an owner's presses, the encoder alone otherwise).
+fn features_asked(arg: Option<FeaturesArg>, own: bool) -> Option<Features> {
+    match arg {
+        Some(FeaturesArg::Encoder) => Some(Features::Encoder),
+        Some(FeaturesArg::Lbp) => Some(Features::EncoderLbp),
+        Some(FeaturesArg::Auto) => None,
+        None => (!own).then_some(Features::Encoder),
+    }
+}
+
+/// What the encoder computes so that every asked kind of features can be
+/// taken from it ([`part_of`]).
+fn features_computed(asked: Option<Features>) -> Features {
+    asked.unwrap_or(Features::EncoderLbp)
+}
+
+/// The `want` part of an embedding computed with every feature
+/// ([`features_computed`]): the encoder's part alone (renormalised by
+/// every consumer), or all of it.
+fn part_of(v: &[f32], want: Features, encoder_dim: usize) -> Vec<f32> {
+    match want {
+        Features::Encoder => v[..encoder_dim.min(v.len())].to_vec(),
+        Features::EncoderLbp => v.to_vec(),
+    }
+}
+
+/// Each textile's presses with only the `want` part of their vectors.
+fn textiles_as(
+    by_textile: &BTreeMap<String, FrameAndPressEmbeddings>,
+    want: Features,
+    encoder_dim: usize,
+) -> BTreeMap<String, FrameAndPressEmbeddings> {
+    let part = |v: &Vec<f32>| part_of(v, want, encoder_dim);
+    by_textile
+        .iter()
+        .map(|(id, (frames, means))| {
+            (
+                id.clone(),
+                (
+                    frames
+                        .iter()
+                        .map(|f| f.iter().map(part).collect())
+                        .collect(),
+                    means.iter().map(part).collect(),
+                ),
+            )
+        })
+        .collect()
+}
+
+/// Every (features, fit) checked on an owner's presses, each press left
+/// out in turn with the fit made again without it, and the chosen one:
+/// the most presses right, the earlier (the encoder alone, the simpler
+/// fit) on a tie.
+struct Choice {
+    checks: Vec<(Features, FitCheck)>,
+    chosen: usize,
+}
+
+impl Choice {
+    fn of(
+        by_textile: &BTreeMap<String, FrameAndPressEmbeddings>,
+        ids: &[String],
+        computed: Features,
+        asked: Option<Features>,
+        fit: MetricFit,
+        exemplars: bool,
+        encoder_dim: usize,
+    ) -> Choice {
+        let kinds = match asked {
+            Some(f) => vec![f],
+            None => Features::ALL.to_vec(),
+        };
+        let fits = match fit {
+            MetricFit::Auto => MetricFit::CANDIDATES.to_vec(),
+            f => vec![f],
+        };
+        let mut checks = Vec::new();
+        for kind in kinds {
+            let dim = encoder_dim + kind.extra_dim();
+            let fabrics: Vec<(Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>)> = ids
+                .iter()
+                .map(|id| match by_textile.get(id) {
+                    Some((frames, means)) if kind != computed => {
+                        let part = |v: &Vec<f32>| part_of(v, kind, encoder_dim);
+                        (
+                            means.iter().map(part).collect(),
+                            frames
+                                .iter()
+                                .map(|f| f.iter().map(part).collect())
+                                .collect(),
+                        )
+                    }
+                    Some((frames, means)) => (means.clone(), frames.clone()),
+                    None => Default::default(),
+                })
+                .collect();
+            let data = telextiles_index::build::press_data(&fabrics, dim);
+            let (_, c) = telextiles_index::build::choose_fit(&data, dim, exemplars, &fits);
+            checks.extend(c.into_iter().map(|c| (kind, c)));
+        }
+        let mut chosen = 0;
+        for (k, (_, c)) in checks.iter().enumerate() {
+            if c.right() > checks[chosen].1.right() {
+                chosen = k;
+            }
+        }
+        Choice { checks, chosen }
+    }
+
+    fn features(&self) -> Features {
+        self.checks[self.chosen].0
+    }
+
+    fn fit(&self) -> &FitCheck {
+        &self.checks[self.chosen].1
+    }
+
+    /// In words: "encoder + LBP, frames, Ledoit-Wolf shrinkage".
+    fn label(&self) -> String {
+        label(self.features(), self.fit().fit)
+    }
+}
+
+/// A kind of features and a fit, in words.
+fn label(features: Features, fit: MetricFit) -> String {
+    format!("{}, {}", features.label(), fit.label())
+}
+
+/// A shrinkage for `--metric-shrinkage`: a number in 0..=1.
+fn parse_shrinkage(s: &str) -> Result<f32, String> {
+    let a: f32 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if (0.0..=1.0).contains(&a) {
+        Ok(a)
+    } else {
+        Err(format!("{a} is outside 0..=1"))
+    }
+}
 
 /// `telextilesd index ...`
 #[derive(Subcommand, Debug)]
@@ -56,11 +245,20 @@ pub struct CheckArgs {
     /// Plain cosine distance (as `index build --no-metric`).
     #[arg(long)]
     pub no_metric: bool,
-    /// Shrinkage of the learned distance towards plain cosine (0..=1).
-    #[arg(long, default_value_t = telextiles_index::metric::DEFAULT_SHRINKAGE)]
-    pub metric_shrinkage: f32,
+    /// How the distance is fitted, as for `index build --fit` [default:
+    /// auto, every fit shown].
+    #[arg(long, value_enum)]
+    pub fit: Option<FitArg>,
+    /// What the queries are made of, as for `index build --features`
+    /// [default: auto, both shown].
+    #[arg(long, value_enum)]
+    pub features: Option<FeaturesArg>,
+    /// Shrinkage of the learned distance towards plain cosine (0..=1), as
+    /// for `index build`.
+    #[arg(long, value_parser = parse_shrinkage)]
+    pub metric_shrinkage: Option<f32>,
     /// Use every n-th contact frame.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 1)]
     pub stride: usize,
     /// Encoder threads.
     #[arg(long, default_value_t = 2)]
@@ -136,10 +334,22 @@ pub struct BuildArgs {
     /// Plain cosine distance, also with --presses.
     #[arg(long)]
     pub no_metric: bool,
+    /// How the learned distance is fitted [default with --presses: auto,
+    /// the fit that decides the most of your presses right, each left out
+    /// in turn; with --sim --metric: press-means].
+    #[arg(long, value_enum)]
+    pub fit: Option<FitArg>,
+    /// What the index's queries are made of [default with --presses:
+    /// auto, chosen on your presses with the fit; with --sim: encoder].
+    /// Recorded in the index: both daemons of a session compute it.
+    #[arg(long, value_enum)]
+    pub features: Option<FeaturesArg>,
     /// Shrinkage of the learned distance towards plain cosine (0..=1; 1 is
-    /// plain cosine).
-    #[arg(long, default_value_t = telextiles_index::metric::DEFAULT_SHRINKAGE)]
-    pub metric_shrinkage: f32,
+    /// plain cosine) [default: 0.5 for press means, the Ledoit-Wolf
+    /// estimate for frames]. With --presses and no --fit it asks for press
+    /// means at that shrinkage, as before fits on frames.
+    #[arg(long, value_parser = parse_shrinkage)]
+    pub metric_shrinkage: Option<f32>,
     /// Calibrate the distance beyond which a press is of a fabric the index
     /// does not have on the presses themselves (how far each of your
     /// presses is from its fabric, with it left out; needs 4 such presses).
@@ -156,9 +366,10 @@ pub struct BuildArgs {
     /// the index does not have.
     #[arg(long, default_value_t = telextiles_index::build::DEFAULT_UNKNOWN_QUANTILE, value_parser = telextiles_index::build::parse_quantile)]
     pub unknown_quantile: f32,
-    /// Use every n-th contact frame.
-    #[arg(long, default_value_t = 4)]
-    pub stride: usize,
+    /// Use every n-th contact frame [default: every frame with --presses,
+    /// every 4th with --sim].
+    #[arg(long)]
+    pub stride: Option<usize>,
     /// Roller slots [default: 16, or the number of textiles when fewer].
     #[arg(long)]
     pub slots: Option<usize>,
@@ -213,17 +424,16 @@ fn open_encoder(model: &Path, threads: usize) -> Result<Encoder> {
 /// `index check`: the self-check of `index build --presses` for each model,
 /// on the same presses, and the model to use by the paired rule.
 fn check(a: CheckArgs) -> Result<()> {
-    if !(0.0..=1.0).contains(&a.metric_shrinkage) {
-        bail!("--metric-shrinkage {} is outside 0..=1", a.metric_shrinkage);
-    }
     let references = References::from_args(&a.references)?;
+    let asked_features = features_asked(a.features, true);
+    let computed = features_computed(asked_features);
     let mut fronts = Vec::new();
+    let mut encoder_dims = Vec::new();
     for m in &a.models {
-        fronts.push(FrontEnd::new(
-            open_encoder(m, a.threads)?,
-            a.contact.contact()?,
-            None,
-        ));
+        let mut enc = open_encoder(m, a.threads)?;
+        encoder_dims.push(enc.dim());
+        enc.set_features(computed);
+        fronts.push(FrontEnd::new(enc, a.contact.contact()?, None));
     }
     let embedded = embed_recordings(
         &mut fronts,
@@ -238,19 +448,27 @@ fn check(a: CheckArgs) -> Result<()> {
         return Err(none_in_contact(&a.presses, "check"));
     }
     let exemplars = !a.no_exemplars;
-    let shrinkage = (!a.no_metric).then_some(a.metric_shrinkage);
-    let left: Vec<Vec<telextiles_index::build::LeftOut>> = embedded
+    let asked = metric_fit(!a.no_metric, a.fit, a.metric_shrinkage, true);
+    // Per model: every (features, fit) checked on the same presses, and
+    // the chosen one.
+    let per_model: Vec<Choice> = embedded
         .by_textile
         .iter()
-        .zip(&fronts)
-        .map(|(by_textile, front)| {
-            let fabrics: Vec<Vec<Vec<f32>>> = ids
-                .iter()
-                .map(|id| by_textile.get(id).map(|e| e.1.clone()).unwrap_or_default())
-                .collect();
-            telextiles_index::build::left_out(&fabrics, front.encoder().dim(), exemplars, shrinkage)
+        .zip(&encoder_dims)
+        .map(|(by_textile, &dim)| {
+            Choice::of(
+                by_textile,
+                &ids,
+                computed,
+                asked_features,
+                asked,
+                exemplars,
+                dim,
+            )
         })
         .collect();
+    let left: Vec<&[telextiles_index::build::LeftOut]> =
+        per_model.iter().map(|c| c.fit().left.as_slice()).collect();
     let checks: Vec<SelfCheck> = left.iter().map(|l| SelfCheck::of(l)).collect();
     if checks[0].presses == 0 {
         bail!(
@@ -259,7 +477,7 @@ fn check(a: CheckArgs) -> Result<()> {
         );
     }
     let paired: Vec<Option<Paired>> = (0..left.len())
-        .map(|k| (k > 0).then(|| Paired::of(&left[0], &left[k])))
+        .map(|k| (k > 0).then(|| Paired::of(left[0], left[k])))
         .collect();
     let choice = choose_model(&checks, &paired);
     let id = |i: usize| ids.get(i).map_or("?", String::as_str);
@@ -270,12 +488,19 @@ fn check(a: CheckArgs) -> Result<()> {
             .iter()
             .zip(&checks)
             .zip(&paired)
-            .map(|((m, c), p)| {
+            .zip(&per_model)
+            .map(|(((m, c), p), choice)| {
                 serde_json::json!({
                     "model": m.display().to_string(),
                     "presses": c.presses,
                     "right": c.right,
                     "share": share(c),
+                    "features": choice.features().label(),
+                    "fit": choice.fit().fit.label(),
+                    "fits": choice.checks.iter().map(|(k, f)| serde_json::json!({
+                        "features": k.label(), "fit": f.fit.label(),
+                        "presses": f.left.len(), "right": f.right(),
+                    })).collect::<Vec<_>>(),
                     "confusions": c.confusions.iter().map(|&(f, d, n)| serde_json::json!({
                         "fabric": id(f), "as": id(d), "presses": n,
                     })).collect::<Vec<_>>(),
@@ -292,7 +517,8 @@ fn check(a: CheckArgs) -> Result<()> {
             "recordings": embedded.presses,
             "fabrics": ids.len(),
             "exemplars": exemplars,
-            "metric_shrinkage": shrinkage,
+            "fit": asked.label(),
+            "features": asked_features.map_or("chosen on the presses", Features::label),
             "models": models,
             "choice": a.models[choice].display().to_string(),
             "partial": embedded.partial.iter().map(|(d, c)| serde_json::json!({
@@ -304,23 +530,23 @@ fn check(a: CheckArgs) -> Result<()> {
     }
     writeln!(
         out,
-        "self-check of {} presses of {} fabrics: each left out and decided against an index of the other presses ({}, {})",
+        "self-check of {} presses of {} fabrics: each left out and decided against an index of the other presses ({}, features {}, distance {})",
         checks[0].presses,
         ids.len(),
         if exemplars { "centroids and presses" } else { "centroids only" },
-        match shrinkage {
-            Some(s) => format!("distance learned with shrinkage {s}"),
-            None => "cosine distance".into(),
-        }
+        asked_features.map_or("chosen on the presses", Features::label),
+        asked.label(),
     )?;
     for (k, m) in a.models.iter().enumerate() {
         let c = &checks[k];
+        let choice = &per_model[k];
         let mut line = format!(
-            "  {}: {} of {} right ({:.1} %)",
+            "  {}: {} of {} right ({:.1} %) with {}",
             m.display(),
             c.right,
             c.presses,
-            100.0 * share(c)
+            100.0 * share(c),
+            choice.label()
         );
         if let Some(p) = paired[k] {
             line += &format!(
@@ -330,6 +556,9 @@ fn check(a: CheckArgs) -> Result<()> {
         }
         line += &confusions_text(c, &id);
         writeln!(out, "{line}")?;
+        if choice.checks.len() > 1 {
+            writeln!(out, "{}", fits_text(&choice.checks, choice.chosen))?;
+        }
     }
     if a.models.len() > 1 {
         if choice == 0 {
@@ -351,6 +580,25 @@ fn check(a: CheckArgs) -> Result<()> {
         eprintln!("{note}");
     }
     Ok(())
+}
+
+/// The fits checked on the presses, one line each, the chosen one marked:
+/// what `index check` and `index build --presses` show of the choice.
+fn fits_text(fits: &[(Features, FitCheck)], chosen: usize) -> String {
+    let lines: Vec<String> = fits
+        .iter()
+        .enumerate()
+        .map(|(k, (features, f))| {
+            format!(
+                "    {} {}: {} of {} right",
+                if k == chosen { "*" } else { " " },
+                label(*features, f.fit),
+                f.right(),
+                f.left.len()
+            )
+        })
+        .collect();
+    lines.join("\n")
 }
 
 /// Share of a self-check's presses decided right.
@@ -460,6 +708,7 @@ fn record(
                 .collect(),
             embeddings,
             exemplars,
+            press_frames: Vec::new(),
         },
         // A user's own fabric: no catalogue entry, seen by definition; its
         // name from `telextilesd record --name` (textile.json), else its id.
@@ -471,6 +720,7 @@ fn record(
             attributes: Vec::new(),
             embeddings,
             exemplars,
+            press_frames: Vec::new(),
         },
     }
 }
@@ -505,13 +755,14 @@ fn add_press(
     }
     let slot = by_textile.entry(id.to_string()).or_default();
     slot.1.push(mean(&embs));
-    slot.0.extend(embs);
+    slot.0.push(embs);
 }
 
 /// The recordings under a directory, embedded by each front end (one per
 /// model; each recording is read once).
 struct Embedded {
-    /// Per front end: textile id -> (frame embeddings, per-press means).
+    /// Per front end: textile id -> (each press's frame embeddings, each
+    /// press's mean).
     by_textile: Vec<BTreeMap<String, FrameAndPressEmbeddings>>,
     /// Names of the owner's fabrics (`telextilesd record --name`).
     names: BTreeMap<String, String>,
@@ -619,12 +870,15 @@ fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
 }
 
 fn build(a: BuildArgs) -> Result<()> {
-    let enc = open_encoder(&a.model, a.threads)?;
+    let mut enc = open_encoder(&a.model, a.threads)?;
     let info = enc.info().clone();
+    let asked_features = features_asked(a.features, a.presses.is_some());
+    let computed = features_computed(asked_features);
+    enc.set_features(computed);
     let mut front = FrontEnd::new(enc, a.contact.contact()?, None);
     let cat = Catalogue::version(a.catalogue)
         .with_context(|| format!("no simulator catalogue {}", a.catalogue))?;
-    // textile id -> (frame embeddings, per-press means)
+    // textile id -> (each press's frame embeddings, each press's mean)
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
     // Names of the user's own fabrics (`telextilesd record --name`).
     let mut names: BTreeMap<String, String> = BTreeMap::new();
@@ -638,7 +892,7 @@ fn build(a: BuildArgs) -> Result<()> {
             root,
             &references,
             a.fps,
-            a.stride,
+            stride(&a),
             "index build",
         )?;
         by_textile = embedded.by_textile.remove(0);
@@ -665,7 +919,7 @@ fn build(a: BuildArgs) -> Result<()> {
             add_press(
                 &mut by_textile,
                 &spec.textile,
-                press_embeddings(&mut front, &press, a.stride)?,
+                press_embeddings(&mut front, &press, stride(&a))?,
             );
             presses += 1;
             progress.inc(1);
@@ -674,13 +928,43 @@ fn build(a: BuildArgs) -> Result<()> {
     } else {
         bail!("say where the presses come from: --presses <dir> or --sim");
     }
-    let mut builder = IndexBuilder::new(&info.sha256, &info.arch, info.dim, cat.version);
+    let asked_fit = metric_fit(
+        learn_metric(&a),
+        a.fit,
+        a.metric_shrinkage,
+        a.presses.is_some(),
+    );
+    // An owner's presses choose the features and the fit (each press left
+    // out in turn); simulated ones take what is asked.
+    let fit_start = std::time::Instant::now();
+    let choice = a.presses.is_some().then(|| {
+        let ids: Vec<String> = by_textile.keys().cloned().collect();
+        Choice::of(
+            &by_textile,
+            &ids,
+            computed,
+            asked_features,
+            asked_fit,
+            keep_exemplars(&a),
+            info.dim,
+        )
+    });
+    let (features, fit) = match &choice {
+        Some(c) => (c.features(), c.fit().fit),
+        None => (computed, asked_fit),
+    };
+    if features != computed {
+        by_textile = textiles_as(&by_textile, features, info.dim);
+    }
+    let dim = info.dim + features.extra_dim();
+    let mut builder = IndexBuilder::new(&info.sha256, &info.arch, dim, cat.version);
+    builder.features = features;
     let slots = a.slots.unwrap_or_else(|| by_textile.len().min(16));
     builder.roller_n = slots;
     builder.method = a.method;
     builder.seed = a.seed;
     builder.keep_exemplars = keep_exemplars(&a);
-    builder.metric_shrinkage = learn_metric(&a).then_some(a.metric_shrinkage);
+    builder.metric = fit;
     builder.unknown_quantile = calibrate_unknown(&a).then_some(a.unknown_quantile);
     // Presses of fabrics pressed twice or more: what the unknown distance
     // is calibrated on.
@@ -697,40 +981,60 @@ fn build(a: BuildArgs) -> Result<()> {
         .filter(|(_, (_, means))| means.len() < RECOMMENDED_PRESSES)
         .map(|(id, (_, means))| format!("{id} ({})", means.len()))
         .collect();
-    for (id, (embs, means)) in by_textile {
-        builder.add(record(
+    for (id, (frames, means)) in by_textile {
+        let mut r = record(
             &cat,
             &id,
             names.get(&id).map(String::as_str),
-            embs,
+            frames.iter().flatten().cloned().collect(),
             means,
-        ))?;
+        );
+        r.press_frames = frames;
+        builder.add(r)?;
     }
     // An index of the owner's presses checks itself: each press left out
     // and decided against the others.
-    let (index, left) = if a.presses.is_some() {
-        builder.build_checked()?
+    let report = if a.presses.is_some() {
+        builder.build_report()?
     } else {
-        (builder.build()?, Vec::new())
+        // A simulated index checks nothing against itself.
+        telextiles_index::build::BuildReport {
+            index: builder.build()?,
+            left: Vec::new(),
+            fits: Vec::new(),
+            chosen: 0,
+        }
     };
+    let (index, left) = (&report.index, &report.left);
+    let fit_time = fit_start.elapsed();
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     index.write(&a.out)?;
     writeln!(
         crate::out::stdout(),
-        "wrote {} ({} textiles from {presses} presses, dim {}, roller {} slots by {}, distance {}, unknown beyond {}, fingerprint {})",
+        "wrote {} ({} textiles from {presses} presses, dim {} ({}), roller {} slots by {}, distance {}, unknown beyond {}, fingerprint {})",
         a.out.display(),
         index.entries.len(),
         index.dim,
+        index.features.label(),
         index.roller.n(),
         index.roller.method,
         metric_summary(&index),
         unknown_summary(&index),
         &index.fingerprint()[..16]
     )?;
-    if a.presses.is_some() {
-        writeln!(crate::out::stdout(), "{}", self_check_line(&index, &left))?;
+    if let Some(c) = &choice {
+        let mut out = crate::out::stdout();
+        if c.checks.len() > 1 {
+            writeln!(
+                out,
+                "features and distance chosen on your presses, each left out in turn with the fit made again without it (chosen and built in {:.1} s):\n{}",
+                fit_time.as_secs_f64(),
+                fits_text(&c.checks, c.chosen)
+            )?;
+        }
+        writeln!(out, "{}", self_check_line(index, left))?;
     }
     if a.presses.is_some() && !thin.is_empty() {
         eprintln!(
@@ -743,7 +1047,7 @@ fn build(a: BuildArgs) -> Result<()> {
     if let Some(note) = partial_note(&partial, presses) {
         eprintln!("{note}");
     }
-    if learn_metric(&a) && index.metric.is_none() {
+    if matches!(fit, MetricFit::PressMeans(_) | MetricFit::Frames(_)) && index.metric.is_none() {
         eprintln!(
             "note: no fabric has two presses with contact, so the index keeps plain cosine distance"
         );
@@ -768,7 +1072,7 @@ fn build(a: BuildArgs) -> Result<()> {
         let protocol = sim_protocol(&a, Some(Book::Unseen))?;
         for spec in protocol.specs(&cat) {
             let press = sim.render_press(&spec)?;
-            let embs = press_embeddings(&mut front, &press, a.stride)?;
+            let embs = press_embeddings(&mut front, &press, stride(&a))?;
             if let Some(m) = mean_normalised(&embs) {
                 unseen.push(m);
             }
@@ -798,6 +1102,14 @@ fn textile_name(press_dir: &std::path::Path, id: &str) -> Option<String> {
 /// `docs/bench-v2/coverage`).
 const RECOMMENDED_PRESSES: usize = 8;
 
+/// The frame stride (see `--stride`): every frame of an owner's presses,
+/// every 4th simulated one.
+fn stride(a: &BuildArgs) -> usize {
+    a.stride
+        .unwrap_or(if a.presses.is_some() { 1 } else { 4 })
+        .max(1)
+}
+
 /// Whether the index learns a distance from the presses (see `--metric`).
 fn learn_metric(a: &BuildArgs) -> bool {
     a.metric || (a.presses.is_some() && !a.no_metric)
@@ -807,7 +1119,7 @@ fn learn_metric(a: &BuildArgs) -> bool {
 fn metric_summary(index: &Index) -> String {
     match &index.metric {
         Some(m) => format!(
-            "learned from {} presses of {} fabrics (shrinkage {})",
+            "learned from {} presses of {} fabrics (shrinkage {:.3})",
             m.presses, m.fabrics, m.shrinkage
         ),
         None => "cosine".into(),
@@ -1187,9 +1499,55 @@ mod tests {
     #[test]
     fn own_recordings_learn_a_distance_by_default() {
         on_with_presses_only(learn_metric, "--metric", "--no-metric");
-        let a = parse(&["--presses", "r", "--metric-shrinkage", "0.3"]);
-        assert_eq!(a.metric_shrinkage, 0.3);
-        assert_eq!(parse(&["--presses", "r"]).metric_shrinkage, 0.5);
+        // Own presses: the fit is chosen on them, unless a shrinkage of
+        // press means is asked for as before; --sim --metric: press means.
+        let fit = |args: &[&str]| {
+            let a = parse(args);
+            metric_fit(
+                learn_metric(&a),
+                a.fit,
+                a.metric_shrinkage,
+                a.presses.is_some(),
+            )
+        };
+        assert_eq!(fit(&["--presses", "r"]), MetricFit::Auto);
+        assert_eq!(
+            fit(&["--presses", "r", "--metric-shrinkage", "0.3"]),
+            MetricFit::PressMeans(0.3)
+        );
+        assert_eq!(fit(&["--sim", "--metric"]), MetricFit::PressMeans(0.5));
+        assert_eq!(fit(&["--sim"]), MetricFit::Cosine);
+        assert_eq!(fit(&["--presses", "r", "--no-metric"]), MetricFit::Cosine);
+        assert_eq!(
+            fit(&["--presses", "r", "--fit", "frames"]),
+            MetricFit::Frames(None)
+        );
+        assert_eq!(
+            fit(&[
+                "--presses",
+                "r",
+                "--fit",
+                "frames",
+                "--metric-shrinkage",
+                "0.2"
+            ]),
+            MetricFit::Frames(Some(0.2))
+        );
+        assert_eq!(
+            fit(&["--presses", "r", "--fit", "cosine"]),
+            MetricFit::Cosine
+        );
+        assert_eq!(
+            fit(&["--sim", "--metric", "--fit", "auto"]),
+            MetricFit::Auto
+        );
+        for bad in ["-0.1", "1.5", "x"] {
+            assert!(refused(&["--metric-shrinkage", bad]), "{bad}");
+        }
+        // Every frame of an owner's presses; every 4th simulated one.
+        assert_eq!(stride(&parse(&["--presses", "r"])), 1);
+        assert_eq!(stride(&parse(&["--sim"])), 4);
+        assert_eq!(stride(&parse(&["--presses", "r", "--stride", "3"])), 3);
     }
 
     #[test]
@@ -1265,14 +1623,27 @@ mod tests {
             .collect();
         assert_eq!(names, [("denim", "blue denim"), ("wool", "wool")]);
         assert!(index.entries.iter().all(|e| e.exemplars.len() == 2));
-        // The distance is learned from the two presses of each fabric, and
-        // every query method maps an encoder embedding into its space.
-        let m = index.metric.as_ref().expect("two presses per fabric");
+        // The features and distance are chosen on the presses; asked for,
+        // a distance is learned from the two presses of each fabric (every
+        // frame of them), and every query method maps an embedding into
+        // its space.
+        let fitted = build_with("fitted.tlxi", &["--fit", "frames", "--features", "lbp"]);
+        assert_eq!(fitted.features, Features::EncoderLbp);
+        assert_eq!(fitted.dim, 64 + telextiles_index::LBP_DIM);
+        let m = fitted.metric.as_ref().expect("two presses per fabric");
         assert_eq!((m.presses, m.fabrics), (4, 2));
-        let q = index
-            .project(&vec![1.0 / (index.dim as f32).sqrt(); index.dim])
+        assert!(m.shrinkage > 0.0 && m.shrinkage <= 1.0, "{m:?}");
+        let q = fitted
+            .project(&vec![1.0 / (fitted.dim as f32).sqrt(); fitted.dim])
             .into_owned();
         assert!((q.iter().map(|x| x * x).sum::<f32>() - 1.0).abs() < 1e-4);
+        let means = build_with(
+            "means.tlxi",
+            &["--metric-shrinkage", "0.5", "--features", "encoder"],
+        );
+        let m = means.metric.as_ref().expect("two presses per fabric");
+        assert_eq!((m.presses, m.fabrics, m.shrinkage), (4, 2, 0.5));
+        assert_eq!(means.features, Features::Encoder);
         // The unknown-textile distance is calibrated on the four presses,
         // each with its fold left out (one press of each fabric).
         let u = index.unknown.expect("four presses of two fabrics");

@@ -1140,7 +1140,7 @@ fn index_check_compares_the_shipped_models_on_the_owners_presses() {
     assert_eq!(v["recordings"], 6, "{v}");
     assert_eq!(v["fabrics"], 2, "{v}");
     assert_eq!(v["exemplars"], true, "{v}");
-    assert_eq!(v["metric_shrinkage"], 0.5, "{v}");
+    assert_eq!(v["fit"], "chosen on the presses", "{v}");
     let m = v["models"].as_array().expect("models");
     assert_eq!(m.len(), 2);
     for (k, path) in [shipped, fallback].iter().enumerate() {
@@ -1257,7 +1257,16 @@ fn record_idle_checks_the_contact_detector_on_a_resting_sensor() {
         ],
     );
     assert!(out.status.success());
-    assert!(reports(&String::from_utf8_lossy(&out.stdout)).is_empty());
+    // No press: one row that says so, with no textile.
+    let rows = reports(&String::from_utf8_lossy(&out.stdout));
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert!(rows[0]["textile"].is_null(), "{rows:?}");
+    assert!(
+        rows[0]["undecided"]
+            .as_str()
+            .is_some_and(|w| w.starts_with("no press detected")),
+        "{rows:?}"
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no press detected"), "{err}");
     // A threshold far too low for this sensor (as a user may set it, the

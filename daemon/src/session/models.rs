@@ -31,8 +31,12 @@ pub(crate) fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index
         },
     )
     .with_context(|| format!("cannot load the encoder {}", model.display()))?;
+    let mut enc = enc;
     let index = Index::read(index_path)?;
     index.check_encoder(&enc.info().sha256)?;
+    // The index says what a query is made of; the sender streams exactly
+    // that, so both daemons compute it alike.
+    enc.set_features(index.features);
     if index.dim != enc.dim() {
         bail!(
             "{} holds {}-d embeddings but {} produces {}-d ones",
@@ -73,6 +77,7 @@ mod tests {
             attributes: Vec::new(),
             embeddings: vec![vec![1.0, 0.0]],
             exemplars: Vec::new(),
+            press_frames: Vec::new(),
         })
         .unwrap();
         b.build().unwrap()
