@@ -4,7 +4,7 @@
 //! decision and per-stage timings.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
@@ -387,7 +387,17 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         err?;
         return summarise(out, &args, &tally, &index);
     }
-    let references = References::from_args(&args.references)?;
+    let mut references = References::from_args(&args.references)?;
+    // The sensors' no-contact frames kept beside the index, for recordings
+    // that carry none and begin in contact.
+    let beside = args
+        .index
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    for f in references.add_beside(beside)? {
+        eprintln!("no-contact frame: {}", f.display());
+    }
     let mut recordings = Vec::new();
     for p in &args.press {
         recordings.extend(telextiles_sim::recording::find_recordings_at(p, args.fps)?);
@@ -464,7 +474,7 @@ pub fn no_reference_hint(has_reference: bool) -> &'static str {
     if has_reference {
         ""
     } else {
-        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"
+        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference, or keep it beside the index as no-contact.png or no-contact-<SERIAL>.png; `telextilesd record --idle` writes one)"
     }
 }
 

@@ -424,7 +424,8 @@ fn open_encoder(model: &Path, threads: usize) -> Result<Encoder> {
 /// `index check`: the self-check of `index build --presses` for each model,
 /// on the same presses, and the model to use by the paired rule.
 fn check(a: CheckArgs) -> Result<()> {
-    let references = References::from_args(&a.references)?;
+    let mut references = References::from_args(&a.references)?;
+    references.add_beside(&a.presses)?;
     let asked_features = features_asked(a.features, true);
     let computed = features_computed(asked_features);
     let mut fronts = Vec::new();
@@ -886,7 +887,13 @@ fn build(a: BuildArgs) -> Result<()> {
     // The owner's presses that touched only part of the gel.
     let mut partial = Vec::new();
     if let Some(root) = &a.presses {
-        let references = References::from_args(&a.references)?;
+        // The sensors' no-contact frames kept at the top of the
+        // recordings, or beside the index being written.
+        let mut references = References::from_args(&a.references)?;
+        references.add_beside(root)?;
+        if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+            references.add_beside(dir)?;
+        }
         let mut embedded = embed_recordings(
             std::slice::from_mut(&mut front),
             root,

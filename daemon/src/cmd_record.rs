@@ -1509,6 +1509,10 @@ fn run_idle(
     let mut first = None;
     let mut shown = 0u64;
     let mut interrupted = false;
+    // The first frames' mean: the sensor's no-contact frame, kept beside
+    // the recordings if the check finds the sensor at rest.
+    let mut rest_sum = vec![0.0f32; telextiles_sensing::frame::FRAME_BYTES];
+    let mut rest_n = 0u32;
     loop {
         if stop.load(Ordering::SeqCst) {
             interrupted = true;
@@ -1541,6 +1545,13 @@ fn run_idle(
         writer
             .push(&frame.image)
             .with_context(|| format!("cannot write {}", path.display()))?;
+        if rest_n < NO_CONTACT_FRAMES {
+            rest_sum
+                .iter_mut()
+                .zip(frame.image.as_raw())
+                .for_each(|(a, &v)| *a += v as f32);
+            rest_n += 1;
+        }
         timestamps.push(t);
         let s = t / 1_000_000;
         if s > shown {
@@ -1562,7 +1573,7 @@ fn run_idle(
         timestamps_us: timestamps,
         seed: (source == "sim").then(|| args.sim_seed.unwrap_or(1)),
         source: source.into(),
-        sensor_serial: Some(serial),
+        sensor_serial: Some(serial.clone()),
         params: None,
         // The whole clip is untouched.
         reference_frames: None,
@@ -1571,6 +1582,19 @@ fn run_idle(
         .finish(&meta)
         .with_context(|| format!("cannot write {}", path.display()))?;
     write_idle_summary(out, &summary, &path, interrupted)?;
+    if summary.ok() {
+        rest_sum.iter_mut().for_each(|v| *v /= rest_n.max(1) as f32);
+        let png = args.out.join(format!(
+            "{}-{serial}.png",
+            telextiles_sensing::front::NO_CONTACT
+        ));
+        write_no_contact(&png, &rest_sum)?;
+        writeln!(
+            out,
+            "no-contact frame of sensor {serial}: {} (keep it beside your index or your recordings: classify and index build use it for recordings that begin in contact)",
+            png.display()
+        )?;
+    }
     if args.json {
         writeln!(out, "{}", serde_json::to_string(&summary)?)?;
     }
@@ -1582,6 +1606,27 @@ fn run_idle(
         );
     }
     Ok(())
+}
+
+/// Frames averaged into the no-contact frame `record --idle` keeps.
+const NO_CONTACT_FRAMES: u32 = 30;
+
+/// Write a no-contact frame (240x320 RGB values) as a PNG, atomically.
+fn write_no_contact(path: &Path, pixels: &[f32]) -> Result<()> {
+    let image =
+        telextiles_sensing::front::image_of(pixels).context("a no-contact frame is 240x320 RGB")?;
+    // A hidden temporary beside it (no reader takes a dot file), renamed
+    // over it once whole.
+    let name = path.file_name().context("not a file path")?;
+    let tmp = path.with_file_name(format!(".{}.tmp.png", name.to_string_lossy()));
+    let written = image
+        .save(&tmp)
+        .map_err(anyhow::Error::from)
+        .and_then(|()| std::fs::rename(&tmp, path).map_err(anyhow::Error::from));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written.with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn write_idle_summary(

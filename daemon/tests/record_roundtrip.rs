@@ -1269,6 +1269,53 @@ fn record_idle_checks_the_contact_detector_on_a_resting_sensor() {
     );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no press detected"), "{err}");
+    // The resting sensor's no-contact frame is kept, and a recording that
+    // begins in contact (no quiet frames, no reference of its own) is
+    // decided with it when it lies beside the index; without it, the
+    // recording is a row that says why.
+    let serial = m["sensor_serial"].as_str().expect("serial").to_string();
+    let png = d.join(format!("rest/no-contact-{serial}.png"));
+    assert!(png.is_file(), "{}", png.display());
+    let sim = telextiles_sim::Simulator::new().expect("simulator");
+    let mut p = sim
+        .render_press(&telextiles_sim::PressSpec::new("T030", 12))
+        .expect("press");
+    let hold = p.meta.params.as_ref().expect("params").hold_frame as usize;
+    p.frames.drain(..hold);
+    p.meta.timestamps_us.drain(..hold);
+    p.meta.reference_frames = None;
+    p.meta.params = None;
+    p.meta.source = "digit".into();
+    p.meta.sensor_serial = Some(serial.clone());
+    telextiles_sim::recording::write_press(&d.join("incontact/T030/0001"), &p).expect("write");
+    let classify = |d: &Path| {
+        run(
+            d,
+            &[
+                "classify",
+                "--press",
+                "incontact",
+                "--model",
+                model,
+                "--index",
+                "p.tlxi",
+                "--json",
+            ],
+        )
+    };
+    let rows = reports(&String::from_utf8_lossy(&classify(d).stdout));
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert!(rows[0]["textile"].is_null(), "{rows:?}");
+    std::fs::copy(&png, d.join(format!("no-contact-{serial}.png"))).expect("copy");
+    let out = classify(d);
+    let rows = reports(&String::from_utf8_lossy(&out.stdout));
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0]["textile"], "T030", "{rows:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no-contact frame: "),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // A threshold far too low for this sensor (as a user may set it, the
     // same flag as the daemon's `contact_enter`): presses on nothing, a
     // failed check, and the footage kept for a report.

@@ -293,6 +293,11 @@ pub fn recording_reference(press: &Press) -> Option<Vec<f32>> {
     mean_pixels(&press.frames[..k.min(press.frames.len())])
 }
 
+/// The name (before `-<SERIAL>` and `.png`) of a sensor's no-contact frame
+/// kept beside an index or its recordings ([`References::add_beside`];
+/// `telextilesd record --idle` writes one).
+pub const NO_CONTACT: &str = "no-contact";
+
 /// No-contact references given from outside the recordings, for those
 /// that carry none (PyTouch data, old captures, recordings whose every
 /// frame is in contact): one for every sensor, and one per sensor serial
@@ -384,6 +389,60 @@ impl References {
             }
         }
         Ok(out)
+    }
+
+    /// Add the sensors' no-contact frames kept in `dir` (beside an index,
+    /// or at the top of a directory of recordings): `no-contact.png` for
+    /// every sensor and `no-contact-<SERIAL>.png` for one. A reference
+    /// already given for the same sensor wins; a directory without them
+    /// adds nothing; a file that cannot be used is an error naming it.
+    /// Returns the files taken.
+    pub fn add_beside(
+        &mut self,
+        dir: &std::path::Path,
+    ) -> Result<Vec<std::path::PathBuf>, ReferenceError> {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return Ok(Vec::new());
+        };
+        let mut names: Vec<(String, std::path::PathBuf)> = entries
+            .flatten()
+            .filter_map(|e| Some((e.file_name().into_string().ok()?, e.path())))
+            .filter(|(n, _)| n.starts_with(NO_CONTACT) && n.ends_with(".png"))
+            .collect();
+        names.sort();
+        let mut taken = Vec::new();
+        for (name, path) in names {
+            let stem = &name[NO_CONTACT.len()..name.len() - ".png".len()];
+            let serial = match stem {
+                "" => None,
+                s => match s.strip_prefix('-') {
+                    Some(serial) if !serial.is_empty() => Some(serial.to_string()),
+                    _ => continue,
+                },
+            };
+            let bad = |reason: String| ReferenceError::Bad {
+                arg: path.display().to_string(),
+                reason,
+            };
+            let wanted = match &serial {
+                Some(s) => !self.by_serial.contains_key(s),
+                None => self.any.is_none(),
+            };
+            if !wanted {
+                continue;
+            }
+            let image =
+                telextiles_sim::recording::read_image(&path).map_err(|e| bad(e.to_string()))?;
+            let px = pixels_of(&image);
+            match serial {
+                Some(s) => {
+                    self.by_serial.insert(s, px);
+                }
+                None => self.any = Some(px),
+            }
+            taken.push(path);
+        }
+        Ok(taken)
     }
 
     /// Whether no reference was given.
