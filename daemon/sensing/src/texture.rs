@@ -26,11 +26,11 @@ pub const LBP_DIM: usize = BINS_8 + BINS_16;
 /// Pixels left out at each edge (the larger radius).
 const BORDER: usize = 2;
 
-/// One circle of samples: each sample's four neighbours (offsets from the
-/// centre, row-major) and bilinear weights.
+/// One circle of samples: each sample's neighbours (offsets from the
+/// centre, row-major) and their non-zero bilinear weights.
 #[derive(Clone, Debug)]
 struct Circle {
-    taps: Vec<[(isize, f32); 4]>,
+    taps: Vec<Vec<(isize, f32)>>,
 }
 
 impl Circle {
@@ -53,44 +53,26 @@ impl Circle {
                     (at(1.0, 0.0), fy * (1.0 - fx)),
                     (at(1.0, 1.0), fy * fx),
                 ]
+                .into_iter()
+                .filter(|&(_, w)| w != 0.0)
+                .collect()
             })
             .collect();
         Circle { taps }
     }
+}
 
-    /// The riu2 code of the pixel at `i` of `img`.
-    fn code(&self, img: &[f32], i: usize) -> usize {
-        let c = img[i];
-        let p = self.taps.len();
-        let mut ones = 0usize;
-        let mut changes = 0usize;
-        let mut first = false;
-        let mut prev = false;
-        for (k, taps) in self.taps.iter().enumerate() {
-            let mut v = 0.0f32;
-            for &(off, w) in taps {
-                if w != 0.0 {
-                    v += w * img[(i as isize + off) as usize];
-                }
-            }
-            let bit = v >= c;
-            ones += usize::from(bit);
-            if k == 0 {
-                first = bit;
-            } else if bit != prev {
-                changes += 1;
-            }
-            prev = bit;
-        }
-        if prev != first {
-            changes += 1;
-        }
-        if changes <= 2 {
-            ones
-        } else {
-            p + 1
-        }
-    }
+/// Per-pixel state of one circle's patterns while its samples are taken
+/// one after another over the whole image (rows at a time, which the
+/// compiler vectorises): ones so far, 0/1 changes so far, the first and
+/// the last bit.
+#[derive(Clone, Debug, Default)]
+struct Patterns {
+    ones: Vec<u8>,
+    changes: Vec<u8>,
+    first: Vec<u8>,
+    prev: Vec<u8>,
+    sample: Vec<f32>,
 }
 
 /// The texture features of a square grey image of a fixed side.
@@ -100,16 +82,26 @@ pub struct Lbp {
     small: Circle,
     large: Circle,
     grey: Vec<f32>,
+    state: Patterns,
 }
 
 impl Lbp {
     /// For images `side` x `side` (at least 5).
     pub fn new(side: usize) -> Lbp {
+        let inner = side.saturating_sub(2 * BORDER);
+        let row = vec![0u8; inner * inner];
         Lbp {
             side,
             small: Circle::new(8, 1.0, side),
             large: Circle::new(16, 2.0, side),
             grey: vec![0.0; side * side],
+            state: Patterns {
+                ones: row.clone(),
+                changes: row.clone(),
+                first: row.clone(),
+                prev: row,
+                sample: vec![0.0; inner],
+            },
         }
     }
 
@@ -138,13 +130,20 @@ impl Lbp {
             self.grey.iter_mut().zip(plane).for_each(|(g, v)| *g += v);
         }
         let mut hist = [0u32; LBP_DIM];
-        for y in BORDER..self.side - BORDER {
-            for x in BORDER..self.side - BORDER {
-                let i = y * self.side + x;
-                hist[self.small.code(&self.grey, i)] += 1;
-                hist[BINS_8 + self.large.code(&self.grey, i)] += 1;
-            }
-        }
+        histogram(
+            &self.small,
+            &self.grey,
+            self.side,
+            &mut self.state,
+            &mut hist[..BINS_8],
+        );
+        histogram(
+            &self.large,
+            &self.grey,
+            self.side,
+            &mut self.state,
+            &mut hist[BINS_8..],
+        );
         let inner = ((self.side - 2 * BORDER) * (self.side - 2 * BORDER)) as f32;
         for (o, &h) in out.iter_mut().zip(&hist) {
             *o = (h as f32 / inner).sqrt();
@@ -153,6 +152,59 @@ impl Lbp {
         // length and the whole √2.
         out.iter_mut().for_each(|v| *v /= std::f32::consts::SQRT_2);
         true
+    }
+}
+
+/// The riu2 histogram of one circle over the image's inner pixels: a
+/// pattern with at most two 0/1 changes counts its ones, any other falls
+/// in the last bin (`hist` has `P + 2` bins).
+fn histogram(circle: &Circle, grey: &[f32], side: usize, st: &mut Patterns, hist: &mut [u32]) {
+    let inner = side - 2 * BORDER;
+    for (k, taps) in circle.taps.iter().enumerate() {
+        for y in 0..inner {
+            let row = (y + BORDER) * side + BORDER;
+            let centre = &grey[row..row + inner];
+            // This sample for the whole row: its weighted neighbours.
+            st.sample.iter_mut().for_each(|v| *v = 0.0);
+            for &(off, w) in taps {
+                let from = (row as isize + off) as usize;
+                st.sample
+                    .iter_mut()
+                    .zip(&grey[from..from + inner])
+                    .for_each(|(v, g)| *v += w * g);
+            }
+            let at = y * inner..(y + 1) * inner;
+            let bits = st.sample.iter().zip(centre).map(|(v, c)| u8::from(v >= c));
+            if k == 0 {
+                for (((o, f), p), b) in st.ones[at.clone()]
+                    .iter_mut()
+                    .zip(&mut st.first[at.clone()])
+                    .zip(&mut st.prev[at.clone()])
+                    .zip(bits)
+                {
+                    *o = b;
+                    *f = b;
+                    *p = b;
+                }
+                st.changes[at].iter_mut().for_each(|c| *c = 0);
+            } else {
+                for (((o, c), p), b) in st.ones[at.clone()]
+                    .iter_mut()
+                    .zip(&mut st.changes[at.clone()])
+                    .zip(&mut st.prev[at])
+                    .zip(bits)
+                {
+                    *o += b;
+                    *c += *p ^ b;
+                    *p = b;
+                }
+            }
+        }
+    }
+    let p = circle.taps.len();
+    for (((&o, &c), &f), &l) in st.ones.iter().zip(&st.changes).zip(&st.first).zip(&st.prev) {
+        let changes = c + (f ^ l);
+        hist[if changes <= 2 { o as usize } else { p + 1 }] += 1;
     }
 }
 
@@ -215,6 +267,78 @@ mod tests {
         // codes are rotation invariant); the checkerboard is far from both.
         assert!(dist(&a, &b) < 1e-5, "{}", dist(&a, &b));
         assert!(dist(&a, &c) > 0.3, "{}", dist(&a, &c));
+    }
+
+    /// The riu2 histograms by their definition, one pixel at a time with
+    /// the samples' bilinear values computed from their coordinates.
+    fn naive(grey: &[f32], side: usize) -> Vec<f32> {
+        let at = |y: f64, x: f64| -> f32 {
+            let (y0, x0) = (y.floor(), x.floor());
+            let (fy, fx) = ((y - y0) as f32, (x - x0) as f32);
+            let g = |yy: f64, xx: f64| {
+                let (yy, xx) = (yy as usize, xx as usize);
+                if yy < side && xx < side {
+                    grey[yy * side + xx]
+                } else {
+                    0.0
+                }
+            };
+            (1.0 - fy) * (1.0 - fx) * g(y0, x0)
+                + (1.0 - fy) * fx * g(y0, x0 + 1.0)
+                + fy * (1.0 - fx) * g(y0 + 1.0, x0)
+                + fy * fx * g(y0 + 1.0, x0 + 1.0)
+        };
+        let mut hist = vec![0u32; LBP_DIM];
+        for (p, r, base) in [(8usize, 1.0f64, 0usize), (16, 2.0, BINS_8)] {
+            for y in BORDER..side - BORDER {
+                for x in BORDER..side - BORDER {
+                    let c = grey[y * side + x];
+                    let bits: Vec<bool> = (0..p)
+                        .map(|k| {
+                            let a = 2.0 * std::f64::consts::PI * k as f64 / p as f64;
+                            let round = |v: f64| (v * 1e5).round() / 1e5;
+                            let (dy, dx) = (round(-r * a.sin()), round(r * a.cos()));
+                            at(y as f64 + dy, x as f64 + dx) >= c
+                        })
+                        .collect();
+                    let changes = (0..p).filter(|&k| bits[k] != bits[(k + 1) % p]).count();
+                    let ones = bits.iter().filter(|&&b| b).count();
+                    hist[base + if changes <= 2 { ones } else { p + 1 }] += 1;
+                }
+            }
+        }
+        let inner = ((side - 2 * BORDER) * (side - 2 * BORDER)) as f32;
+        hist.iter()
+            .map(|&h| (h as f32 / inner).sqrt() / std::f32::consts::SQRT_2)
+            .collect()
+    }
+
+    #[test]
+    fn the_row_at_a_time_histograms_are_the_per_pixel_definition() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        for side in [5usize, 17, 64] {
+            // Coarse values, so that ties (a sample equal to its centre)
+            // are common, and smooth ones.
+            let coarse: Vec<f32> = (0..side * side)
+                .map(|_| rng.gen_range(0..4) as f32)
+                .collect();
+            let smooth: Vec<f32> = (0..side * side)
+                .map(|i| ((i % side) as f32 * 0.3).sin() + rng.gen_range(-0.2..0.2))
+                .collect();
+            for grey in [coarse, smooth] {
+                let mut lbp = Lbp::new(side);
+                let mut out = [0.0; LBP_DIM];
+                assert!(lbp.features(&grey, 1, &mut out));
+                let want = naive(&grey, side);
+                for (k, (a, b)) in out.iter().zip(&want).enumerate() {
+                    assert!(
+                        (a - b).abs() < 1e-6,
+                        "side {side}, bin {k}: {a} against {b}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
