@@ -38,18 +38,26 @@ pub enum FitArg {
 
 /// The fit `--fit`, `--metric`/`--no-metric` and `--metric-shrinkage` ask
 /// for (`learn`: whether a distance is learned at all).
-fn metric_fit(learn: bool, fit: Option<FitArg>, shrinkage: Option<f32>, own: bool) -> MetricFit {
+/// `fallback` when nothing says otherwise (`index build`: plain cosine,
+/// docs/studies/2026-12-04-fitted-metric.md; `index check`: every fit).
+fn metric_fit(
+    no_metric: bool,
+    metric: bool,
+    fit: Option<FitArg>,
+    shrinkage: Option<f32>,
+    fallback: MetricFit,
+) -> MetricFit {
     let press_means =
         || MetricFit::PressMeans(shrinkage.unwrap_or(telextiles_index::metric::DEFAULT_SHRINKAGE));
-    match (learn, fit) {
-        (false, _) | (_, Some(FitArg::Cosine)) => MetricFit::Cosine,
-        (true, Some(FitArg::Auto)) => MetricFit::Auto,
-        (true, Some(FitArg::Frames)) => MetricFit::Frames(shrinkage),
-        (true, Some(FitArg::PressMeans)) => press_means(),
-        // An owner's presses: chosen on them, unless a shrinkage of press
-        // means is asked for as before; --sim --metric: press means.
-        (true, None) if own && shrinkage.is_none() => MetricFit::Auto,
-        (true, None) => press_means(),
+    match fit {
+        _ if no_metric => MetricFit::Cosine,
+        Some(FitArg::Cosine) => MetricFit::Cosine,
+        Some(FitArg::Auto) => MetricFit::Auto,
+        Some(FitArg::Frames) => MetricFit::Frames(shrinkage),
+        Some(FitArg::PressMeans) => press_means(),
+        // A shrinkage, or --metric: press means, as before fits on frames.
+        None if metric || shrinkage.is_some() => press_means(),
+        None => fallback,
     }
 }
 
@@ -67,14 +75,15 @@ pub enum FeaturesArg {
     Lbp,
 }
 
-/// The features `--features` asks for (None: chosen on the presses; the
-/// default with an owner's presses, the encoder alone otherwise).
-fn features_asked(arg: Option<FeaturesArg>, own: bool) -> Option<Features> {
+/// The features `--features` asks for (None: chosen on the presses),
+/// `fallback` when it is not given (`index build`: the encoder alone;
+/// `index check`: chosen).
+fn features_asked(arg: Option<FeaturesArg>, fallback: Option<Features>) -> Option<Features> {
     match arg {
         Some(FeaturesArg::Encoder) => Some(Features::Encoder),
         Some(FeaturesArg::Lbp) => Some(Features::EncoderLbp),
         Some(FeaturesArg::Auto) => None,
-        None => (!own).then_some(Features::Encoder),
+        None => fallback,
     }
 }
 
@@ -324,24 +333,24 @@ pub struct BuildArgs {
     /// One centroid per textile only, also with --presses.
     #[arg(long)]
     pub no_exemplars: bool,
-    /// Learn a distance from the presses: how presses of one fabric differ
-    /// (place on the cloth, hand, sensor unit) on your sensor counts less
-    /// than how fabrics differ (within-fabric whitening; needs two or more
-    /// presses of some fabric). The default with --presses; off by default
-    /// with --sim.
+    /// Learn a distance from the presses' means: how presses of one fabric
+    /// differ (place on the cloth, hand, sensor unit) on your sensor counts
+    /// less than how fabrics differ (within-fabric whitening; needs two or
+    /// more presses of some fabric), as --fit press-means.
     #[arg(long, conflicts_with = "no_metric")]
     pub metric: bool,
     /// Plain cosine distance, also with --presses.
     #[arg(long)]
     pub no_metric: bool,
-    /// How the learned distance is fitted [default with --presses: auto,
-    /// the fit that decides the most of your presses right, each left out
-    /// in turn; with --sim --metric: press-means].
+    /// How the distance is fitted [default: cosine, plain; with --metric
+    /// or --metric-shrinkage: press-means]. `auto`: the fit that decides
+    /// the most of your presses right, each left out in turn (`index
+    /// check` shows every candidate on your presses).
     #[arg(long, value_enum)]
     pub fit: Option<FitArg>,
-    /// What the index's queries are made of [default with --presses:
-    /// auto, chosen on your presses with the fit; with --sim: encoder].
-    /// Recorded in the index: both daemons of a session compute it.
+    /// What the index's queries are made of [default: encoder]. `auto`:
+    /// chosen on your presses with the fit. Recorded in the index: both
+    /// daemons of a session compute it.
     #[arg(long, value_enum)]
     pub features: Option<FeaturesArg>,
     /// Shrinkage of the learned distance towards plain cosine (0..=1; 1 is
@@ -426,7 +435,7 @@ fn open_encoder(model: &Path, threads: usize) -> Result<Encoder> {
 fn check(a: CheckArgs) -> Result<()> {
     let mut references = References::from_args(&a.references)?;
     references.add_beside(&a.presses)?;
-    let asked_features = features_asked(a.features, true);
+    let asked_features = features_asked(a.features, None);
     let computed = features_computed(asked_features);
     let mut fronts = Vec::new();
     let mut encoder_dims = Vec::new();
@@ -449,7 +458,13 @@ fn check(a: CheckArgs) -> Result<()> {
         return Err(none_in_contact(&a.presses, "check"));
     }
     let exemplars = !a.no_exemplars;
-    let asked = metric_fit(!a.no_metric, a.fit, a.metric_shrinkage, true);
+    let asked = metric_fit(
+        a.no_metric,
+        false,
+        a.fit,
+        a.metric_shrinkage,
+        MetricFit::Auto,
+    );
     // Per model: every (features, fit) checked on the same presses, and
     // the chosen one.
     let per_model: Vec<Choice> = embedded
@@ -873,7 +888,7 @@ fn mean(vs: &[Vec<f32>]) -> Vec<f32> {
 fn build(a: BuildArgs) -> Result<()> {
     let mut enc = open_encoder(&a.model, a.threads)?;
     let info = enc.info().clone();
-    let asked_features = features_asked(a.features, a.presses.is_some());
+    let asked_features = features_asked(a.features, Some(Features::Encoder));
     let computed = features_computed(asked_features);
     enc.set_features(computed);
     let mut front = FrontEnd::new(enc, a.contact.contact()?, None);
@@ -935,16 +950,12 @@ fn build(a: BuildArgs) -> Result<()> {
     } else {
         bail!("say where the presses come from: --presses <dir> or --sim");
     }
-    let asked_fit = metric_fit(
-        learn_metric(&a),
-        a.fit,
-        a.metric_shrinkage,
-        a.presses.is_some(),
-    );
+    let asked_fit = build_fit(&a);
     // An owner's presses choose the features and the fit (each press left
     // out in turn); simulated ones take what is asked.
     let fit_start = std::time::Instant::now();
-    let choice = a.presses.is_some().then(|| {
+    let chooses = asked_features.is_none() || asked_fit == MetricFit::Auto;
+    let choice = (a.presses.is_some() && chooses).then(|| {
         let ids: Vec<String> = by_textile.keys().cloned().collect();
         Choice::of(
             &by_textile,
@@ -1031,17 +1042,21 @@ fn build(a: BuildArgs) -> Result<()> {
         unknown_summary(&index),
         &index.fingerprint()[..16]
     )?;
-    if let Some(c) = &choice {
-        let mut out = crate::out::stdout();
-        if c.checks.len() > 1 {
-            writeln!(
-                out,
-                "features and distance chosen on your presses, each left out in turn with the fit made again without it (chosen and built in {:.1} s):\n{}",
-                fit_time.as_secs_f64(),
-                fits_text(&c.checks, c.chosen)
-            )?;
+    if let Some(c) = choice.as_ref().filter(|c| c.checks.len() > 1) {
+        writeln!(
+            crate::out::stdout(),
+            "features and distance chosen on your presses, each left out in turn with the fit made again without it (chosen and built in {:.1} s):\n{}",
+            fit_time.as_secs_f64(),
+            fits_text(&c.checks, c.chosen)
+        )?;
+    }
+    if a.presses.is_some() {
+        writeln!(crate::out::stdout(), "{}", self_check_line(index, left))?;
+        if choice.is_none() {
+            eprintln!(
+                "note: `--fit auto --features auto` chooses a distance fitted on every frame of your presses, and texture features, by leaving each press out in turn; `index check` shows what each would do on your presses"
+            );
         }
-        writeln!(out, "{}", self_check_line(index, left))?;
     }
     if a.presses.is_some() && !thin.is_empty() {
         eprintln!(
@@ -1117,9 +1132,17 @@ fn stride(a: &BuildArgs) -> usize {
         .max(1)
 }
 
-/// Whether the index learns a distance from the presses (see `--metric`).
-fn learn_metric(a: &BuildArgs) -> bool {
-    a.metric || (a.presses.is_some() && !a.no_metric)
+/// The fit `index build` makes: as asked, else plain cosine, for an
+/// owner's presses too (the rule of docs/studies/2026-12-04-fitted-metric.md,
+/// written before its figures, on held-out simulated sets).
+fn build_fit(a: &BuildArgs) -> MetricFit {
+    metric_fit(
+        a.no_metric,
+        a.metric,
+        a.fit,
+        a.metric_shrinkage,
+        MetricFit::Cosine,
+    )
 }
 
 /// How the index measures distance, in words.
@@ -1504,27 +1527,24 @@ mod tests {
     }
 
     #[test]
-    fn own_recordings_learn_a_distance_by_default() {
-        on_with_presses_only(learn_metric, "--metric", "--no-metric");
-        // Own presses: the fit is chosen on them, unless a shrinkage of
-        // press means is asked for as before; --sim --metric: press means.
-        let fit = |args: &[&str]| {
-            let a = parse(args);
-            metric_fit(
-                learn_metric(&a),
-                a.fit,
-                a.metric_shrinkage,
-                a.presses.is_some(),
-            )
-        };
-        assert_eq!(fit(&["--presses", "r"]), MetricFit::Auto);
+    fn own_recordings_fit_what_is_asked_and_plain_cosine_by_default() {
+        // The default, for an owner's presses too: plain cosine, the
+        // encoder alone (docs/studies/2026-12-04-fitted-metric.md);
+        // --fit and --features choose; a shrinkage or --metric asks for
+        // press means, as before fits on frames.
+        let fit = |args: &[&str]| build_fit(&parse(args));
+        assert_eq!(fit(&["--presses", "r"]), MetricFit::Cosine);
+        assert_eq!(fit(&["--presses", "r", "--fit", "auto"]), MetricFit::Auto);
         assert_eq!(
             fit(&["--presses", "r", "--metric-shrinkage", "0.3"]),
             MetricFit::PressMeans(0.3)
         );
         assert_eq!(fit(&["--sim", "--metric"]), MetricFit::PressMeans(0.5));
         assert_eq!(fit(&["--sim"]), MetricFit::Cosine);
-        assert_eq!(fit(&["--presses", "r", "--no-metric"]), MetricFit::Cosine);
+        assert_eq!(
+            fit(&["--presses", "r", "--no-metric", "--fit", "frames"]),
+            MetricFit::Cosine
+        );
         assert_eq!(
             fit(&["--presses", "r", "--fit", "frames"]),
             MetricFit::Frames(None)
@@ -1544,9 +1564,13 @@ mod tests {
             fit(&["--presses", "r", "--fit", "cosine"]),
             MetricFit::Cosine
         );
+        let features =
+            |args: &[&str]| features_asked(parse(args).features, Some(Features::Encoder));
+        assert_eq!(features(&["--presses", "r"]), Some(Features::Encoder));
+        assert_eq!(features(&["--presses", "r", "--features", "auto"]), None);
         assert_eq!(
-            fit(&["--sim", "--metric", "--fit", "auto"]),
-            MetricFit::Auto
+            features(&["--presses", "r", "--features", "lbp"]),
+            Some(Features::EncoderLbp)
         );
         for bad in ["-0.1", "1.5", "x"] {
             assert!(refused(&["--metric-shrinkage", bad]), "{bad}");

@@ -12,7 +12,7 @@
 # (8 x 2) by other people on another unit. For 3 and 5 index presses per
 # fabric it builds three indexes -- plain (the encoder alone, cosine), fit
 # (the encoder alone, the fit chosen on the presses) and auto (features and
-# fit chosen on the presses, the default) -- classifies the
+# fit chosen on the presses) -- classifies the
 # queries and the unseen presses against each, and prints the tables the
 # study quotes: index build's choice among the fits, then classify's
 # decisions (index_table.py). About 25 minutes on 2 cores, most of it
@@ -83,14 +83,14 @@ for set in c2g2 c1units c2hand; do
     for n in 3 5; do
         dir="$D/$set/index"
         [ "$n" = 5 ] || dir="$D/$set/index3"
-        # plain: the encoder alone, cosine; fit: the encoder alone, the
-        # fit chosen on the presses; auto: features and fit chosen (the
-        # default of `index build --presses`).
+        # plain: the encoder alone, cosine (the default of `index build`
+        # after this study); fit: the encoder alone, the fit chosen on the
+        # presses; auto: features and fit chosen on the presses.
         for variant in plain fit auto; do
             case $variant in
                 plain) opts=(--features encoder --fit cosine) ;;
                 fit) opts=(--features encoder --fit auto) ;;
-                auto) opts=() ;;
+                auto) opts=(--features auto --fit auto) ;;
             esac
             idx="$D/$set-$n-$variant.tlxi"
             echo "== $set, $n index presses per fabric, $variant (${opts[*]:-defaults})" >&2
