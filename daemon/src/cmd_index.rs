@@ -157,7 +157,7 @@ impl Choice {
         let mut checks = Vec::new();
         for kind in kinds {
             let dim = encoder_dim + kind.extra_dim();
-            let fabrics: Vec<(Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>)> = ids
+            let fabrics: Vec<telextiles_index::build::FabricPresses> = ids
                 .iter()
                 .map(|id| match by_textile.get(id) {
                     Some((frames, means)) if kind != computed => {
@@ -1038,8 +1038,8 @@ fn build(a: BuildArgs) -> Result<()> {
         index.features.label(),
         index.roller.n(),
         index.roller.method,
-        metric_summary(&index),
-        unknown_summary(&index),
+        metric_summary(index),
+        unknown_summary(index),
         &index.fingerprint()[..16]
     )?;
     if let Some(c) = choice.as_ref().filter(|c| c.checks.len() > 1) {
@@ -1103,7 +1103,7 @@ fn build(a: BuildArgs) -> Result<()> {
     write!(
         crate::out::stdout(),
         "{}",
-        coverage_report(&index, &unseen, slots, a.seed)
+        coverage_report(index, &unseen, slots, a.seed)
     )?;
     Ok(())
 }

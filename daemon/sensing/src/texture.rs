@@ -288,7 +288,7 @@ mod tests {
                 + fy * (1.0 - fx) * g(y0 + 1.0, x0)
                 + fy * fx * g(y0 + 1.0, x0 + 1.0)
         };
-        let mut hist = vec![0u32; LBP_DIM];
+        let mut hist = [0u32; LBP_DIM];
         for (p, r, base) in [(8usize, 1.0f64, 0usize), (16, 2.0, BINS_8)] {
             for y in BORDER..side - BORDER {
                 for x in BORDER..side - BORDER {

@@ -25,7 +25,7 @@ fn main() {
     for fabrics in [16usize, 119] {
         for dim in [128usize, 156] {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(fabrics as u64);
-            let records: Vec<(Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>)> = (0..fabrics)
+            let records: Vec<telextiles_index::build::FabricPresses> = (0..fabrics)
                 .map(|_| {
                     let centre: Vec<f32> = (0..dim).map(|_| rng.gen_range(-1.0..1.0)).collect();
                     let frames: Vec<Vec<Vec<f32>>> = (0..3)

@@ -149,12 +149,13 @@ impl PressData {
     }
 }
 
+/// One fabric's presses: each press's mean embedding, and each press's
+/// frame embeddings (in the same order; may be empty).
+pub type FabricPresses = (Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>);
+
 /// Each fabric's presses as [`PressData`] (presses of another dimension or
 /// with non-finite values are left out, as [`left_out`] leaves them).
-pub fn press_data(
-    fabrics: &[(Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>)],
-    dim: usize,
-) -> Vec<Vec<PressData>> {
+pub fn press_data(fabrics: &[FabricPresses], dim: usize) -> Vec<Vec<PressData>> {
     fabrics
         .iter()
         .map(|(means, frames)| {
