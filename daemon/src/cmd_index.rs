@@ -64,15 +64,19 @@ fn metric_fit(
 /// `--features`: what the index's queries are made of.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum FeaturesArg {
-    /// The encoder's embedding alone, or beside it the LBP texture
-    /// features, whichever decides more of your presses right (with the
-    /// fit chosen for each); the encoder alone on a tie.
+    /// The encoder's embedding alone, or beside it the LBP histograms,
+    /// the Gabor energies or both, whichever decides more of your presses
+    /// right (with the fit chosen for each); the simpler on a tie.
     Auto,
     /// The encoder's embedding alone.
     Encoder,
     /// The encoder's embedding and rotation-invariant LBP histograms of
     /// the same frame minus its reference.
     Lbp,
+    /// The encoder's embedding and rotation-invariant Gabor energies.
+    Gabor,
+    /// The encoder's embedding, the LBP histograms and the Gabor energies.
+    LbpGabor,
 }
 
 /// The features `--features` asks for (None: chosen on the presses),
@@ -82,6 +86,8 @@ fn features_asked(arg: Option<FeaturesArg>, fallback: Option<Features>) -> Optio
     match arg {
         Some(FeaturesArg::Encoder) => Some(Features::Encoder),
         Some(FeaturesArg::Lbp) => Some(Features::EncoderLbp),
+        Some(FeaturesArg::Gabor) => Some(Features::EncoderGabor),
+        Some(FeaturesArg::LbpGabor) => Some(Features::EncoderLbpGabor),
         Some(FeaturesArg::Auto) => None,
         None => fallback,
     }
@@ -90,26 +96,40 @@ fn features_asked(arg: Option<FeaturesArg>, fallback: Option<Features>) -> Optio
 /// What the encoder computes so that every asked kind of features can be
 /// taken from it ([`part_of`]).
 fn features_computed(asked: Option<Features>) -> Features {
-    asked.unwrap_or(Features::EncoderLbp)
+    asked.unwrap_or(Features::EncoderLbpGabor)
 }
 
-/// The `want` part of an embedding computed with every feature
-/// ([`features_computed`]): the encoder's part alone (renormalised by
-/// every consumer), or all of it.
-fn part_of(v: &[f32], want: Features, encoder_dim: usize) -> Vec<f32> {
-    match want {
-        Features::Encoder => v[..encoder_dim.min(v.len())].to_vec(),
-        Features::EncoderLbp => v.to_vec(),
+/// The `want` parts of an embedding computed as `computed` (which holds
+/// them): the encoder's part, then the LBP histograms and the Gabor
+/// energies `want` has. Every part has the same length in both, so after
+/// the normalisation every consumer makes it is what an encoder set to
+/// `want` computes.
+fn part_of(v: &[f32], want: Features, computed: Features, encoder_dim: usize) -> Vec<f32> {
+    if want == computed {
+        return v.to_vec();
     }
+    let (has_lbp, has_gabor) = computed.parts();
+    let (want_lbp, want_gabor) = want.parts();
+    let lbp = encoder_dim..encoder_dim + usize::from(has_lbp) * telextiles_index::LBP_DIM;
+    let gabor = lbp.end..lbp.end + usize::from(has_gabor) * telextiles_index::GABOR_DIM;
+    let mut out = v[..encoder_dim.min(v.len())].to_vec();
+    if want_lbp {
+        out.extend_from_slice(&v[lbp]);
+    }
+    if want_gabor {
+        out.extend_from_slice(&v[gabor]);
+    }
+    out
 }
 
 /// Each textile's presses with only the `want` part of their vectors.
 fn textiles_as(
     by_textile: &BTreeMap<String, FrameAndPressEmbeddings>,
     want: Features,
+    computed: Features,
     encoder_dim: usize,
 ) -> BTreeMap<String, FrameAndPressEmbeddings> {
-    let part = |v: &Vec<f32>| part_of(v, want, encoder_dim);
+    let part = |v: &Vec<f32>| part_of(v, want, computed, encoder_dim);
     by_textile
         .iter()
         .map(|(id, (frames, means))| {
@@ -161,7 +181,7 @@ impl Choice {
                 .iter()
                 .map(|id| match by_textile.get(id) {
                     Some((frames, means)) if kind != computed => {
-                        let part = |v: &Vec<f32>| part_of(v, kind, encoder_dim);
+                        let part = |v: &Vec<f32>| part_of(v, kind, computed, encoder_dim);
                         (
                             means.iter().map(part).collect(),
                             frames
@@ -972,7 +992,7 @@ fn build(a: BuildArgs) -> Result<()> {
         None => (computed, asked_fit),
     };
     if features != computed {
-        by_textile = textiles_as(&by_textile, features, info.dim);
+        by_textile = textiles_as(&by_textile, features, computed, info.dim);
     }
     let dim = info.dim + features.extra_dim();
     let mut builder = IndexBuilder::new(&info.sha256, &info.arch, dim, cat.version);
@@ -1579,6 +1599,36 @@ mod tests {
         assert_eq!(stride(&parse(&["--presses", "r"])), 1);
         assert_eq!(stride(&parse(&["--sim"])), 4);
         assert_eq!(stride(&parse(&["--presses", "r", "--stride", "3"])), 3);
+    }
+
+    /// What `index build` takes from one encoding with every feature is,
+    /// once normalised, what an encoder set to those features computes:
+    /// the vectors the index holds are the latents a live sender streams.
+    #[test]
+    fn every_kind_of_features_taken_from_one_encoding_is_what_the_encoder_computes() {
+        let sim = Simulator::new().unwrap();
+        let frame = sim
+            .render_frame(&telextiles_sim::PressSpec::new("T030", 3), 100)
+            .unwrap();
+        let mut all = open_encoder(&fixture_model(), 1).unwrap();
+        let dim = all.dim();
+        all.set_features(Features::EncoderLbpGabor);
+        let v = all.encode(&frame).unwrap().to_vec();
+        let unit = |mut v: Vec<f32>| {
+            let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.iter_mut().for_each(|x| *x /= n);
+            v
+        };
+        for want in Features::ALL {
+            let mut enc = open_encoder(&fixture_model(), 1).unwrap();
+            enc.set_features(want);
+            let direct = enc.encode(&frame).unwrap().to_vec();
+            let taken = unit(part_of(&v, want, Features::EncoderLbpGabor, dim));
+            assert_eq!(taken.len(), direct.len(), "{want:?}");
+            for (a, b) in taken.iter().zip(&direct) {
+                assert!((a - b).abs() < 1e-5, "{want:?}: {a} against {b}");
+            }
+        }
     }
 
     #[test]

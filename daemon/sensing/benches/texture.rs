@@ -1,6 +1,6 @@
 //! What the texture features cost per frame, on one thread: the LBP
-//! histograms of the encoder's preprocessed input (`texture::Lbp`, at the
-//! shipped model's 120x120 input), and a fitted metric's map of a query
+//! histograms and the Gabor energies of the encoder's preprocessed input
+//! (`texture::Lbp`, `gabor::Gabor`, at the shipped model's 120x120 input), and a fitted metric's map of a query
 //! (`telextiles_index::Metric::apply`) at the dimensions an index holds
 //! with and without them.
 //!
@@ -41,9 +41,17 @@ fn main() {
     let lbp_ms = median_ms(21, 200, || {
         assert!(lbp.features(std::hint::black_box(&input), 3, &mut out));
     });
+    let mut gabor = telextiles_sensing::gabor::Gabor::new(side);
+    let mut gout = [0.0f32; telextiles_sensing::gabor::GABOR_DIM];
+    let gabor_ms = median_ms(21, 200, || {
+        assert!(gabor.features(std::hint::black_box(&input), 3, &mut gout));
+    });
     println!("| per frame, one thread | median (ms) |");
     println!("|---|---:|");
     println!("| LBP histograms (8 at r=1, 16 at r=2) of a {side}x{side}x3 input | {lbp_ms:.3} |");
+    println!(
+        "| Gabor energies (3 scales x 6 orientations, 64x64 FFT) of the same | {gabor_ms:.3} |"
+    );
     for dim in [128usize, 128 + LBP_DIM] {
         let fabrics: Vec<Vec<Vec<f32>>> = (0..8)
             .map(|_| {

@@ -161,6 +161,7 @@ pub struct Encoder {
     /// index's [`Features`]), and the texture features' state.
     features: Features,
     texture: Option<crate::texture::Lbp>,
+    gabor: Option<crate::gabor::Gabor>,
 }
 
 fn contract(path: &Path, msg: impl Into<String>) -> EncoderError {
@@ -350,6 +351,7 @@ impl Encoder {
             reference: None,
             features: Features::Encoder,
             texture: None,
+            gabor: None,
         };
         // Dry run: shape and finiteness of the output, before any frame (a
         // subtracting model sees a blank frame against a blank reference). A
@@ -405,13 +407,11 @@ impl Encoder {
     /// ([`crate::texture`]), each part of unit length and the whole scaled
     /// to unit length. Changes [`Encoder::dim`].
     pub fn set_features(&mut self, features: Features) {
+        let side = self.info.preprocess.size as usize;
+        let (lbp, gabor) = features.parts();
         self.features = features;
-        self.texture = match features {
-            Features::Encoder => None,
-            Features::EncoderLbp => {
-                Some(crate::texture::Lbp::new(self.info.preprocess.size as usize))
-            }
-        };
+        self.texture = lbp.then(|| crate::texture::Lbp::new(side));
+        self.gabor = gabor.then(|| crate::gabor::Gabor::new(side));
         self.embedding.resize(self.dim(), 0.0);
     }
 
@@ -497,17 +497,30 @@ impl Encoder {
         for (o, v) in self.embedding[..d].iter_mut().zip(data) {
             *o = v / norm;
         }
-        if let Some(lbp) = &mut self.texture {
+        if self.features != Features::Encoder {
             let (_, input) = self.input.extract_tensor();
-            if !lbp.features(input, 3, &mut self.embedding[d..]) {
+            let mut at = d;
+            let mut parts = 1;
+            let mut ok = true;
+            if let Some(lbp) = &mut self.texture {
+                let n = crate::texture::LBP_DIM;
+                ok &= lbp.features(input, 3, &mut self.embedding[at..at + n]);
+                at += n;
+                parts += 1;
+            }
+            if let Some(g) = &mut self.gabor {
+                let n = crate::gabor::GABOR_DIM;
+                ok &= g.features(input, 3, &mut self.embedding[at..at + n]);
+                parts += 1;
+            }
+            if !ok {
                 return Err(EncoderError::Inference(
                     "the texture features of the preprocessed frame are not finite".into(),
                 ));
             }
-            // Both parts are of unit length: the whole is too after this.
-            self.embedding
-                .iter_mut()
-                .for_each(|v| *v *= std::f32::consts::FRAC_1_SQRT_2);
+            // Every part is of unit length: the whole is too after this.
+            let k = 1.0 / (parts as f32).sqrt();
+            self.embedding.iter_mut().for_each(|v| *v *= k);
         }
         Ok(&self.embedding)
     }

@@ -7,6 +7,7 @@ pub mod decide;
 pub mod encoder;
 pub mod frame;
 pub mod front;
+pub mod gabor;
 pub mod idle;
 pub mod pipeline;
 pub mod preprocess;

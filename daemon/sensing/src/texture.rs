@@ -344,6 +344,11 @@ mod tests {
     #[test]
     fn the_index_counts_as_many_texture_values_as_are_computed() {
         assert_eq!(telextiles_index::LBP_DIM, LBP_DIM);
+        assert_eq!(telextiles_index::GABOR_DIM, crate::gabor::GABOR_DIM);
+        assert_eq!(
+            telextiles_index::Features::EncoderLbpGabor.extra_dim(),
+            LBP_DIM + crate::gabor::GABOR_DIM
+        );
         assert_eq!(telextiles_index::Features::EncoderLbp.extra_dim(), LBP_DIM);
     }
 

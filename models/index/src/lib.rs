@@ -121,22 +121,45 @@ pub enum Features {
     /// The encoder's embedding, then rotation-invariant LBP histograms
     /// ([`LBP_DIM`] values).
     EncoderLbp,
+    /// The encoder's embedding, then rotation-invariant Gabor energies
+    /// ([`GABOR_DIM`] values).
+    EncoderGabor,
+    /// The encoder's embedding, the LBP histograms, then the Gabor
+    /// energies.
+    EncoderLbpGabor,
 }
 
 /// Values the LBP texture features add to a query
 /// (`telextiles_sensing::texture::LBP_DIM`, which is tested equal).
 pub const LBP_DIM: usize = 28;
+/// Values the Gabor energies add to a query
+/// (`telextiles_sensing::gabor::GABOR_DIM`, which is tested equal).
+pub const GABOR_DIM: usize = 9;
 
 impl Features {
     /// Every kind, simplest first.
-    pub const ALL: [Features; 2] = [Features::Encoder, Features::EncoderLbp];
+    pub const ALL: [Features; 4] = [
+        Features::Encoder,
+        Features::EncoderLbp,
+        Features::EncoderGabor,
+        Features::EncoderLbpGabor,
+    ];
+
+    /// Whether the LBP histograms are a part, and the Gabor energies: in
+    /// that order after the encoder's embedding.
+    pub fn parts(self) -> (bool, bool) {
+        match self {
+            Features::Encoder => (false, false),
+            Features::EncoderLbp => (true, false),
+            Features::EncoderGabor => (false, true),
+            Features::EncoderLbpGabor => (true, true),
+        }
+    }
 
     /// Values added to the encoder's embedding.
     pub fn extra_dim(self) -> usize {
-        match self {
-            Features::Encoder => 0,
-            Features::EncoderLbp => LBP_DIM,
-        }
+        let (lbp, gabor) = self.parts();
+        usize::from(lbp) * LBP_DIM + usize::from(gabor) * GABOR_DIM
     }
 
     /// In words.
@@ -144,6 +167,8 @@ impl Features {
         match self {
             Features::Encoder => "encoder",
             Features::EncoderLbp => "encoder + LBP",
+            Features::EncoderGabor => "encoder + Gabor",
+            Features::EncoderLbpGabor => "encoder + LBP + Gabor",
         }
     }
 }
