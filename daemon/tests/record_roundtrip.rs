@@ -478,7 +478,7 @@ fn record_replay_gives_a_cut_sequence_the_reference_given_for_its_sensor() {
     let o = record("plain", &["--presses", "5"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        err.contains("note: cut/wool/D00001 (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference)"),
+        err.contains("note: cut/wool/D00001 (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference, or keep it beside the index as no-contact.png or no-contact-<SERIAL>.png; `telextilesd record --idle` writes one)"),
         "{err}"
     );
     assert_eq!(err.matches("note: ").count(), 1, "{err}");
