@@ -52,7 +52,11 @@ fn main() {
     println!(
         "| Gabor energies (3 scales x 6 orientations, 64x64 FFT) of the same | {gabor_ms:.3} |"
     );
-    for dim in [128usize, 128 + LBP_DIM] {
+    for dim in [
+        128usize,
+        128 + LBP_DIM,
+        128 + LBP_DIM + telextiles_sensing::gabor::GABOR_DIM,
+    ] {
         let fabrics: Vec<Vec<Vec<f32>>> = (0..8)
             .map(|_| {
                 (0..4)

@@ -25,6 +25,9 @@ const N: usize = 64;
 const SCALES: [f32; 3] = [3.0, 6.0, 12.0];
 /// Orientations over half a turn.
 const ORIENTATIONS: usize = 6;
+/// Filter weights below this are left out of the sums (the windows'
+/// tails, well under a thousandth of their peak).
+const MIN_WEIGHT: f32 = 1e-3;
 
 /// The Gabor energies of a square image of a fixed side.
 #[derive(Clone, Debug)]
@@ -36,9 +39,10 @@ pub struct Gabor {
     window: Vec<f32>,
     re: Vec<f32>,
     im: Vec<f32>,
-    /// Per filter (scale-major), its weight at each bin of the half plane
-    /// (`N` rows x `N/2 + 1` columns).
-    filters: Vec<Vec<f32>>,
+    /// Per bin of the half plane (`N` rows x `N/2 + 1` columns, row-major)
+    /// that some filter weighs by at least [`MIN_WEIGHT`]: the bin, and
+    /// each such filter (scale-major) with its weight.
+    taps: Vec<(usize, Vec<(usize, f32)>)>,
     /// Twiddles of the `N`-point FFT.
     cos: Vec<f32>,
     sin: Vec<f32>,
@@ -57,7 +61,7 @@ impl Gabor {
         let cols = N / 2 + 1;
         let sigma_r = std::f32::consts::LN_2 / 2.0;
         let sigma_t = std::f32::consts::PI / ORIENTATIONS as f32 / 2.0;
-        let mut filters = Vec::new();
+        let mut filters: Vec<Vec<f32>> = Vec::new();
         for &f in &SCALES {
             for o in 0..ORIENTATIONS {
                 let theta_o = std::f32::consts::PI * o as f32 / ORIENTATIONS as f32;
@@ -85,6 +89,17 @@ impl Gabor {
                 filters.push(w);
             }
         }
+        let taps = (0..N * cols)
+            .filter_map(|b| {
+                let t: Vec<(usize, f32)> = filters
+                    .iter()
+                    .enumerate()
+                    .map(|(k, w)| (k, w[b]))
+                    .filter(|&(_, w)| w >= MIN_WEIGHT)
+                    .collect();
+                (!t.is_empty()).then_some((b, t))
+            })
+            .collect();
         let (cos, sin) = (0..N / 2)
             .map(|k| {
                 let a = -2.0 * std::f32::consts::PI * k as f32 / N as f32;
@@ -98,7 +113,7 @@ impl Gabor {
             window,
             re: vec![0.0; N * N],
             im: vec![0.0; N * N],
-            filters,
+            taps,
             cos,
             sin,
             grey: vec![0.0; side * side],
@@ -154,20 +169,18 @@ impl Gabor {
             fft(&mut self.re, &mut self.im, x, N, &self.cos, &self.sin);
         }
         let cols = N / 2 + 1;
+        let mut flat = [0.0f32; SCALES.len() * ORIENTATIONS];
+        for (b, taps) in &self.taps {
+            let k = (b / cols) * N + b % cols;
+            let p = self.re[k] * self.re[k] + self.im[k] * self.im[k];
+            for &(f, w) in taps {
+                flat[f] += p * w;
+            }
+        }
         let mut energy = [[0.0f64; ORIENTATIONS]; SCALES.len()];
-        for ky in 0..N {
-            for kx in 0..cols {
-                let k = ky * N + kx;
-                let p = (self.re[k] * self.re[k] + self.im[k] * self.im[k]) as f64;
-                if p == 0.0 {
-                    continue;
-                }
-                let b = ky * cols + kx;
-                for (s, e) in energy.iter_mut().enumerate() {
-                    for (o, eo) in e.iter_mut().enumerate() {
-                        *eo += p * self.filters[s * ORIENTATIONS + o][b] as f64;
-                    }
-                }
+        for (s, e) in energy.iter_mut().enumerate() {
+            for (o, eo) in e.iter_mut().enumerate() {
+                *eo = flat[s * ORIENTATIONS + o] as f64;
             }
         }
         let totals: Vec<f64> = energy.iter().map(|e| e.iter().sum()).collect();
