@@ -279,7 +279,7 @@ pub struct CheckArgs {
     #[arg(long, value_enum)]
     pub fit: Option<FitArg>,
     /// What the queries are made of, as for `index build --features`
-    /// [default: auto, both shown].
+    /// [default: auto, every kind shown].
     #[arg(long, value_enum)]
     pub features: Option<FeaturesArg>,
     /// Shrinkage of the learned distance towards plain cosine (0..=1), as

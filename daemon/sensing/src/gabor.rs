@@ -135,10 +135,7 @@ impl Gabor {
         {
             return false;
         }
-        self.grey.copy_from_slice(&input[..n]);
-        for plane in input.chunks_exact(n).skip(1) {
-            self.grey.iter_mut().zip(plane).for_each(|(g, v)| *g += v);
-        }
+        crate::texture::sum_planes(input, &mut self.grey);
         // Blocks of step x step, minus their mean, windowed, into the grid.
         let (h, step) = (self.h, self.step);
         self.re.iter_mut().for_each(|v| *v = 0.0);

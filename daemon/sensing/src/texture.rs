@@ -125,10 +125,7 @@ impl Lbp {
         {
             return false;
         }
-        self.grey.copy_from_slice(&input[..n]);
-        for plane in input.chunks_exact(n).skip(1) {
-            self.grey.iter_mut().zip(plane).for_each(|(g, v)| *g += v);
-        }
+        sum_planes(input, &mut self.grey);
         let mut hist = [0u32; LBP_DIM];
         histogram(
             &self.small,
@@ -152,6 +149,16 @@ impl Lbp {
         // length and the whole √2.
         out.iter_mut().for_each(|v| *v /= std::f32::consts::SQRT_2);
         true
+    }
+}
+
+/// The sum of an image's colour planes (`grey.len()` values each), into
+/// `grey`: what the texture features see of the encoder's input.
+pub(crate) fn sum_planes(input: &[f32], grey: &mut [f32]) {
+    let n = grey.len();
+    grey.copy_from_slice(&input[..n]);
+    for plane in input.chunks_exact(n).skip(1) {
+        grey.iter_mut().zip(plane).for_each(|(g, v)| *g += v);
     }
 }
 
