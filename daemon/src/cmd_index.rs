@@ -1313,6 +1313,7 @@ fn inspect(a: InspectArgs) -> Result<()> {
             "encoder_hash": index.encoder_hash,
             "encoder_arch": index.encoder_arch,
             "dim": index.dim,
+            "features": index.features.label(),
             "catalogue_version": index.catalogue_version,
             "metric": index.metric.as_ref().map(|m| serde_json::json!({
                 "presses": m.presses, "fabrics": m.fabrics, "shrinkage": m.shrinkage,
@@ -1339,7 +1340,12 @@ fn inspect(a: InspectArgs) -> Result<()> {
         "encoder      {} ({})",
         index.encoder_hash, index.encoder_arch
     )?;
-    writeln!(out, "dimension    {}", index.dim)?;
+    writeln!(
+        out,
+        "dimension    {} ({})",
+        index.dim,
+        index.features.label()
+    )?;
     writeln!(out, "catalogue    v{}", index.catalogue_version)?;
     writeln!(out, "distance     {}", metric_summary(&index))?;
     writeln!(out, "unknown      beyond {}", unknown_summary(&index))?;

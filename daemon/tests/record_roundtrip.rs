@@ -1316,6 +1316,33 @@ fn record_idle_checks_the_contact_detector_on_a_resting_sensor() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // `index inspect` says what an index's queries are made of.
+    let features = |index: &str| {
+        let v: serde_json::Value =
+            serde_json::from_str(ok(d, &["index", "inspect", "--json", index]).trim())
+                .expect("json");
+        (v["features"].clone(), v["dim"].clone())
+    };
+    assert_eq!(features("p.tlxi"), ("encoder".into(), 64.into()));
+    ok(
+        d,
+        &[
+            "index",
+            "build",
+            "--model",
+            model,
+            "--presses",
+            "index",
+            "--features",
+            "lbp-gabor",
+            "-o",
+            "lbp.tlxi",
+        ],
+    );
+    assert_eq!(
+        features("lbp.tlxi"),
+        ("encoder + LBP + Gabor".into(), (64 + 28 + 9).into())
+    );
     // A threshold far too low for this sensor (as a user may set it, the
     // same flag as the daemon's `contact_enter`): presses on nothing, a
     // failed check, and the footage kept for a report.
