@@ -114,6 +114,52 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
     );
 }
 
+/// A live pair whose index holds texture features beside the encoder's
+/// embedding (`index build --features lbp-gabor`, as an owner builds one):
+/// both daemons compute them because the index says so, the latents carry
+/// them, and B decides each of A's presses as the fabric A presses.
+#[test]
+fn a_live_pair_decides_with_an_index_of_texture_features() {
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let work = tempfile::tempdir().unwrap();
+    let presses = work.path().join("presses");
+    for id in ["T012", "T047", "T030", "T080"] {
+        for seed in [1u64, 2] {
+            let p = sim
+                .render_press(&telextiles_sim::PressSpec::new(id, seed))
+                .unwrap();
+            telextiles_sim::recording::write_press(&presses.join(id).join(format!("{seed}")), &p)
+                .unwrap();
+        }
+    }
+    let index = work.path().join("features.tlxi");
+    let out = std::process::Command::new(harness::BIN)
+        .args(["index", "build", "--model", harness::MODEL, "--presses"])
+        .arg(&presses)
+        .args(["--features", "lbp-gabor", "-o"])
+        .arg(&index)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let built = telextiles_index::Index::read(&index).unwrap();
+    assert_eq!(built.features, telextiles_index::Features::EncoderLbpGabor);
+    let flags = vec!["--index".to_string(), index.display().to_string()];
+    let setup = Setup {
+        flags: (flags.clone(), flags),
+        ..Setup::default()
+    };
+    replays_in_order(
+        &setup,
+        &["T012"],
+        &[],
+        "A's simulated presses of T012, decided by B against an index of texture features",
+    );
+}
+
 /// The decision-speed settings reach a live pair as `classify` replays
 /// them: A replays recordings with `--encode-run`, B decides with
 /// `--commit-margin 2`, and B's first decision of each press (its

@@ -122,7 +122,13 @@ pub fn spawn(
         .args(flags)
         .args(["--roller", "sim", "--map=false", "--mdns=false"])
         .args(["--listen", &listen.to_string()])
-        .args(["--model", MODEL, "--index", INDEX])
+        .args(["--model", MODEL])
+        // The shipped index, unless the flags name another.
+        .args(if flags.iter().any(|f| f == "--index") {
+            &[][..]
+        } else {
+            &["--index", INDEX][..]
+        })
         .arg("--config")
         .arg(dir.join("none.toml"))
         .arg("--latency-trace")
