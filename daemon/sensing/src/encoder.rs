@@ -162,6 +162,9 @@ pub struct Encoder {
     features: Features,
     texture: Option<crate::texture::Lbp>,
     gabor: Option<crate::gabor::Gabor>,
+    /// The preprocessed input summed over its planes, once per frame, for
+    /// every texture feature.
+    grey: Vec<f32>,
 }
 
 fn contract(path: &Path, msg: impl Into<String>) -> EncoderError {
@@ -352,6 +355,7 @@ impl Encoder {
             features: Features::Encoder,
             texture: None,
             gabor: None,
+            grey: Vec::new(),
         };
         // Dry run: shape and finiteness of the output, before any frame (a
         // subtracting model sees a blank frame against a blank reference). A
@@ -412,6 +416,7 @@ impl Encoder {
         self.features = features;
         self.texture = lbp.then(|| crate::texture::Lbp::new(side));
         self.gabor = gabor.then(|| crate::gabor::Gabor::new(side));
+        self.grey = vec![0.0; if lbp || gabor { side * side } else { 0 }];
         self.embedding.resize(self.dim(), 0.0);
     }
 
@@ -499,18 +504,18 @@ impl Encoder {
         }
         if self.features != Features::Encoder {
             let (_, input) = self.input.extract_tensor();
+            let mut ok = crate::texture::grey_of(input, 3, &mut self.grey);
             let mut at = d;
             let mut parts = 1;
-            let mut ok = true;
-            if let Some(lbp) = &mut self.texture {
+            if let (true, Some(lbp)) = (ok, &mut self.texture) {
                 let n = crate::texture::LBP_DIM;
-                ok &= lbp.features(input, 3, &mut self.embedding[at..at + n]);
+                ok &= lbp.features_of_grey(&self.grey, &mut self.embedding[at..at + n]);
                 at += n;
                 parts += 1;
             }
-            if let Some(g) = &mut self.gabor {
+            if let (true, Some(g)) = (ok, &mut self.gabor) {
                 let n = crate::gabor::GABOR_DIM;
-                ok &= g.features(input, 3, &mut self.embedding[at..at + n]);
+                ok &= g.features_of_grey(&self.grey, &mut self.embedding[at..at + n]);
                 parts += 1;
             }
             if !ok {

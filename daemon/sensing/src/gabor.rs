@@ -126,16 +126,19 @@ impl Gabor {
     /// `input` is not `planes` planes of that size, is not finite, or the
     /// image is too small.
     pub fn features(&mut self, input: &[f32], planes: usize, out: &mut [f32]) -> bool {
-        let n = self.side * self.side;
-        if planes == 0
-            || input.len() != planes * n
-            || out.len() != GABOR_DIM
-            || self.h < 8
-            || input.iter().any(|v| !v.is_finite())
-        {
+        let mut grey = std::mem::take(&mut self.grey);
+        let ok =
+            crate::texture::grey_of(input, planes, &mut grey) && self.features_of_grey(&grey, out);
+        self.grey = grey;
+        ok
+    }
+
+    /// [`Gabor::features`] of an image already summed over its planes
+    /// (`side` x `side` finite values, [`crate::texture::grey_of`]).
+    pub fn features_of_grey(&mut self, grey: &[f32], out: &mut [f32]) -> bool {
+        if grey.len() != self.side * self.side || out.len() != GABOR_DIM || self.h < 8 {
             return false;
         }
-        crate::texture::sum_planes(input, &mut self.grey);
         // Blocks of step x step, minus their mean, windowed, into the grid.
         let (h, step) = (self.h, self.step);
         self.re.iter_mut().for_each(|v| *v = 0.0);
@@ -146,7 +149,7 @@ impl Gabor {
                 let mut s = 0.0;
                 for dy in 0..step {
                     let row = (y * step + dy) * self.side + x * step;
-                    s += self.grey[row..row + step].iter().sum::<f32>();
+                    s += grey[row..row + step].iter().sum::<f32>();
                 }
                 self.re[y * N + x] = s;
                 mean += s;

@@ -111,32 +111,36 @@ impl Lbp {
     }
 
     /// Features of a planar image of `planes` colour planes of `side` x
-    /// `side` (the encoder's NCHW input for one frame), averaged over the
-    /// planes, into `out` (`LBP_DIM` values, unit length). False, and
-    /// `out` untouched, when `input` is not `planes` planes of that size,
-    /// is not finite, or the image is too small.
+    /// `side` (the encoder's NCHW input for one frame), summed over the
+    /// planes ([`grey_of`]), into `out` (`LBP_DIM` values, unit length).
+    /// False, and `out` untouched, when `input` is not `planes` planes of
+    /// that size, is not finite, or the image is too small.
     pub fn features(&mut self, input: &[f32], planes: usize, out: &mut [f32]) -> bool {
-        let n = self.side * self.side;
-        if planes == 0
-            || input.len() != planes * n
-            || out.len() != LBP_DIM
-            || self.side < 2 * BORDER + 1
-            || input.iter().any(|v| !v.is_finite())
+        let mut grey = std::mem::take(&mut self.grey);
+        let ok = grey_of(input, planes, &mut grey) && self.features_of_grey(&grey, out);
+        self.grey = grey;
+        ok
+    }
+
+    /// [`Lbp::features`] of an image already summed over its planes
+    /// (`side` x `side` finite values): what the encoder calls, once per
+    /// frame for every texture feature.
+    pub fn features_of_grey(&mut self, grey: &[f32], out: &mut [f32]) -> bool {
+        if grey.len() != self.side * self.side || out.len() != LBP_DIM || self.side < 2 * BORDER + 1
         {
             return false;
         }
-        sum_planes(input, &mut self.grey);
         let mut hist = [0u32; LBP_DIM];
         histogram(
             &self.small,
-            &self.grey,
+            grey,
             self.side,
             &mut self.state,
             &mut hist[..BINS_8],
         );
         histogram(
             &self.large,
-            &self.grey,
+            grey,
             self.side,
             &mut self.state,
             &mut hist[BINS_8..],
@@ -152,14 +156,20 @@ impl Lbp {
     }
 }
 
-/// The sum of an image's colour planes (`grey.len()` values each), into
-/// `grey`: what the texture features see of the encoder's input.
-pub(crate) fn sum_planes(input: &[f32], grey: &mut [f32]) {
+/// The sum of an image's `planes` colour planes (`grey.len()` values
+/// each) into `grey`: what the texture features see of the encoder's
+/// input. False, and `grey` untouched, when `input` is not that many
+/// planes of that size or is not finite.
+pub fn grey_of(input: &[f32], planes: usize, grey: &mut [f32]) -> bool {
     let n = grey.len();
+    if planes == 0 || n == 0 || input.len() != planes * n || input.iter().any(|v| !v.is_finite()) {
+        return false;
+    }
     grey.copy_from_slice(&input[..n]);
     for plane in input.chunks_exact(n).skip(1) {
         grey.iter_mut().zip(plane).for_each(|(g, v)| *g += v);
     }
+    true
 }
 
 /// The riu2 histogram of one circle over the image's inner pixels: a
