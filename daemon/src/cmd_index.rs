@@ -177,21 +177,20 @@ impl Choice {
         let mut checks = Vec::new();
         for kind in kinds {
             let dim = encoder_dim + kind.extra_dim();
+            let parts;
+            let source = if kind == computed {
+                by_textile
+            } else {
+                parts = textiles_as(by_textile, kind, computed, encoder_dim);
+                &parts
+            };
             let fabrics: Vec<telextiles_index::build::FabricPresses> = ids
                 .iter()
-                .map(|id| match by_textile.get(id) {
-                    Some((frames, means)) if kind != computed => {
-                        let part = |v: &Vec<f32>| part_of(v, kind, computed, encoder_dim);
-                        (
-                            means.iter().map(part).collect(),
-                            frames
-                                .iter()
-                                .map(|f| f.iter().map(part).collect())
-                                .collect(),
-                        )
-                    }
-                    Some((frames, means)) => (means.clone(), frames.clone()),
-                    None => Default::default(),
+                .map(|id| {
+                    source
+                        .get(id)
+                        .map(|(frames, means)| (means.clone(), frames.clone()))
+                        .unwrap_or_default()
                 })
                 .collect();
             let data = telextiles_index::build::press_data(&fabrics, dim);

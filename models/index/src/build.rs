@@ -158,16 +158,17 @@ pub type FabricPresses = (Vec<Vec<f32>>, Vec<Vec<Vec<f32>>>);
 pub fn press_data(fabrics: &[FabricPresses], dim: usize) -> Vec<Vec<PressData>> {
     fabrics
         .iter()
-        .map(|(means, frames)| {
-            means
-                .iter()
-                .enumerate()
-                .filter_map(|(i, m)| {
-                    let f = frames.get(i).map_or(&[][..], Vec::as_slice);
-                    PressData::new(m, f, dim)
-                })
-                .collect()
-        })
+        .map(|(means, frames)| presses_of(means, frames, dim))
+        .collect()
+}
+
+/// One fabric's presses as [`PressData`]: press `i`'s mean `means[i]` and
+/// frames `frames[i]` (none: its mean stands for them).
+fn presses_of(means: &[Vec<f32>], frames: &[Vec<Vec<f32>>], dim: usize) -> Vec<PressData> {
+    means
+        .iter()
+        .enumerate()
+        .filter_map(|(i, m)| PressData::new(m, frames.get(i).map_or(&[][..], Vec::as_slice), dim))
         .collect()
 }
 
@@ -390,16 +391,7 @@ impl IndexBuilder {
         let presses: Vec<Vec<PressData>> = self
             .records
             .iter()
-            .map(|r| {
-                r.exemplars
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, m)| {
-                        let frames = r.press_frames.get(i).map_or(&[][..], Vec::as_slice);
-                        PressData::new(m, frames, dim)
-                    })
-                    .collect()
-            })
+            .map(|r| presses_of(&r.exemplars, &r.press_frames, dim))
             .collect();
         let keep_exemplars = self.keep_exemplars;
         // The fit: the one asked for, or the best of the candidates on the
