@@ -832,6 +832,9 @@ mod tests {
             ended: "released".into(),
             stages: Default::default(),
             frame_total: Default::default(),
+            start_us: 400_000,
+            end_us: 1_300_000,
+            steps: Vec::new(),
         };
         let report = |last: &str, first: &str| report_covering(last, first, Some(0.8));
         let mut tally = Tally::default();

@@ -13,9 +13,19 @@ struct Bench {
 }
 
 impl Bench {
+    /// A slow wheel (1 rev/s, 2 rev/s^2, common AccelStepper settings):
+    /// moves long enough for the timing of replies to be checked.
     fn new() -> Bench {
+        Bench::with(Config {
+            max_speed: 3200,
+            accel: 6400,
+            ..Config::default()
+        })
+    }
+
+    fn with(cfg: Config) -> Bench {
         Bench {
-            fw: Roller::new(Config::default()),
+            fw: Roller::new(cfg),
             now: 0,
             dec: FrameDecoder::new(),
             seq: 0,
@@ -343,4 +353,47 @@ fn at_target_already_arrives_immediately() {
         matches!(r[..], [(1, Reply::Ack(_)), (1, Reply::Arrived(_))]),
         "{r:?}"
     );
+}
+
+/// The default configuration is the paper's wheel (16 slots, 1/16
+/// microstepping, 3 rev/s, 30 rev/s^2): one slot in about 91 ms, a quarter
+/// turn in 183 ms, a half turn in 267 ms, rest to rest, in simulated time.
+#[test]
+fn the_paper_wheel_moves_a_slot_a_quarter_and_a_half_turn_in_time() {
+    for (slot, ideal_ms) in [(1u16, 91.3), (4, 182.6), (8, 266.7)] {
+        let mut b = Bench::with(Config::default());
+        let t0 = b.now;
+        b.send(Command::GotoSlot { slot });
+        b.run(None);
+        assert_eq!(b.fw.position_steps(), slot as u32 * 200);
+        let ms = (b.now - t0) as f64 / 1000.0;
+        assert!((ms - ideal_ms).abs() < 3.0, "slot {slot}: {ms} ms");
+    }
+}
+
+/// A new target while moving, further the same way, is taken from the
+/// current speed: the wheel never stops on the way, and arrives sooner than
+/// stopping at the first target and starting again would.
+#[test]
+fn a_new_target_while_moving_is_taken_without_stopping() {
+    let mut b = Bench::with(Config::default());
+    b.send(Command::GotoSlot { slot: 2 });
+    b.run(Some(50_000));
+    assert!(b.fw.planner().is_moving());
+    b.send(Command::GotoSlot { slot: 6 });
+    let mut stopped_on_the_way = false;
+    while b.fw.planner().is_moving() {
+        let t = b.fw.next_event_at().unwrap();
+        b.now = b.now.max(t);
+        b.fw.check_and_tick(b.now, &mut b.steps);
+        if b.fw.planner().speed_squared() == 0 && b.fw.planner().is_moving() {
+            stopped_on_the_way = true;
+        }
+    }
+    assert!(!stopped_on_the_way);
+    assert_eq!(b.fw.position_steps(), 1200);
+    assert!(b.steps.iter().all(|&d| d == 1), "no reversal");
+    // Straight to slot 6 from rest: 2 * sqrt(1200 / 96000) = 224 ms (the
+    // target came 50 ms in, on the way): well under 50 + 224 + a stop.
+    assert!(b.now < 235_000, "{} us", b.now);
 }

@@ -346,6 +346,17 @@ pub struct PressReport {
     pub stages: std::collections::BTreeMap<String, StageSummary>,
     /// Whole per-frame pipeline time over the press's frames.
     pub frame_total: StageSummary,
+    /// Contact and end of the press on the source's clock (microseconds).
+    #[serde(skip)]
+    pub start_us: u64,
+    /// See `start_us`.
+    #[serde(skip)]
+    pub end_us: u64,
+    /// What the decider knew after each encoded frame of the press, with
+    /// the frame's time: what a motion policy for the wheel is fed
+    /// (`telextiles_session::motion`), replayed offline.
+    #[serde(skip)]
+    pub steps: Vec<(u64, DecideStep)>,
 }
 
 /// What [`run_source`] saw.
@@ -398,6 +409,7 @@ fn report<I: TextileIndex>(
     ended: &str,
     stats: &StageStats,
     deepest: Deepest,
+    steps: &[(u64, DecideStep)],
 ) -> PressReport {
     let ms = |t: u64| t.saturating_sub(o.start_us) as f64 / 1000.0;
     let (per, total) = stats.summary();
@@ -419,6 +431,9 @@ fn report<I: TextileIndex>(
         ended: ended.to_string(),
         stages: per.into_iter().map(|(n, s)| (n.to_string(), s)).collect(),
         frame_total: total,
+        start_us: o.start_us,
+        end_us: o.end_us,
+        steps: steps.to_vec(),
     }
 }
 
@@ -436,6 +451,7 @@ pub fn run_source<I: TextileIndex>(
     let mut frame = Frame::blank();
     let mut stats = StageStats::with_capacity(1024);
     let mut deepest = Deepest::default();
+    let mut steps: Vec<(u64, DecideStep)> = Vec::with_capacity(256);
     let mut summary = RunSummary::default();
     let mut last_t = 0;
     loop {
@@ -471,6 +487,10 @@ pub fn run_source<I: TextileIndex>(
         if let Some(ContactEvent::PressStart { .. }) = out.contact_event {
             stats.clear();
             deepest = Deepest::default();
+            steps.clear();
+        }
+        if let Some(s) = out.step {
+            steps.push((frame.timestamp_us, s));
         }
         if out.in_contact || out.ended.is_some() {
             stats.record(&times);
@@ -484,7 +504,7 @@ pub fn run_source<I: TextileIndex>(
                 EndReason::Recapture => "reference-recaptured",
                 EndReason::StaleReference => "stale-reference",
             };
-            on_press(report(&pipeline.index, &o, why, &stats, deepest));
+            on_press(report(&pipeline.index, &o, why, &stats, deepest, &steps));
             summary.presses += 1;
         }
     }
@@ -495,6 +515,7 @@ pub fn run_source<I: TextileIndex>(
             "end-of-frames",
             &stats,
             deepest,
+            &steps,
         ));
         summary.presses += 1;
     }

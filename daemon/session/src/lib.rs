@@ -14,6 +14,12 @@
 //!   peers pressing at once never reset each other; reordered, duplicated,
 //!   lost or malformed messages never panic it and never stop decisions.
 //!
+//! - [`motion::Motion`]: when the wheel moves (a policy apart from the
+//!   decision): the decider's state per frame → roller targets.
+//! - [`felt`]: what the receiving hand feels — contact → the wheel at rest
+//!   at the press's final sample, driving the roller's firmware core in
+//!   simulated time.
+//!
 //! - [`clock::CaptureClock`]: a frame's capture time on the local clock,
 //!   spaced as the sensor spaced its frames (its own timestamps), so that
 //!   the peers' deciders time presses as the offline tools do.
@@ -26,10 +32,13 @@
 #![warn(missing_docs)]
 
 pub mod clock;
+pub mod felt;
 pub mod latent;
+pub mod motion;
 pub mod receiver;
 pub mod sender;
 
 pub use latent::{Latent, LatentError};
+pub use motion::{Motion, MotionPolicy};
 pub use receiver::{ReceiverConfig, ReceiverCore, RxAction, RxDecision, RxInput};
 pub use sender::{SenderCore, TxAction};

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use telextiles_sensing::decide::{DecideConfig, Decider, TextileIndex};
 
 use crate::latent::Latent;
+use crate::motion::{Motion, MotionPolicy};
 
 /// Receiver tuning.
 #[derive(Clone, Debug, PartialEq)]
@@ -17,6 +18,8 @@ pub struct ReceiverConfig {
     /// Peers tracked at once (the least recently heard one is forgotten
     /// beyond this).
     pub max_peers: usize,
+    /// When the wheel moves during a press ([`crate::motion`]).
+    pub motion: MotionPolicy,
 }
 
 impl Default for ReceiverConfig {
@@ -25,6 +28,7 @@ impl Default for ReceiverConfig {
             decide: DecideConfig::default(),
             touch_every: 6,
             max_peers: 64,
+            motion: MotionPolicy::default(),
         }
     }
 }
@@ -106,7 +110,8 @@ pub enum RxAction {
     },
     /// A decision was made or changed, or a press's final answer.
     Decision(RxDecision),
-    /// Turn the roller to this slot (latest target wins).
+    /// Turn the roller to this slot (latest target wins), as the motion
+    /// policy says.
     RollerTarget {
         /// The slot.
         slot: usize,
@@ -131,6 +136,7 @@ struct RxPress {
     press_id: u32,
     contact_capture_us: u64,
     decider: Decider,
+    motion: Motion,
     decided: Option<usize>,
     latency_us: Option<i64>,
     latents: u64,
@@ -259,6 +265,9 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 ) else {
                     return;
                 };
+                if let Some(slot) = p.motion.on_step(&*index, capture_us, &step) {
+                    out.push(RxAction::RollerTarget { slot });
+                }
                 if let (true, Some(d)) = (step.changed, step.decision) {
                     Self::decide(
                         &*index, peer, p, d.entry, d.distance, capture_us, false, out,
@@ -328,6 +337,7 @@ impl<I: TextileIndex> ReceiverCore<I> {
         out: &mut Vec<RxAction>,
     ) -> bool {
         let cfg = self.cfg.decide.clone();
+        let policy = self.cfg.motion;
         let dim = self.index.dim();
         let st = self.peer(peer);
         if st.finished.contains(&press_id) {
@@ -348,10 +358,13 @@ impl<I: TextileIndex> ReceiverCore<I> {
         }
         let mut decider = Decider::new(cfg, dim);
         decider.press_start(capture_us);
+        let mut motion = Motion::new(policy);
+        motion.press_start();
         st.press = Some(RxPress {
             press_id,
             contact_capture_us: capture_us,
             decider,
+            motion,
             decided: None,
             latency_us: None,
             latents: 0,
@@ -380,8 +393,10 @@ impl<I: TextileIndex> ReceiverCore<I> {
         }
         p.decided = Some(entry);
         let slot = index.slot_of(entry);
-        if changed {
-            out.push(RxAction::RollerTarget { slot });
+        if final_decision {
+            if let Some(slot) = p.motion.press_end(slot) {
+                out.push(RxAction::RollerTarget { slot });
+            }
         }
         let latency_ms = p.latency_us.map(|l| l.max(0) as f64 / 1000.0);
         let pressed_ms = capture_us.saturating_sub(p.contact_capture_us) as f64 / 1000.0;

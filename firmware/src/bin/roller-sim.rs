@@ -24,11 +24,12 @@ struct Args {
     /// Time factor: the simulated motor runs this many times faster than real time.
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
-    /// Maximum speed in microsteps/s (3200 = one turn per second at 16x microstepping).
-    #[arg(long, default_value_t = 3200)]
+    /// Maximum speed in microsteps/s (3200 = one turn per second at 16x
+    /// microstepping; the default is the paper's wheel, 3 turns per second).
+    #[arg(long, default_value_t = roller_firmware::DEFAULT_MAX_SPEED)]
     max_speed: u32,
     /// Acceleration in microsteps/s^2.
-    #[arg(long, default_value_t = 6400)]
+    #[arg(long, default_value_t = roller_firmware::DEFAULT_ACCEL)]
     accel: u32,
     /// Link watchdog in milliseconds (wall clock).
     #[arg(long, default_value_t = 2000)]
