@@ -14,6 +14,8 @@ use telextiles_sensing::front::References;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport, PARTIAL_COVERAGE};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
+use telextiles_session::felt::{self, FeltTally};
+use telextiles_session::MotionPolicy;
 use telextiles_sim::PressSpec;
 
 /// Options of `telextilesd classify`.
@@ -76,6 +78,24 @@ pub struct Args {
     /// One JSON object per press on its own line.
     #[arg(long)]
     pub json: bool,
+    /// Also drive the simulated wheel through each press under this motion
+    /// policy (`every`, `confident[:CONFIDENCE[:HOLD_MS]]`,
+    /// `lead[:LEAD_MS]`; repeat to compare) and report the felt latency:
+    /// contact -> the wheel at rest at the press's final sample, from every
+    /// starting sample in turn [default: the daemon's policy].
+    #[arg(long = "motion", value_name = "POLICY")]
+    pub motions: Vec<telextiles_session::MotionPolicy>,
+    /// The wheel's top speed, microsteps/s [default: the paper's wheel,
+    /// 9600 = 3 rev/s at 1/16 microstepping].
+    #[arg(long, default_value_t = roller_firmware::DEFAULT_MAX_SPEED)]
+    pub wheel_speed: u32,
+    /// The wheel's acceleration, microsteps/s^2 [default: 96000 = 30
+    /// rev/s^2].
+    #[arg(long, default_value_t = roller_firmware::DEFAULT_ACCEL)]
+    pub wheel_accel: u32,
+    /// Write the felt-latency summary of every policy to this JSON file.
+    #[arg(long, value_name = "FILE")]
+    pub felt_json: Option<PathBuf>,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
     #[command(flatten)]
@@ -115,12 +135,14 @@ fn print(
     n: usize,
     r: &PressReport,
     index: &Index,
+    felt: &[PressFelt],
 ) -> Result<()> {
     if args.json {
         let mut v = serde_json::to_value(r)?;
         if let Some(o) = v.as_object_mut() {
             o.insert("source".into(), source.into());
             o.insert("press".into(), n.into());
+            o.insert("felt".into(), serde_json::to_value(felt)?);
             let name = r
                 .textile
                 .as_deref()
@@ -178,6 +200,14 @@ fn print(
             r.frames, r.duration_ms
         )?,
     }
+    // The wheel's figures per press when a policy was asked for.
+    for f in felt.iter().filter(|_| !args.motions.is_empty()) {
+        writeln!(
+            out,
+            "  wheel ({}): at rest at the final sample {:.0} ms after contact (median over {} starting samples, worst {:.0}); {} targets, up to {} reversals",
+            f.policy, f.felt_p50_ms, f.starts, f.felt_max_ms, f.targets, f.reversals_max
+        )?;
+    }
     let stages: Vec<String> = r
         .stages
         .iter()
@@ -192,6 +222,110 @@ fn print(
         r.frame_total.p90_ms
     )?;
     Ok(())
+}
+
+/// One press's wheel under one motion policy, over every starting sample.
+#[derive(Clone, Debug, serde::Serialize)]
+struct PressFelt {
+    policy: String,
+    starts: usize,
+    felt_p50_ms: f64,
+    felt_max_ms: f64,
+    reversals_max: u32,
+    wrong_rest_max_ms: f64,
+    travel_mean_slots: f64,
+    targets: u32,
+}
+
+/// The simulated wheel driven through every press under each motion
+/// policy asked for ([`telextiles_session::felt`]).
+struct Felts {
+    wheel: roller_firmware::Config,
+    policies: Vec<(MotionPolicy, FeltTally)>,
+}
+
+impl Felts {
+    fn new(args: &Args, index: &Index) -> Felts {
+        let policies = if args.motions.is_empty() {
+            vec![MotionPolicy::default()]
+        } else {
+            args.motions.clone()
+        };
+        Felts {
+            wheel: roller_firmware::Config {
+                slots: index.roller.slots.len().clamp(1, u16::MAX as usize) as u16,
+                max_speed: args.wheel_speed,
+                accel: args.wheel_accel,
+                ..Default::default()
+            },
+            policies: policies
+                .into_iter()
+                .map(|p| (p, FeltTally::default()))
+                .collect(),
+        }
+    }
+
+    /// Drive the wheel through a decided press; `label` is right when the
+    /// index holds it.
+    fn press(&mut self, label: &str, r: &PressReport, index: &Index) -> Vec<PressFelt> {
+        let Some(slot) = r.slot else {
+            return Vec::new();
+        };
+        let right = index
+            .entry_by_id(label)
+            .map(|e| index.slot_of_entry(e) == slot);
+        let wheel = self.wheel;
+        self.policies
+            .iter_mut()
+            .map(|(policy, tally)| {
+                let all = felt::replay(index, *policy, wheel, &r.steps, r.start_us, r.end_us, slot);
+                let mut one = FeltTally::default();
+                for f in &all {
+                    tally.add(f, right);
+                    one.add(f, None);
+                }
+                let s = one.summary();
+                PressFelt {
+                    policy: policy.to_string(),
+                    starts: all.len(),
+                    felt_p50_ms: s.felt_p50_ms,
+                    felt_max_ms: all.iter().map(|f| f.felt_ms).fold(0.0, f64::max),
+                    reversals_max: all.iter().map(|f| f.reversals).max().unwrap_or(0),
+                    wrong_rest_max_ms: all.iter().map(|f| f.wrong_rest_ms).fold(0.0, f64::max),
+                    travel_mean_slots: s.travel_mean_slots,
+                    targets: all.first().map_or(0, |f| f.targets),
+                }
+            })
+            .collect()
+    }
+
+    fn lines(&self) -> Vec<String> {
+        self.policies
+            .iter()
+            .filter(|(_, t)| !t.is_empty())
+            .map(|(p, t)| format!("wheel ({p}): {}", t.summary().line()))
+            .collect()
+    }
+
+    fn write_json(&self, path: &Path) -> Result<()> {
+        let v = serde_json::json!({
+            "wheel": {
+                "slots": self.wheel.slots,
+                "microsteps_per_rev": self.wheel.steps_per_rev(),
+                "max_speed": self.wheel.max_speed,
+                "accel": self.wheel.accel,
+            },
+            "policies": self.policies.iter().map(|(p, t)| serde_json::json!({
+                "policy": p.to_string(),
+                "summary": t.summary(),
+            })).collect::<Vec<_>>(),
+        });
+        // Whole or not at all: written beside, then renamed over.
+        let tmp = path.with_extension("part");
+        std::fs::write(&tmp, format!("{v:#}\n"))
+            .and_then(|()| std::fs::rename(&tmp, path))
+            .with_context(|| format!("cannot write {}", path.display()))
+    }
 }
 
 /// Every press `classify` decided, against the fabric it is labelled with
@@ -376,16 +510,18 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         let total = (gap + frames) as u64 * args.presses as u64;
         let mut err = Ok(());
         let mut tally = Tally::default();
+        let mut felts = Felts::new(&args, &index);
         run_source(&mut pipeline, &mut src, Some(total), |r| {
             n += 1;
             tally.press(id, &r, &index);
+            let felt = felts.press(id, &r, &index);
             if err.is_ok() {
-                err = print(out, &args, &format!("sim {id}"), n, &r, &index);
+                err = print(out, &args, &format!("sim {id}"), n, &r, &index, &felt);
             }
         })
         .map_err(anyhow::Error::msg)?;
         err?;
-        return summarise(out, &args, &tally, &index);
+        return summarise(out, &args, &tally, &felts, &index);
     }
     let mut references = References::from_args(&args.references)?;
     // The sensors' no-contact frames kept beside the index, for recordings
@@ -410,6 +546,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     let progress =
         telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
     let mut tally = Tally::default();
+    let mut felts = Felts::new(&args, &index);
     for rec in recordings {
         let name = rec.path().display().to_string();
         let press = rec
@@ -425,8 +562,9 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         run_source(&mut pipeline, &mut src, None, |r| {
             n += 1;
             tally.press(&label, &r, &index);
+            let felt = felts.press(&label, &r, &index);
             if err.is_ok() {
-                err = print(out, &args, &name, n, &r, &index);
+                err = print(out, &args, &name, n, &r, &index, &felt);
             }
         })
         .map_err(anyhow::Error::msg)?;
@@ -451,17 +589,28 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         progress.inc(1);
     }
     progress.finish();
-    summarise(out, &args, &tally, &index)
+    summarise(out, &args, &tally, &felts, &index)
 }
 
 /// The summary line: after the presses on standard output, or, with
 /// `--json` (one object per press there, nothing else), on standard error.
-fn summarise(out: &mut dyn Write, args: &Args, tally: &Tally, index: &Index) -> Result<()> {
-    let line = tally.line(index);
-    if args.json {
-        eprintln!("{line}");
-    } else {
-        writeln!(out, "{line}")?;
+fn summarise(
+    out: &mut dyn Write,
+    args: &Args,
+    tally: &Tally,
+    felts: &Felts,
+    index: &Index,
+) -> Result<()> {
+    // The recognition summary last (scripts take the last line).
+    for line in felts.lines().into_iter().chain([tally.line(index)]) {
+        if args.json {
+            eprintln!("{line}");
+        } else {
+            writeln!(out, "{line}")?;
+        }
+    }
+    if let Some(path) = &args.felt_json {
+        felts.write_json(path)?;
     }
     Ok(())
 }
@@ -548,9 +697,74 @@ mod tests {
             allow_encoder_mismatch: false,
             threads: 1,
             json: true,
+            motions: Vec::new(),
+            wheel_speed: roller_firmware::DEFAULT_MAX_SPEED,
+            wheel_accel: roller_firmware::DEFAULT_ACCEL,
+            felt_json: None,
             contact: Default::default(),
             decision: Default::default(),
         }
+    }
+
+    /// Each press drives the paper's wheel under every policy asked for,
+    /// from every starting sample: the wheel ends at the press's final
+    /// sample, the felt latency is at least the decision time (or 0 where
+    /// the wheel already was there), and the summary file has a figure per
+    /// policy.
+    #[test]
+    fn classify_reports_the_felt_latency_of_each_motion_policy() {
+        let dir = tempfile::tempdir().unwrap();
+        let index = index_file(dir.path());
+        let felt_json = dir.path().join("felt.json");
+        let slots = Index::read(&index).unwrap().roller.slots.len();
+        assert!(slots >= 4);
+        let mut out = Vec::new();
+        run_to(
+            Args {
+                sim: Some("T030".into()),
+                presses: 2,
+                motions: vec![
+                    MotionPolicy::Every,
+                    "confident".parse().unwrap(),
+                    "lead:30".parse().unwrap(),
+                ],
+                felt_json: Some(felt_json.clone()),
+                ..args(fixture_model(), index.clone())
+            },
+            &mut out,
+        )
+        .unwrap();
+        let lines = json_lines(&out);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        for v in &lines {
+            let felt = v["felt"].as_array().unwrap();
+            assert_eq!(felt.len(), 3, "{v}");
+            let decided = v["decision_ms"].as_f64().unwrap();
+            for f in felt {
+                // Every slot of the index's wheel; at least one starting
+                // sample is elsewhere, so the worst case waits for the
+                // decision and a move.
+                assert_eq!(f["starts"], slots, "{f}");
+                let worst = f["felt_max_ms"].as_f64().unwrap();
+                let p50 = f["felt_p50_ms"].as_f64().unwrap();
+                assert!(worst >= p50 && p50 > 0.0, "{f}");
+                if f["policy"] != "lead:30" {
+                    assert!(worst > decided + 80.0, "{f} vs decided at {decided}");
+                }
+                assert!(f["targets"].as_u64().unwrap() >= 1, "{f}");
+            }
+        }
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&felt_json).unwrap()).unwrap();
+        let policies = summary["policies"].as_array().unwrap();
+        assert_eq!(policies.len(), 3);
+        assert_eq!(policies[0]["policy"], "every");
+        for p in policies {
+            assert_eq!(p["summary"]["n"], 2 * slots, "{p}");
+            assert_eq!(p["summary"]["right_at_rest_pct"], 100.0, "{p}");
+            assert!(p["summary"]["felt_p50_ms"].as_f64().unwrap() > 50.0, "{p}");
+        }
+        assert_eq!(summary["wheel"]["max_speed"], 9600);
     }
 
     fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {
