@@ -96,6 +96,10 @@ pub struct Args {
     /// Write the felt-latency summary of every policy to this JSON file.
     #[arg(long, value_name = "FILE")]
     pub felt_json: Option<PathBuf>,
+    /// Draw the share of presses at rest at the right sample against time
+    /// since contact, one line per policy, to this SVG file.
+    #[arg(long, value_name = "FILE")]
+    pub felt_svg: Option<PathBuf>,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
     #[command(flatten)]
@@ -612,6 +616,15 @@ fn summarise(
     if let Some(path) = &args.felt_json {
         felts.write_json(path)?;
     }
+    if let Some(path) = &args.felt_svg {
+        let title = format!(
+            "Wheel at rest at the right sample ({} slots, {:.0} rev/s, {:.0} rev/s^2)",
+            felts.wheel.slots,
+            felts.wheel.max_speed as f64 / felts.wheel.steps_per_rev() as f64,
+            felts.wheel.accel as f64 / felts.wheel.steps_per_rev() as f64
+        );
+        crate::felt_chart::draw(path, &title, &felts.policies)?;
+    }
     Ok(())
 }
 
@@ -701,6 +714,7 @@ mod tests {
             wheel_speed: roller_firmware::DEFAULT_MAX_SPEED,
             wheel_accel: roller_firmware::DEFAULT_ACCEL,
             felt_json: None,
+            felt_svg: None,
             contact: Default::default(),
             decision: Default::default(),
         }
@@ -729,6 +743,7 @@ mod tests {
                     "lead:30".parse().unwrap(),
                 ],
                 felt_json: Some(felt_json.clone()),
+                felt_svg: Some(dir.path().join("felt.svg")),
                 ..args(fixture_model(), index.clone())
             },
             &mut out,
@@ -765,6 +780,8 @@ mod tests {
             assert!(p["summary"]["felt_p50_ms"].as_f64().unwrap() > 50.0, "{p}");
         }
         assert_eq!(summary["wheel"]["max_speed"], 9600);
+        let svg = std::fs::read_to_string(dir.path().join("felt.svg")).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("lead:30: p50"), "{svg}");
     }
 
     fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {

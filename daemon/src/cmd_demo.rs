@@ -56,6 +56,10 @@ pub struct Args {
     /// Textile index both daemons hold.
     #[arg(long, default_value = "models/index.tlxi")]
     pub index: PathBuf,
+    /// When B's wheel moves during a press (the daemons' `motion`
+    /// setting) [default: the daemon's]
+    #[arg(long, value_name = "POLICY")]
+    pub motion: Option<telextiles_session::MotionPolicy>,
 }
 
 struct Netns {
@@ -180,6 +184,7 @@ fn spawn_daemon(
     mdns_iface: Option<&str>,
     pair_arg: &[&str],
     models: (&Path, &Path),
+    motion: Option<telextiles_session::MotionPolicy>,
 ) -> Result<Daemon> {
     let exe = std::env::current_exe()?;
     let dir = work.join(name);
@@ -213,10 +218,15 @@ fn spawn_daemon(
         .arg(models.1)
         .arg("--config")
         .arg(dir.join("none.toml"))
-        .env("TELEXTILESD_SIM_ROLLER_SPEED", "4")
+        // The wheel in real time, so that the felt latency is a real
+        // wheel's (the paper's: one slot in 91 ms, half a turn in 267).
+        .env("TELEXTILESD_SIM_ROLLER_SPEED", "1")
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(std::fs::File::create(&log)?);
+    if let Some(m) = motion {
+        cmd.arg("--motion").arg(m.to_string());
+    }
     match mdns_iface {
         Some(i) => {
             cmd.args(["--mdns=true", "--mdns-allow", i]);
@@ -415,6 +425,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         veth_a.as_deref(),
         &["--show"],
         models,
+        a.motion,
     )?;
     let line = wait_line(&mut da, "Pairing code:", Duration::from_secs(30))?;
     let code = pairing_code_in(&line).ok_or_else(|| anyhow!("no code in {line:?}"))?;
@@ -428,6 +439,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         veth_b.as_deref(),
         &["--code", &code],
         models,
+        a.motion,
     )?;
     let b_paired = wait_line(&mut db, "Paired with", Duration::from_secs(30))?;
     println!("B: {}", b_paired.trim());
@@ -468,6 +480,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
     let mut rows = Vec::new();
     let mut latencies = Vec::new();
     let mut decision_ms = Vec::new();
+    let mut felt_ms = Vec::new();
     for (i, step) in steps.iter().enumerate() {
         ctl_a
             .call(&Command::SensorSim(SimPressArgs {
@@ -486,8 +499,19 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         let mut first: Option<(f64, f64)> = None;
         let mut last: Option<Value> = None;
         let mut arrived: Option<u32> = None;
+        let mut arrived_at: Option<Instant> = None;
         let mut final_seen = false;
-        while Instant::now() < deadline && !(final_seen && arrived.is_some()) {
+        // B's press number, and what the receiving hand felt of it.
+        let mut b_press: Option<u32> = None;
+        let mut felt: Option<f64> = None;
+        // Done at the final decision with the wheel there: B says what was
+        // felt right after (or never, before its link has a clock offset).
+        let done = |final_seen: bool, felt: Option<f64>, arrived_at: Option<Instant>| {
+            final_seen
+                && (felt.is_some()
+                    || arrived_at.is_some_and(|t| t.elapsed() > Duration::from_millis(300)))
+        };
+        while Instant::now() < deadline && !done(final_seen, felt, arrived_at) {
             let remaining = deadline.saturating_duration_since(Instant::now());
             tokio::select! {
                 e = ev_a.next_event() => {
@@ -497,7 +521,8 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                 }
                 e = ev_b.next_event() => {
                     match e? {
-                        Some(EventLine::Known(Event::Decision { textile, name, slot, latency_ms, since_contact_ms, final_decision, distance, .. })) if contact => {
+                        Some(EventLine::Known(Event::Decision { textile, name, slot, latency_ms, since_contact_ms, final_decision, distance, press, .. })) if contact => {
+                            b_press = press.or(b_press);
                             if first.is_none() {
                                 first = Some((latency_ms, since_contact_ms.unwrap_or(f64::NAN)));
                             }
@@ -505,6 +530,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                             if arrived.is_some_and(|a| a != slot) {
                                 // A new slot: wait for the roller to get there.
                                 arrived = None;
+                                arrived_at = None;
                             }
                             last = Some(json!({"textile": textile, "name": name, "slot": slot, "distance": distance}));
                             if final_decision { final_seen = true; }
@@ -513,6 +539,12 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                             if last.as_ref().is_some_and(|l| l["slot"] == slot) =>
                         {
                             arrived = Some(slot);
+                            arrived_at.get_or_insert_with(Instant::now);
+                        }
+                        Some(EventLine::Known(Event::Felt { press, felt_ms: f, .. }))
+                            if contact && b_press == Some(press) =>
+                        {
+                            felt = Some(f);
                         }
                         None => bail!("daemon B closed its control socket; see {}", db.log.display()),
                         _ => {}
@@ -527,6 +559,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                         let want = last.as_ref().map(|l| l["slot"].clone());
                         if pos["moving"] == false && Some(pos["slot"].clone()) == want {
                             arrived = pos["slot"].as_u64().map(|v| v as u32);
+                            arrived_at.get_or_insert_with(Instant::now);
                         }
                     }
                 }
@@ -541,6 +574,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         if let Some((_, d)) = first {
             decision_ms.push(d);
         }
+        felt_ms.extend(felt);
         println!(
             "{:<4} {:<7} {:<5} {:<8} {:<28} {:>5} {:>7.1}ms {:>7.0}ms  {}",
             i + 1,
@@ -564,9 +598,10 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                 .unwrap_or_else(|| "-".into()),
             first.map(|f| f.0).unwrap_or(f64::NAN),
             first.map(|f| f.1).unwrap_or(f64::NAN),
-            match arrived {
-                Some(s) => format!("arrived at slot {s}"),
-                None => "not arrived".into(),
+            match (arrived, felt) {
+                (Some(s), Some(f)) => format!("at rest at slot {s}, felt {f:.0} ms after contact"),
+                (Some(s), None) => format!("arrived at slot {s}"),
+                (None, _) => "not arrived".into(),
             },
         );
         rows.push(json!({
@@ -576,6 +611,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
             "roller_arrived": arrived.is_some(),
             "first_decision_latency_ms": first.map(|f| f.0),
             "contact_to_decision_ms": first.map(|f| f.1),
+            "felt_ms": felt,
         }));
     }
 
@@ -609,6 +645,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         "unseen_presses": rows.len() - seen_rows.len(),
         "latency_ms": {"p50": percentile(&mut latencies, 50.0), "p95": percentile(&mut latencies, 95.0), "p99": percentile(&mut latencies, 99.0), "n": latencies.len()},
         "contact_to_decision_ms": {"p50": percentile(&mut decision_ms, 50.0), "p95": percentile(&mut decision_ms, 95.0)},
+        "felt_ms": {"p50": percentile(&mut felt_ms, 50.0), "p90": percentile(&mut felt_ms, 90.0), "n": felt_ms.len()},
         "wall_s": started.elapsed().as_secs_f64(),
         "rows": rows,
     });
@@ -623,6 +660,13 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         summary["latency_ms"]["p99"].as_f64().unwrap_or(f64::NAN),
         summary["contact_to_decision_ms"]["p50"].as_f64().unwrap_or(f64::NAN),
         started.elapsed().as_secs_f64()
+    );
+    println!(
+        "felt latency (contact on A -> B's wheel at rest at the final sample, {} policy): p50 {:.0} ms, p90 {:.0} ms over {} presses",
+        a.motion.unwrap_or_default(),
+        summary["felt_ms"]["p50"].as_f64().unwrap_or(f64::NAN),
+        summary["felt_ms"]["p90"].as_f64().unwrap_or(f64::NAN),
+        felt_ms.len()
     );
     if a.json {
         println!("{summary}");

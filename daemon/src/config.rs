@@ -45,6 +45,7 @@ pub const KEYS: &[&str] = &[
     "contact_tile",
     "commit_margin",
     "encode_run",
+    "motion",
     "model",
     "index",
     "roller",
@@ -301,6 +302,9 @@ pub struct ConfigArgs {
     /// Presses this daemon senses: also encode the frames of the run that starts a press, so the peer's decider counts from the first frame over the threshold (sooner; first decisions right less often on hand-held presses; docs/configuration.md) [env: TELEXTILESD_ENCODE_RUN] [default: false]
     #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
     pub encode_run: Option<bool>,
+    /// Presses this daemon receives: when the roller moves during a press: `every` decision, once `confident[:CONFIDENCE[:HOLD_MS]]`, or `lead[:LEAD_MS]` (set off towards the leading textile before the first decision); every press ends at its final decision (docs/studies/2026-12-04-felt-latency.md) [env: TELEXTILESD_MOTION] [default: every]
+    #[arg(long, value_name = "POLICY", value_parser = parse_motion)]
+    pub motion: Option<telextiles_session::MotionPolicy>,
     /// Encoder ONNX model [env: TELEXTILESD_MODEL] [default: <data_dir>/encoder.onnx]
     #[arg(long, value_name = "FILE")]
     pub model: Option<PathBuf>,
@@ -355,6 +359,7 @@ struct FileConfig {
     contact_tile: Option<u32>,
     commit_margin: Option<f32>,
     encode_run: Option<bool>,
+    motion: Option<String>,
     model: Option<PathBuf>,
     index: Option<PathBuf>,
     roller: Option<String>,
@@ -399,6 +404,8 @@ pub struct Config {
     /// The sending front end encodes the run that starts a press
     /// (`FrontEnd::set_encode_run`).
     pub encode_run: bool,
+    /// When the roller moves during a received press.
+    pub motion: telextiles_session::MotionPolicy,
     pub model: PathBuf,
     pub index: PathBuf,
     pub roller: RollerSource,
@@ -631,6 +638,12 @@ impl Config {
             file.encode_run,
         )
         .unwrap_or(false);
+        let file_motion = file
+            .motion
+            .map(|v| parse_motion(&v).map_err(|m| file_err("motion", m)))
+            .transpose()?;
+        let motion = pick(args.motion, e.get("MOTION", parse_motion)?, file_motion)
+            .unwrap_or_default();
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,
@@ -713,6 +726,7 @@ impl Config {
             contact_tile,
             commit_margin,
             encode_run,
+            motion,
             model,
             index,
             roller,
@@ -784,7 +798,7 @@ impl Config {
             .map(|f| format!("replay_fps = {f:?}\n"))
             .unwrap_or_default();
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -800,6 +814,7 @@ impl Config {
             self.contact_tile,
             self.commit_margin,
             self.encode_run,
+            q(&self.motion.to_string()),
             p(&self.model),
             p(&self.index),
             q(&self.roller.to_string()),
@@ -813,6 +828,10 @@ impl Config {
             q(&self.log),
         )
     }
+}
+
+fn parse_motion(s: &str) -> Result<telextiles_session::MotionPolicy, String> {
+    s.parse()
 }
 
 fn toml_string(s: &str) -> String {

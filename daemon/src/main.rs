@@ -12,6 +12,7 @@ mod cmd_record;
 mod cmd_roller;
 mod cmd_sim;
 mod config;
+mod felt_chart;
 mod index_choice;
 mod out;
 mod session;

@@ -118,6 +118,9 @@ struct State {
     in_contact: Mutex<bool>,
     /// Last roller position: (millidegrees, slot, moving).
     roller_pos: Mutex<Option<(u32, Option<u16>, bool)>>,
+    /// Felt latency of received presses: their final decisions against
+    /// the roller's arrivals.
+    felt: Mutex<telextiles_session::felt::LiveFelt>,
     map_tx: Option<broadcast::Sender<telextiles_map::MapEvent>>,
     /// A pairing was asked for and has not completed yet.
     pairing_pending: Mutex<bool>,
@@ -230,6 +233,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         counters: Mutex::new(Counters::default()),
         in_contact: Mutex::new(false),
         roller_pos: Mutex::new(None),
+        felt: Mutex::new(Default::default()),
         pairing_pending: Mutex::new(pairing),
         fatal: Mutex::new(None),
         map_tx: map_tx.clone(),
@@ -374,10 +378,11 @@ async fn sigterm() {
 }
 
 /// The receiving session core's settings: the configured decider
-/// (`commit_margin`, [`Config::decide`]).
+/// (`commit_margin`, [`Config::decide`]) and the wheel's motion policy.
 fn receiver_config(cfg: &Config) -> ReceiverConfig {
     ReceiverConfig {
         decide: cfg.decide(),
+        motion: cfg.motion,
         ..ReceiverConfig::default()
     }
 }
@@ -418,5 +423,33 @@ mod tests {
             },
             ReceiverConfig::default()
         );
+    }
+
+    /// The `motion` setting reaches the receiver core.
+    #[test]
+    fn the_configured_motion_policy_reaches_the_receiver() {
+        let args = ConfigArgs {
+            motion: Some("lead:45".parse().unwrap()),
+            runtime_dir: Some("/r".into()),
+            config: Some("/dev/null".into()),
+            ..ConfigArgs::default()
+        };
+        let cfg = Config::resolve(&args, &|k| (k == "HOME").then(|| "/h".into())).unwrap();
+        assert_eq!(
+            receiver_config(&cfg).motion,
+            telextiles_session::MotionPolicy::Lead { lead_ms: 45.0 }
+        );
+        let env = |k: &str| match k {
+            "HOME" => Some("/h".into()),
+            "TELEXTILESD_MOTION" => Some("fast".into()),
+            _ => None,
+        };
+        let args = ConfigArgs {
+            runtime_dir: Some("/r".into()),
+            config: Some("/dev/null".into()),
+            ..ConfigArgs::default()
+        };
+        let e = Config::resolve(&args, &env).unwrap_err().to_string();
+        assert!(e.contains("TELEXTILESD_MOTION") && e.contains("unknown motion policy"), "{e}");
     }
 }

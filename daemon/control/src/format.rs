@@ -171,6 +171,15 @@ pub fn human_event(e: &Event) -> String {
         Event::RollerArrived { slot, angle_deg } => {
             format!("roller    arrived at slot {slot} ({angle_deg:.1} deg)")
         }
+        Event::Felt {
+            peer,
+            press,
+            slot,
+            felt_ms,
+        } => format!(
+            "felt      press {press}{} at rest at slot {slot} {felt_ms:.0} ms after contact",
+            peer.as_deref().map(|p| format!(" of {p}")).unwrap_or_default()
+        ),
         Event::Record {
             state,
             textile,
@@ -335,6 +344,15 @@ empty: (none)
                 angle_deg: 112.5
             }),
             "roller    arrived at slot 5 (112.5 deg)"
+        );
+        assert_eq!(
+            human_event(&Event::Felt {
+                peer: Some("a".into()),
+                press: 3,
+                slot: 5,
+                felt_ms: 212.4
+            }),
+            "felt      press 3 of a at rest at slot 5 212 ms after contact"
         );
         assert_eq!(
             human_event(&Event::Dropped {

@@ -973,6 +973,16 @@ pub enum Event {
         slot: u32,
         angle_deg: f64,
     },
+    /// What the receiving hand felt of a peer's press: from contact on the
+    /// peer's sensor until the wheel rested at the press's final sample
+    /// (ms, the local clock through the link's clock-offset estimate).
+    Felt {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        peer: Option<String>,
+        press: u32,
+        slot: u32,
+        felt_ms: f64,
+    },
     /// A recording's state (`record.start`).
     Record {
         state: RecordPhase,
@@ -1043,6 +1053,7 @@ impl Event {
             Event::PeerDown { .. } => EventKind::PeerDown,
             Event::RollerPosition { .. } => EventKind::RollerPosition,
             Event::RollerArrived { .. } => EventKind::RollerArrived,
+            Event::Felt { .. } => EventKind::Felt,
             Event::Error { .. } => EventKind::Error,
             Event::Record { .. } | Event::RecordSaved { .. } | Event::RecordWarning { .. } => {
                 EventKind::Record
@@ -1077,10 +1088,11 @@ pub enum EventKind {
     Error,
     /// `record`, `record_saved` and `record_warning` events.
     Record,
+    Felt,
 }
 
 impl EventKind {
-    pub const ALL: [EventKind; 8] = [
+    pub const ALL: [EventKind; 9] = [
         EventKind::Contact,
         EventKind::Decision,
         EventKind::PeerUp,
@@ -1089,6 +1101,7 @@ impl EventKind {
         EventKind::RollerArrived,
         EventKind::Error,
         EventKind::Record,
+        EventKind::Felt,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -1101,6 +1114,7 @@ impl EventKind {
             EventKind::RollerArrived => "roller_arrived",
             EventKind::Error => "error",
             EventKind::Record => "record",
+            EventKind::Felt => "felt",
         }
     }
 
@@ -1108,14 +1122,14 @@ impl EventKind {
         EventKind::ALL.iter().copied().find(|k| k.as_str() == s)
     }
 
-    fn bit(self) -> u8 {
-        1 << (self as u8)
+    fn bit(self) -> u16 {
+        1 << (self as u16)
     }
 }
 
 /// A set of event kinds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct EventFilter(u8);
+pub struct EventFilter(u16);
 
 impl EventFilter {
     pub fn all() -> Self {

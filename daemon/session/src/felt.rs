@@ -13,8 +13,8 @@
 //! Time is the sender's capture clock: a target is sent at the capture time
 //! of the frame that caused it. The link (capture → decision, about 2 ms on
 //! a LAN) and the serial write (a few ms) are not in these figures; the
-//! live session's figure has them (`RxAction::Felt`... see
-//! `daemon/src/session/receive.rs`).
+//! live session's are ([`LiveFelt`], fed by the receiving daemon with its
+//! own clock and the roller's real arrivals).
 
 use roller_firmware::{Config as WheelConfig, Roller};
 use telextiles_proto::roller::{slot_to_steps, Command};
@@ -180,6 +180,8 @@ pub struct FeltTally {
     felt_ms: Vec<f64>,
     wrong_rest_ms: Vec<f64>,
     reversals: Vec<u32>,
+    /// Felt latency of the pairs whose final sample is the right one.
+    right_felt_ms: Vec<f64>,
     travel: f64,
     /// Presses (times starting samples) whose wheel rested at the right
     /// textile's sample, where the right one is known.
@@ -227,7 +229,20 @@ impl FeltTally {
         if let Some(r) = right {
             self.labelled += 1;
             self.right += u64::from(r);
+            if r {
+                self.right_felt_ms.push(felt.felt_ms);
+            }
         }
+    }
+
+    /// The share (%) of labelled pairs whose wheel is at rest at the right
+    /// sample for good `t_ms` after contact (None when none is labelled):
+    /// rises with the felt latency to the share right at rest.
+    pub fn right_at_rest_by(&self, t_ms: f64) -> Option<f64> {
+        (self.labelled > 0).then(|| {
+            let n = self.right_felt_ms.iter().filter(|&&f| f <= t_ms).count();
+            100.0 * n as f64 / self.labelled as f64
+        })
     }
 
     /// How many added.
@@ -283,9 +298,124 @@ impl FeltSummary {
     }
 }
 
+/// A live press's felt latency, measured where the wheel is.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeltEvent {
+    /// Whose press.
+    pub peer: String,
+    /// Which press.
+    pub press_id: u32,
+    /// The sample it ended on.
+    pub slot: usize,
+    /// Contact on the peer's sensor → the wheel at rest at `slot` (ms).
+    pub felt_ms: f64,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct Waiting {
+    peer: String,
+    press_id: u32,
+    contact_us: u64,
+    slot: usize,
+}
+
+/// Felt latency of live presses on the local clock: fed the press's final
+/// decision (with when its contact was, on the local clock), the targets
+/// sent to the wheel and the wheel's arrivals; says when a press's wheel
+/// came to rest at its final sample. One wheel, so one press at a time is
+/// followed: a newer final decision replaces a waiting one.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LiveFelt {
+    /// The slot the wheel rests at, and since when (None while moving or
+    /// unknown).
+    at_rest: Option<(usize, u64)>,
+    waiting: Option<Waiting>,
+}
+
+impl LiveFelt {
+    /// A target was sent to the wheel at `now_us`.
+    pub fn target(&mut self, slot: usize, _now_us: u64) {
+        if self.at_rest.is_some_and(|(s, _)| s != slot) {
+            self.at_rest = None;
+        }
+    }
+
+    /// The wheel reported itself at rest at `slot` at `now_us`.
+    pub fn arrived(&mut self, slot: usize, now_us: u64) -> Option<FeltEvent> {
+        // A target it already stood at is "arrived" again at once: it
+        // rests there since it first came.
+        match self.at_rest {
+            Some((s, _)) if s == slot => {}
+            _ => self.at_rest = Some((slot, now_us)),
+        }
+        self.settle()
+    }
+
+    /// A press's final decision, made at `now_us`, sends the wheel to
+    /// `slot`; its contact was at `contact_us` (local clock).
+    pub fn final_decision(
+        &mut self,
+        peer: &str,
+        press_id: u32,
+        contact_us: u64,
+        slot: usize,
+    ) -> Option<FeltEvent> {
+        self.waiting = Some(Waiting {
+            peer: peer.to_string(),
+            press_id,
+            contact_us,
+            slot,
+        });
+        self.settle()
+    }
+
+    fn settle(&mut self) -> Option<FeltEvent> {
+        let (slot, since) = self.at_rest?;
+        if self.waiting.as_ref()?.slot != slot {
+            return None;
+        }
+        let w = self.waiting.take()?;
+        Some(FeltEvent {
+            peer: w.peer,
+            press_id: w.press_id,
+            slot,
+            felt_ms: since.saturating_sub(w.contact_us) as f64 / 1000.0,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn live_felt_waits_for_the_wheel_at_the_final_sample() {
+        let mut l = LiveFelt::default();
+        // Contact at 1.0 s; the wheel set off for 3, then 5.
+        l.target(3, 1_100_000);
+        assert_eq!(l.arrived(3, 1_250_000), None);
+        l.target(5, 1_300_000);
+        // The final decision (5) comes before the wheel is there.
+        assert_eq!(l.final_decision("a", 7, 1_000_000, 5), None);
+        let e = l.arrived(5, 1_480_000).unwrap();
+        assert_eq!((e.press_id, e.slot, e.felt_ms), (7, 5, 480.0));
+        // Once only.
+        assert_eq!(l.arrived(5, 1_500_000), None);
+        // Next press: the wheel already rests at its final sample (since
+        // 1.48 s, before this contact): felt at once.
+        let e = l.final_decision("a", 8, 2_000_000, 5).unwrap();
+        assert_eq!(e.felt_ms, 0.0);
+        // A press whose wheel got there during it: from contact to then.
+        l.target(2, 3_050_000);
+        l.arrived(2, 3_200_000);
+        let e = l.final_decision("b", 1, 3_000_000, 2).unwrap();
+        assert_eq!((e.peer.as_str(), e.felt_ms), ("b", 200.0));
+        // Re-sending the target it stands at keeps the time it came.
+        l.target(2, 3_400_000);
+        assert_eq!(l.arrived(2, 3_410_000), None);
+        let e = l.final_decision("b", 2, 3_100_000, 2).unwrap();
+        assert_eq!(e.felt_ms, 100.0);
+    }
 
     fn wheel() -> WheelConfig {
         WheelConfig::default()
@@ -346,6 +476,9 @@ mod tests {
             t.add(&f, Some(i <= 8));
         }
         let s = t.summary();
+        assert_eq!(t.right_at_rest_by(0.0), Some(0.0));
+        assert_eq!(t.right_at_rest_by(250.0), Some(20.0));
+        assert_eq!(t.right_at_rest_by(10_000.0), Some(80.0));
         assert_eq!((s.felt_p50_ms, s.felt_p90_ms), (500.0, 900.0));
         assert_eq!(s.right_at_rest_pct, Some(80.0));
         assert_eq!((s.reversals_p90, s.wrong_rest_p90_ms), (0, 50.0));

@@ -15,6 +15,11 @@
 //!   `lead_ms` (the wheel's slots follow the index's 1D layout, so a wrong
 //!   early leader is usually a neighbour of the right one), then follow the
 //!   decisions.
+//! - [`MotionPolicy::Track`]: follow the textile nearest the press's
+//!   running mean whenever it has led for `lead_ms`, decisions or not. A
+//!   press ends on the textile nearest its whole mean (`Decider::press_end`),
+//!   so the wheel heads for the final answer as soon as the mean settles,
+//!   not at the release.
 //!
 //! Whatever the policy, a press ends with the wheel sent to its final
 //! decision ([`Motion::press_end`]), a target already held is never sent
@@ -50,18 +55,25 @@ pub enum MotionPolicy {
         /// How long (ms of capture time) a leader must lead in a row.
         lead_ms: f32,
     },
+    /// Follow the running mean's nearest textile once it has led this
+    /// long, whatever the decisions say.
+    Track {
+        /// How long (ms of capture time) a leader must lead in a row.
+        lead_ms: f32,
+    },
 }
 
 impl MotionPolicy {
     /// Every policy with its default parameters, in the order studies list
     /// them.
-    pub const ALL: [MotionPolicy; 3] = [
+    pub const ALL: [MotionPolicy; 4] = [
         MotionPolicy::Every,
         MotionPolicy::Confident {
             confidence: 0.25,
             hold_ms: 100.0,
         },
         MotionPolicy::Lead { lead_ms: 30.0 },
+        MotionPolicy::Track { lead_ms: 60.0 },
     ];
 
     /// Its name in flags and reports.
@@ -70,6 +82,7 @@ impl MotionPolicy {
             MotionPolicy::Every => "every",
             MotionPolicy::Confident { .. } => "confident",
             MotionPolicy::Lead { .. } => "lead",
+            MotionPolicy::Track { .. } => "track",
         }
     }
 }
@@ -90,6 +103,7 @@ impl fmt::Display for MotionPolicy {
                 hold_ms,
             } => write!(f, "confident:{confidence}:{hold_ms}"),
             MotionPolicy::Lead { lead_ms } => write!(f, "lead:{lead_ms}"),
+            MotionPolicy::Track { lead_ms } => write!(f, "track:{lead_ms}"),
         }
     }
 }
@@ -97,7 +111,8 @@ impl fmt::Display for MotionPolicy {
 impl FromStr for MotionPolicy {
     type Err = String;
 
-    /// `every`, `confident[:CONFIDENCE[:HOLD_MS]]`, `lead[:LEAD_MS]`.
+    /// `every`, `confident[:CONFIDENCE[:HOLD_MS]]`, `lead[:LEAD_MS]`,
+    /// `track[:LEAD_MS]`.
     fn from_str(s: &str) -> Result<Self, String> {
         let mut parts = s.trim().split(':');
         let name = parts.next().unwrap_or_default();
@@ -135,9 +150,17 @@ impl FromStr for MotionPolicy {
                     lead_ms: num("the lead (ms)", 0.0, 60_000.0)?.unwrap_or(lead_ms),
                 }
             }
+            "track" => {
+                let MotionPolicy::Track { lead_ms } = MotionPolicy::ALL[3] else {
+                    unreachable!("ALL[3] is track")
+                };
+                MotionPolicy::Track {
+                    lead_ms: num("the lead (ms)", 0.0, 60_000.0)?.unwrap_or(lead_ms),
+                }
+            }
             _ => {
                 return Err(format!(
-                    "unknown motion policy `{s}`; expected every, confident[:CONFIDENCE[:HOLD_MS]] or lead[:LEAD_MS]"
+                    "unknown motion policy `{s}`; expected every, confident[:CONFIDENCE[:HOLD_MS]], lead[:LEAD_MS] or track[:LEAD_MS]"
                 ))
             }
         };
@@ -204,7 +227,7 @@ impl Motion {
                 }
             }
             (MotionPolicy::Lead { .. }, Some(d)) => self.go(d.slot),
-            (MotionPolicy::Lead { lead_ms }, None) => {
+            (MotionPolicy::Lead { lead_ms }, None) | (MotionPolicy::Track { lead_ms }, _) => {
                 if step.nearest.best >= index.len() {
                     return None;
                 }
@@ -338,6 +361,27 @@ mod tests {
     }
 
     #[test]
+    fn track_follows_the_running_mean_whatever_the_decision() {
+        let idx = index();
+        let mut m = Motion::new(MotionPolicy::Track { lead_ms: 30.0 });
+        m.press_start();
+        assert_eq!(m.on_step(&idx, at(0), &step(1, None)), None);
+        assert_eq!(m.on_step(&idx, at(2), &step(1, None)), Some(1));
+        // The decision (still 1) holds while the mean's nearest is 3 for
+        // 33 ms: the wheel follows the mean.
+        assert_eq!(m.on_step(&idx, at(3), &step(3, Some((1, 0.1, at(2))))), None);
+        assert_eq!(m.on_step(&idx, at(4), &step(3, Some((1, 0.1, at(2))))), None);
+        assert_eq!(m.on_step(&idx, at(5), &step(3, Some((1, 0.1, at(2))))), Some(3));
+        // The press ends on the whole mean's nearest: already there.
+        assert_eq!(m.press_end(3), None);
+        // Alternating leaders never move it.
+        m.press_start();
+        for i in 0..60 {
+            assert_eq!(m.on_step(&idx, at(i), &step(1 + (i as usize % 2), None)), None);
+        }
+    }
+
+    #[test]
     fn a_leader_that_alternates_every_frame_never_moves_the_wheel() {
         let idx = index();
         let mut m = Motion::new(MotionPolicy::Lead { lead_ms: 30.0 });
@@ -362,6 +406,7 @@ mod tests {
             })
         );
         assert_eq!("lead:0".parse(), Ok(MotionPolicy::Lead { lead_ms: 0.0 }));
+        assert_eq!("track:90".parse(), Ok(MotionPolicy::Track { lead_ms: 90.0 }));
         for bad in ["", "fast", "lead:x", "confident:2", "every:1", "lead:1:2"] {
             let e = bad.parse::<MotionPolicy>().unwrap_err();
             assert!(e.contains("motion policy"), "{bad}: {e}");

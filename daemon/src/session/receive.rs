@@ -165,6 +165,7 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
             RxAction::RollerTarget { slot } => {
                 if let Some(r) = &state.roller {
                     r.set_target(Target::Slot(slot as u16));
+                    lock(&state.felt).target(slot, now_us());
                 }
                 commanded = Some(slot);
             }
@@ -178,6 +179,19 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
             }
             RxAction::Decision(d) => {
                 lock(&state.counters).decisions += 1;
+                // The press's contact on the local clock (known once the
+                // link has a clock-offset estimate): felt latency runs
+                // from there to the wheel at rest at the final sample.
+                if let (true, Some(since), Some(_)) =
+                    (d.final_decision, d.since_contact_ms, &state.roller)
+                {
+                    let contact_us = now_us().saturating_sub((since * 1000.0) as u64);
+                    let felt =
+                        lock(&state.felt).final_decision(&d.peer, d.press_id, contact_us, d.slot);
+                    if let Some(f) = felt {
+                        super::roller::felt_event(state, f);
+                    }
+                }
                 let e = &rx.index().entries[d.entry];
                 let _ = state.events.send(Event::Decision {
                     textile: e.id.clone(),

@@ -89,6 +89,12 @@ pub(crate) fn on_roller_event(state: &Arc<State>, ev: RollerEvent, last_pos: &mu
             };
             *lock(&state.roller_pos) =
                 Some((mdeg, (slot != u32::MAX).then_some(slot as u16), false));
+            if slot != u32::MAX {
+                let felt = lock(&state.felt).arrived(slot as usize, telextiles_link::now_us());
+                if let Some(f) = felt {
+                    felt_event(state, f);
+                }
+            }
             let _ = state.events.send(Event::RollerArrived {
                 slot,
                 angle_deg: deg(mdeg),
@@ -117,6 +123,16 @@ pub(crate) fn on_roller_event(state: &Arc<State>, ev: RollerEvent, last_pos: &mu
             }
         }
     }
+}
+
+/// A received press's wheel came to rest at its final sample.
+pub(crate) fn felt_event(state: &Arc<State>, f: telextiles_session::felt::FeltEvent) {
+    let _ = state.events.send(Event::Felt {
+        peer: Some(super::peer_name(state, &f.peer)),
+        press: f.press_id,
+        slot: f.slot as u32,
+        felt_ms: f.felt_ms,
+    });
 }
 
 #[cfg(test)]
