@@ -81,6 +81,15 @@ pub enum MapEvent {
     },
     /// The roller reached a slot.
     RollerArrived { slot: u32, angle_deg: f64 },
+    /// A received press's wheel came to rest at its final sample this long
+    /// after the contact on the peer's sensor.
+    Felt {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        peer: Option<String>,
+        press: u32,
+        slot: u32,
+        felt_ms: f64,
+    },
     /// A subsystem error worth showing.
     Error { source: String, message: String },
 }
@@ -103,6 +112,7 @@ pub struct Live {
     contact: Option<Value>,
     decision: Option<Value>,
     roller: Option<Value>,
+    felt: Option<Value>,
     peers: BTreeMap<String, Option<String>>,
     last_error: Option<Value>,
 }
@@ -116,6 +126,7 @@ impl Live {
             contact: None,
             decision: None,
             roller: None,
+            felt: None,
             peers: BTreeMap::new(),
             last_error: None,
         }
@@ -205,6 +216,17 @@ impl Live {
                 self.roller = Some(m.clone());
                 m
             }
+            MapEvent::Felt {
+                peer,
+                press,
+                slot,
+                felt_ms,
+            } => {
+                let m = json!({"type": "felt", "peer": peer, "press": press, "slot": slot,
+                               "felt_ms": felt_ms});
+                self.felt = Some(m.clone());
+                m
+            }
             MapEvent::Error { source, message } => {
                 let m = json!({"type": "error", "source": source, "message": message});
                 self.last_error = Some(m.clone());
@@ -232,7 +254,8 @@ impl Live {
             .map(|(p, a)| json!({"peer": p, "addr": a}))
             .collect();
         json!({"type": "state", "touch": self.touch, "contact": self.contact,
-               "decision": self.decision, "roller": self.roller, "peers": peers,
+               "decision": self.decision, "roller": self.roller, "felt": self.felt,
+               "peers": peers,
                "error": self.last_error})
     }
 }

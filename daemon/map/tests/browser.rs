@@ -144,6 +144,12 @@ async fn send_press(
         slot,
         angle_deg: angle,
     });
+    let _ = events.send(MapEvent::Felt {
+        peer: Some("browser-test".into()),
+        press: 1,
+        slot,
+        felt_ms: 234.4,
+    });
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -146,6 +146,21 @@ try {
   await page.waitForFunction((name) => document.getElementById('decision').textContent.includes(name), sc.press_nearest_name);
   if ((await page.textContent('#decision')).includes('unknown')) throw new Error('a known fabric shown as unknown');
   await page.waitForFunction((slot) => document.getElementById('roller').textContent.includes('at slot ' + slot), sc.press_slot);
+  // The wheel: every slot drawn, the target filled, the plate turned so
+  // that the sample under the finger is at the top; the felt latency.
+  const wheel = await page.evaluate(() => ({
+    slots: document.querySelectorAll('#wheel [data-slot]').length,
+    target: [...document.querySelectorAll('#wheel .slot.target')].map((c) => c.parentNode.dataset.slot),
+    here: [...document.querySelectorAll('#wheel .slot.here')].map((c) => c.parentNode.dataset.slot),
+    angle: document.getElementById('plate').dataset.angle,
+  }));
+  log('wheel', wheel);
+  const wantAngle = (sc.press_slot * 360 / sc.slots).toFixed(1);
+  if (wheel.slots !== sc.slots || wheel.target.join() !== String(sc.press_slot) ||
+      wheel.here.join() !== String(sc.press_slot) || wheel.angle !== wantAngle) {
+    throw new Error(`wheel: ${JSON.stringify(wheel)}, want slot ${sc.press_slot} of ${sc.slots} at ${wantAngle}`);
+  }
+  await page.waitForFunction(() => document.getElementById('felt').textContent.includes('felt 234 ms after contact'));
   await page.waitForFunction(() => document.getElementById('peers').textContent.includes('browser-test'));
   // The rendered marker sits where the map puts the touch.
   const markerOk = await page.evaluate(([x, y]) => {

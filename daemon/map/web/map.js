@@ -20,6 +20,7 @@
     contact: false,
     decision: null,
     roller: null,
+    felt: null,
     peers: new Map(),
     touches: 0,         // touch messages received (tests read it)
     pending: false,     // a redraw of the live layer is scheduled
@@ -250,6 +251,13 @@
       $('decision').className = 'muted';
       $('decision').textContent = 'none yet';
     }
+    drawWheel(m, S.roller);
+    if (S.felt) {
+      const f = S.felt;
+      $('felt').className = '';
+      $('felt').textContent = 'last press felt ' + Number(f.felt_ms).toFixed(0) +
+        ' ms after contact (at rest at slot ' + f.slot + ')';
+    }
     if (S.roller) {
       const r = S.roller;
       $('roller').className = '';
@@ -264,6 +272,30 @@
       peers.innerHTML = [...S.peers.entries()].map(([p, a]) =>
         '<li>' + esc(p) + (a ? ' <span class="muted">' + esc(a) + '</span>' : '') + '</li>').join('');
     }
+  }
+
+  // The wheel seen from the finger: slot k sits at k * 360 / N degrees on
+  // the plate, the finger at the top; the plate is turned by the roller's
+  // angle, so the sample under the finger is at the top. The target slot
+  // is filled, the one under the finger outlined.
+  function drawWheel(m, r) {
+    const svg = $('wheel');
+    if (!m || !m.roller || !m.roller.slots.length) { svg.innerHTML = ''; return; }
+    const n = m.roller.slots.length;
+    const angle = r ? Number(r.angle_deg) : 0;
+    const target = r && r.target_slot !== null && r.target_slot !== undefined ? Number(r.target_slot) : -1;
+    const here = r && r.slot !== null && r.slot !== undefined ? Number(r.slot) : -1;
+    const R = 46, rs = Math.max(4, Math.min(9, Math.PI * R / n * 0.8));
+    let g = '<circle class="rim" r="56"></circle>';
+    for (let k = 0; k < n; k++) {
+      const a = (k * 360 / n) * Math.PI / 180;
+      const x = (R * Math.sin(a)).toFixed(2), y = (-R * Math.cos(a)).toFixed(2);
+      const cls = 'slot' + (k === target ? ' target' : '') + (k === here ? ' here' : '');
+      g += '<g data-slot="' + k + '"><circle class="' + cls + '" cx="' + x + '" cy="' + y + '" r="' + rs.toFixed(2) + '"></circle>' +
+        '<text x="' + x + '" y="' + y + '">' + k + '</text></g>';
+    }
+    svg.innerHTML = '<g id="plate" data-angle="' + angle.toFixed(1) + '" transform="rotate(' + (-angle).toFixed(2) + ')">' + g + '</g>' +
+      '<path class="finger" d="M0,-58 l-5,-6 h10 z"></path>';
   }
 
   function onTouch(msg) {
@@ -299,6 +331,7 @@
         S.contact = !!(msg.contact && msg.contact.on);
         S.decision = msg.decision || null;
         S.roller = msg.roller || null;
+        S.felt = msg.felt || null;
         S.peers = new Map((msg.peers || []).map((p) => [p.peer, p.addr]));
         break;
       case 'touch': onTouch(msg); break;
@@ -308,6 +341,7 @@
         break;
       case 'decision': S.decision = msg; break;
       case 'roller': S.roller = msg; break;
+      case 'felt': S.felt = msg; break;
       case 'peer':
         if (msg.up) S.peers.set(msg.peer, msg.addr); else S.peers.delete(msg.peer);
         break;
