@@ -45,6 +45,10 @@ struct Result1 {
     finals_lost: usize,
     /// Replayed sets only: each direction's presses, live against `classify`.
     presses: Vec<Compared>,
+    /// Felt latency of the presses each side received (µs): contact on the
+    /// sender → the receiver's wheel (the simulated roller, in real time)
+    /// at rest at the press's final sample.
+    felt: Vec<f64>,
 }
 
 fn parse_scenarios(s: &str) -> Vec<Scenario> {
@@ -143,7 +147,12 @@ fn main() {
             presses.extend(compare(&ta, &b, &offline[0], t0, t1));
             presses.extend(compare(&tb, &a, &offline[1], t0, t1));
         }
+        let felt = felt_in(&a, t0, t1)
+            .into_iter()
+            .chain(felt_in(&b, t0, t1))
+            .collect();
         results.push(Result1 {
+            felt,
             name: sc.name.clone(),
             ab,
             ba,
@@ -185,7 +194,7 @@ fn main() {
                 ms(pct(&v, 99.0))
             );
         }
-        let rows: [(&str, Vec<f64>); 4] = [
+        let rows: [(&str, Vec<f64>); 5] = [
             (
                 "**capture on one side → decision on the other**",
                 cat(&r.ab.total_decided, &r.ba.total_decided),
@@ -201,6 +210,10 @@ fn main() {
             (
                 "press start (its first frame sent) → its first decision on the other side",
                 cat(&r.ab.contact_to_decision, &r.ba.contact_to_decision),
+            ),
+            (
+                "**felt: press start → the other side's wheel at rest at the final sample**",
+                r.felt.clone(),
             ),
         ];
         for (name, v) in rows {
@@ -340,6 +353,20 @@ fn classify_set(dir: &Path, flags: &[String]) -> Vec<Offline> {
         "classify: two presses in one recording of {dir:?}"
     );
     rows.into_iter().map(|r| r.1).collect()
+}
+
+/// The felt latencies (µs) a side reported (`felt` events) in `[t0, t1)`.
+fn felt_in(side: &Side, t0: u64, t1: u64) -> Vec<f64> {
+    side.events
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|(t, _)| (t0..t1).contains(t))
+        .filter_map(|(_, e)| match e {
+            Event::Felt { felt_ms, .. } => Some(felt_ms * 1000.0),
+            _ => None,
+        })
+        .collect()
 }
 
 /// One press replayed live, beside what `classify` made of its recording.

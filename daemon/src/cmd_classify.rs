@@ -85,12 +85,11 @@ pub struct Args {
     /// starting sample in turn [default: the daemon's policy].
     #[arg(long = "motion", value_name = "POLICY")]
     pub motions: Vec<telextiles_session::MotionPolicy>,
-    /// The wheel's top speed, microsteps/s [default: the paper's wheel,
-    /// 9600 = 3 rev/s at 1/16 microstepping].
+    /// The wheel's top speed, microsteps/s (the default is the paper's
+    /// wheel's: 3 rev/s at 1/16 microstepping).
     #[arg(long, default_value_t = roller_firmware::DEFAULT_MAX_SPEED)]
     pub wheel_speed: u32,
-    /// The wheel's acceleration, microsteps/s^2 [default: 96000 = 30
-    /// rev/s^2].
+    /// The wheel's acceleration, microsteps/s^2 (the default: 30 rev/s^2).
     #[arg(long, default_value_t = roller_firmware::DEFAULT_ACCEL)]
     pub wheel_accel: u32,
     /// Write the felt-latency summary of every policy to this JSON file.
@@ -617,8 +616,17 @@ fn summarise(
         felts.write_json(path)?;
     }
     if let Some(path) = &args.felt_svg {
+        let what = if let Some(id) = &args.sim {
+            format!("simulated {id}")
+        } else {
+            args.press
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         let title = format!(
-            "Wheel at rest at the right sample ({} slots, {:.0} rev/s, {:.0} rev/s^2)",
+            "{what}: wheel at rest at the right sample ({} slots, {:.0} rev/s, {:.0} rev/s^2)",
             felts.wheel.slots,
             felts.wheel.max_speed as f64 / felts.wheel.steps_per_rev() as f64,
             felts.wheel.accel as f64 / felts.wheel.steps_per_rev() as f64

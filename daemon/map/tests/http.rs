@@ -473,6 +473,12 @@ fn every_control_event_converts_except_dropped() {
             slot: 1,
             angle_deg: 22.5,
         },
+        Event::Felt {
+            peer: Some("bob".into()),
+            press: 4,
+            slot: 1,
+            felt_ms: 240.5,
+        },
         Event::Error {
             source: "roller".into(),
             message: "stalled".into(),
@@ -542,6 +548,20 @@ fn every_control_event_converts_except_dropped() {
                     angle_deg: a,
                 },
             ) => slot == s && angle_deg == a,
+            (
+                Event::Felt {
+                    peer,
+                    press,
+                    slot,
+                    felt_ms,
+                },
+                MapEvent::Felt {
+                    peer: p,
+                    press: r,
+                    slot: s,
+                    felt_ms: f,
+                },
+            ) => peer == p && press == r && slot == s && felt_ms == f,
             (
                 Event::Error { source, message },
                 MapEvent::Error {

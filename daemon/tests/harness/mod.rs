@@ -133,7 +133,8 @@ pub fn spawn(
         .arg(dir.join("none.toml"))
         .arg("--latency-trace")
         .arg(&trace)
-        .env("TELEXTILESD_SIM_ROLLER_SPEED", "4")
+        // The wheel in real time: the felt latency is a real wheel's.
+        .env("TELEXTILESD_SIM_ROLLER_SPEED", "1")
         .env("RUST_LOG", "warn")
         .stdin(Stdio::null())
         .stdout(Stdio::null())

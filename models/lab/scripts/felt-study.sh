@@ -9,8 +9,9 @@
 # 1 in the jig, rendered here) and the fitted-metric study's three
 # hand-held sets (held-out-sets.sh). For each, a 3-press plain index, then
 # `classify` on the queries with every candidate policy, the felt-latency
-# summary per policy (JSON) and its chart (SVG), and once more with the
-# slow wheel the firmware had before (1 rev/s, 2 rev/s^2). About 10
+# summary per policy (JSON) and its chart (SVG), and once more each with the
+# slow wheel the firmware had before (1 rev/s, 2 rev/s^2) and with the fast
+# end of what such a wheel does (5 rev/s, 100 rev/s^2). About 10
 # minutes on 2 cores when the hand-held sets are already rendered
 # (fit-study.sh), 35 otherwise; charts land in docs/studies/felt/.
 set -euo pipefail
@@ -41,4 +42,7 @@ for set in c1jig c2hand c1units c2g2; do
     "$BIN" classify --index "$idx" --press "$D/$set/queries" --motion every \
         --wheel-speed 3200 --wheel-accel 6400 --felt-json "$D/felt-$set-slow.json" 2>/dev/null |
         grep -E "^wheel" | sed 's/^wheel (every)/wheel (every, slow wheel)/'
+    "$BIN" classify --index "$idx" --press "$D/$set/queries" --motion every \
+        --wheel-speed 16000 --wheel-accel 320000 --felt-json "$D/felt-$set-fast.json" 2>/dev/null |
+        grep -E "^wheel" | sed 's/^wheel (every)/wheel (every, fast wheel)/'
 done
