@@ -497,6 +497,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         // Wait for A's next contact, then B's final decision and roller arrival.
         let mut contact = false;
         let mut first: Option<(f64, f64)> = None;
+        let mut first_textile: Option<String> = None;
         let mut last: Option<Value> = None;
         let mut arrived: Option<u32> = None;
         let mut arrived_at: Option<Instant> = None;
@@ -525,6 +526,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                             b_press = press.or(b_press);
                             if first.is_none() {
                                 first = Some((latency_ms, since_contact_ms.unwrap_or(f64::NAN)));
+                                first_textile = Some(textile.clone());
                             }
                             latencies.push(latency_ms);
                             if arrived.is_some_and(|a| a != slot) {
@@ -592,7 +594,10 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                     "WRONG"
                 },
                 if final_seen { "" } else { " (no final)" }
-            ),
+            ) + &match &first_textile {
+                Some(f) if *f != decided => format!(", first {f}"),
+                _ => String::new(),
+            },
             last.as_ref()
                 .map(|l| l["slot"].to_string())
                 .unwrap_or_else(|| "-".into()),
@@ -612,6 +617,7 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
             "first_decision_latency_ms": first.map(|f| f.0),
             "contact_to_decision_ms": first.map(|f| f.1),
             "felt_ms": felt,
+            "first_decided": first_textile,
         }));
     }
 
