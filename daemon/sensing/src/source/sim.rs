@@ -1,6 +1,14 @@
 //! The simulator as a live frame source: presses of one textile, one after
 //! another, separated by no-contact frames; the textile, person, sensor and
 //! jig can be changed while running through a [`SimHandle`].
+//!
+//! The no-contact frames (before each press, and while lifted) are the
+//! resting sensor of the current press ([`Simulator::idle_clip`]): the same
+//! unit, camera noise, LED flicker and drift as the press's own frames, so
+//! the contact detector's reference matches what the press shows before
+//! its contact. (A noise-free background there made every press start with
+//! a jump the detector took for contact, and the first decisions of a live
+//! session came from it: `the_frames_between_presses_look_like_the_presses_own`.)
 
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
@@ -56,7 +64,9 @@ pub struct SimSource {
     gap_frames: usize,
     /// Position: `gap_frames` background frames, then the press frames.
     pos: usize,
-    background: Option<(u32, image::RgbImage)>,
+    /// The resting sensor of the current press, and the next frame of it.
+    resting: Option<telextiles_sim::IdleClip>,
+    resting_pos: usize,
     pace: Pace,
     started: Option<Instant>,
     seq: u64,
@@ -90,7 +100,8 @@ impl SimSource {
                 rx,
                 gap_frames,
                 pos: 0,
-                background: None,
+                resting: None,
+                resting_pos: 0,
                 pace,
                 started: None,
                 seq: 0,
@@ -147,6 +158,7 @@ impl SimSource {
                     spec.jig
                 );
                 self.spec = spec;
+                self.resting = None;
                 self.pos = 0;
                 self.idle = false;
                 Ok(())
@@ -169,12 +181,19 @@ impl FrameSource for SimSource {
             super::sleep_until_due(&mut self.started, t);
         }
         if self.idle || self.pos < self.gap_frames {
-            let sensor = self.spec.sensor;
-            if self.background.as_ref().map(|(s, _)| *s) != Some(sensor) {
-                self.background = Some((sensor, self.sim.background(sensor)));
+            if self.resting.is_none() {
+                let clip = self
+                    .sim
+                    .idle_clip(&self.spec)
+                    .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+                self.resting = Some(clip);
             }
-            let bg = &self.background.as_ref().expect("set above").1;
-            out.image.clone_from(bg);
+            let clip = self.resting.as_ref().expect("set above");
+            out.image = self
+                .sim
+                .idle_frame(clip, self.resting_pos % clip.len().max(1))
+                .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+            self.resting_pos += 1;
         } else {
             let i = self.pos - self.gap_frames;
             out.image = self
@@ -193,6 +212,7 @@ impl FrameSource for SimSource {
             self.pos = 0;
             self.presses += 1;
             self.spec.seed = self.spec.seed.wrapping_add(1);
+            self.resting = None;
             if self.once {
                 self.idle = true;
                 self.once = false;
