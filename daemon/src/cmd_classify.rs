@@ -789,7 +789,10 @@ mod tests {
         }
         assert_eq!(summary["wheel"]["max_speed"], 9600);
         let svg = std::fs::read_to_string(dir.path().join("felt.svg")).unwrap();
-        assert!(svg.starts_with("<svg") && svg.contains("lead:30: p50"), "{svg}");
+        assert!(
+            svg.starts_with("<svg") && svg.contains("lead:30: p50"),
+            "{svg}"
+        );
     }
 
     fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {

@@ -543,10 +543,13 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
                             arrived = Some(slot);
                             arrived_at.get_or_insert_with(Instant::now);
                         }
-                        Some(EventLine::Known(Event::Felt { press, felt_ms: f, .. }))
+                        Some(EventLine::Known(Event::Felt { press, felt_ms: f, slot, .. }))
                             if contact && b_press == Some(press) =>
                         {
+                            // At rest at the final sample (perhaps since
+                            // before the press: then no new arrival).
                             felt = Some(f);
+                            arrived = Some(slot);
                         }
                         None => bail!("daemon B closed its control socket; see {}", db.log.display()),
                         _ => {}
@@ -733,6 +736,7 @@ mod tests {
             keep: false,
             model: PathBuf::from("m.onnx"),
             index: PathBuf::from("i.tlxi"),
+            motion: None,
         };
         let s = script(&a);
         assert_eq!(s.len(), 9);

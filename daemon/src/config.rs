@@ -642,8 +642,8 @@ impl Config {
             .motion
             .map(|v| parse_motion(&v).map_err(|m| file_err("motion", m)))
             .transpose()?;
-        let motion = pick(args.motion, e.get("MOTION", parse_motion)?, file_motion)
-            .unwrap_or_default();
+        let motion =
+            pick(args.motion, e.get("MOTION", parse_motion)?, file_motion).unwrap_or_default();
         let model = pick(
             args.model.clone(),
             e.get("MODEL", parse_path)?,

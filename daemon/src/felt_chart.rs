@@ -47,7 +47,9 @@ pub fn draw(path: &Path, title: &str, policies: &[(MotionPolicy, FeltTally)]) ->
                 "{policy}: p50 {:.0} ms, p90 {:.0} ms",
                 s.felt_p50_ms, s.felt_p90_ms
             ))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+            });
     }
     chart
         .configure_series_labels()

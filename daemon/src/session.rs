@@ -450,6 +450,9 @@ mod tests {
             ..ConfigArgs::default()
         };
         let e = Config::resolve(&args, &env).unwrap_err().to_string();
-        assert!(e.contains("TELEXTILESD_MOTION") && e.contains("unknown motion policy"), "{e}");
+        assert!(
+            e.contains("TELEXTILESD_MOTION") && e.contains("unknown motion policy"),
+            "{e}"
+        );
     }
 }

@@ -52,7 +52,14 @@ fn check(s: &Value, mode: &str) {
         assert_ne!(r["decided"], "-", "{r}");
         let lat = r["first_decision_latency_ms"].as_f64().unwrap();
         assert!(lat > 0.0 && lat < 1000.0, "{r}");
+        // What B's hand felt: its wheel at rest at the final sample, from
+        // A's contact (0 when it stood there already; a half turn of the
+        // paper's wheel is 267 ms, and the press lasts seconds).
+        let felt = r["felt_ms"].as_f64().unwrap_or(-1.0);
+        assert!((0.0..5000.0).contains(&felt), "{r}");
     }
+    assert_eq!(s["felt_ms"]["n"], 4, "{s}");
+    assert!(s["felt_ms"]["p50"].as_f64().unwrap() < 5000.0, "{s}");
     let unseen = rows.iter().find(|r| r["seen"] == false).unwrap();
     assert!(
         unseen["decided"].as_str().unwrap().starts_with('T'),

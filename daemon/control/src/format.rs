@@ -178,7 +178,9 @@ pub fn human_event(e: &Event) -> String {
             felt_ms,
         } => format!(
             "felt      press {press}{} at rest at slot {slot} {felt_ms:.0} ms after contact",
-            peer.as_deref().map(|p| format!(" of {p}")).unwrap_or_default()
+            peer.as_deref()
+                .map(|p| format!(" of {p}"))
+                .unwrap_or_default()
         ),
         Event::Record {
             state,

@@ -314,8 +314,7 @@ fn the_frames_between_presses_look_like_the_presses_own() {
     let (src, handle) =
         SimSource::new(sim.clone(), specs[0].clone(), 60, Pace::AsFastAsPossible).unwrap();
     let mut src = src.start_idle();
-    let mut pipeline =
-        Pipeline::new(enc, index.clone(), PipelineConfig::default(), None).unwrap();
+    let mut pipeline = Pipeline::new(enc, index.clone(), PipelineConfig::default(), None).unwrap();
     for spec in &specs {
         handle.send(SimCommand::PressOnce(spec.clone()));
         let frames = 60 + spec.frames as u64 + 120;
@@ -340,7 +339,12 @@ fn the_frames_between_presses_look_like_the_presses_own() {
         .unwrap();
         enc = Some(p.into_encoder());
     }
-    assert_eq!(live.len(), specs.len(), "one press each: {:?}", first_of(&live));
+    assert_eq!(
+        live.len(),
+        specs.len(),
+        "one press each: {:?}",
+        first_of(&live)
+    );
     assert_eq!(first_of(&live), first_of(&fresh));
     for (l, f) in live.iter().zip(&fresh) {
         let (a, b) = (l.decision_ms.unwrap(), f.decision_ms.unwrap());

@@ -93,7 +93,10 @@ pub fn drive(
     let fw = &w.fw;
     let (steps, arrived) = (w.steps, w.arrived);
     felt.reversals = w.reversals;
-    debug_assert_eq!(fw.absolute_steps().rem_euclid(spr as i64), slot_steps(final_slot));
+    debug_assert_eq!(
+        fw.absolute_steps().rem_euclid(spr as i64),
+        slot_steps(final_slot)
+    );
     felt.felt_ms = arrived.saturating_sub(contact_us) as f64 / 1000.0;
     felt.travel_slots = steps as f64 / steps_per_slot;
     felt

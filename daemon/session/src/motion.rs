@@ -311,9 +311,18 @@ mod tests {
         let mut m = Motion::new(MotionPolicy::Every);
         m.press_start();
         assert_eq!(m.on_step(&idx, at(0), &step(2, None)), None);
-        assert_eq!(m.on_step(&idx, at(1), &step(2, Some((2, 0.1, at(1))))), Some(2));
-        assert_eq!(m.on_step(&idx, at(2), &step(2, Some((2, 0.1, at(1))))), None);
-        assert_eq!(m.on_step(&idx, at(3), &step(3, Some((3, 0.1, at(3))))), Some(3));
+        assert_eq!(
+            m.on_step(&idx, at(1), &step(2, Some((2, 0.1, at(1))))),
+            Some(2)
+        );
+        assert_eq!(
+            m.on_step(&idx, at(2), &step(2, Some((2, 0.1, at(1))))),
+            None
+        );
+        assert_eq!(
+            m.on_step(&idx, at(3), &step(3, Some((3, 0.1, at(3))))),
+            Some(3)
+        );
         assert_eq!(m.press_end(3), None);
         assert_eq!(m.press_end(1), Some(1));
     }
@@ -329,16 +338,28 @@ mod tests {
         m.press_start();
         // Unsure, held 0..83 ms: stays.
         for i in 1..=6 {
-            assert_eq!(m.on_step(&idx, at(i), &step(1, Some((1, 0.2, at(1))))), None);
+            assert_eq!(
+                m.on_step(&idx, at(i), &step(1, Some((1, 0.2, at(1))))),
+                None
+            );
         }
         // Held 100 ms: goes.
-        assert_eq!(m.on_step(&idx, at(7), &step(1, Some((1, 0.2, at(1))))), Some(1));
+        assert_eq!(
+            m.on_step(&idx, at(7), &step(1, Some((1, 0.2, at(1))))),
+            Some(1)
+        );
         // A new decision that is sure goes at once.
-        assert_eq!(m.on_step(&idx, at(8), &step(2, Some((2, 0.6, at(8))))), Some(2));
+        assert_eq!(
+            m.on_step(&idx, at(8), &step(2, Some((2, 0.6, at(8))))),
+            Some(2)
+        );
         // A press that ends undecided by the policy still ends there.
         let mut m = Motion::new(policy);
         m.press_start();
-        assert_eq!(m.on_step(&idx, at(1), &step(3, Some((3, 0.1, at(1))))), None);
+        assert_eq!(
+            m.on_step(&idx, at(1), &step(3, Some((3, 0.1, at(1))))),
+            None
+        );
         assert_eq!(m.press_end(3), Some(3));
     }
 
@@ -353,7 +374,10 @@ mod tests {
         assert_eq!(m.on_step(&idx, at(2), &step(2, None)), Some(2));
         assert_eq!(m.on_step(&idx, at(3), &step(2, None)), None);
         // The decision, elsewhere, is followed at once.
-        assert_eq!(m.on_step(&idx, at(4), &step(1, Some((1, 0.1, at(4))))), Some(1));
+        assert_eq!(
+            m.on_step(&idx, at(4), &step(1, Some((1, 0.1, at(4))))),
+            Some(1)
+        );
         assert_eq!(m.press_end(1), None);
         // The next press starts afresh.
         m.press_start();
@@ -369,15 +393,27 @@ mod tests {
         assert_eq!(m.on_step(&idx, at(2), &step(1, None)), Some(1));
         // The decision (still 1) holds while the mean's nearest is 3 for
         // 33 ms: the wheel follows the mean.
-        assert_eq!(m.on_step(&idx, at(3), &step(3, Some((1, 0.1, at(2))))), None);
-        assert_eq!(m.on_step(&idx, at(4), &step(3, Some((1, 0.1, at(2))))), None);
-        assert_eq!(m.on_step(&idx, at(5), &step(3, Some((1, 0.1, at(2))))), Some(3));
+        assert_eq!(
+            m.on_step(&idx, at(3), &step(3, Some((1, 0.1, at(2))))),
+            None
+        );
+        assert_eq!(
+            m.on_step(&idx, at(4), &step(3, Some((1, 0.1, at(2))))),
+            None
+        );
+        assert_eq!(
+            m.on_step(&idx, at(5), &step(3, Some((1, 0.1, at(2))))),
+            Some(3)
+        );
         // The press ends on the whole mean's nearest: already there.
         assert_eq!(m.press_end(3), None);
         // Alternating leaders never move it.
         m.press_start();
         for i in 0..60 {
-            assert_eq!(m.on_step(&idx, at(i), &step(1 + (i as usize % 2), None)), None);
+            assert_eq!(
+                m.on_step(&idx, at(i), &step(1 + (i as usize % 2), None)),
+                None
+            );
         }
     }
 
@@ -387,7 +423,10 @@ mod tests {
         let mut m = Motion::new(MotionPolicy::Lead { lead_ms: 30.0 });
         m.press_start();
         for i in 0..60 {
-            assert_eq!(m.on_step(&idx, at(i), &step(1 + (i as usize % 2), None)), None);
+            assert_eq!(
+                m.on_step(&idx, at(i), &step(1 + (i as usize % 2), None)),
+                None
+            );
         }
         assert_eq!(m.press_end(2), Some(2));
     }
@@ -406,7 +445,10 @@ mod tests {
             })
         );
         assert_eq!("lead:0".parse(), Ok(MotionPolicy::Lead { lead_ms: 0.0 }));
-        assert_eq!("track:90".parse(), Ok(MotionPolicy::Track { lead_ms: 90.0 }));
+        assert_eq!(
+            "track:90".parse(),
+            Ok(MotionPolicy::Track { lead_ms: 90.0 })
+        );
         for bad in ["", "fast", "lead:x", "confident:2", "every:1", "lead:1:2"] {
             let e = bad.parse::<MotionPolicy>().unwrap_err();
             assert!(e.contains("motion policy"), "{bad}: {e}");
