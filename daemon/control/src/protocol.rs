@@ -1656,7 +1656,7 @@ mod tests {
             peer: "p".into(),
             reason: "r".into()
         }));
-        assert_eq!(EventFilter::all().kinds().len(), 8);
+        assert_eq!(EventFilter::all().kinds().len(), 9);
         for k in EventKind::ALL {
             assert_eq!(EventKind::parse(k.as_str()), Some(k));
             assert_eq!(serde_json::to_value(k).unwrap(), json!(k.as_str()));

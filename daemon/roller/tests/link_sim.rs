@@ -87,13 +87,24 @@ struct Pair {
     opens: Vec<(u64, bool)>,
 }
 
+fn slow_wheel() -> Config {
+    Config {
+        max_speed: 3200,
+        accel: 6400,
+        ..Config::default()
+    }
+}
+
 fn link_config() -> LinkConfig {
     LinkConfig::default() // 250 ms acks, 4 tries, 400 ms keepalive, 50 ms..2 s backoff
 }
 
 impl Pair {
+    /// The link against a slow wheel (1 rev/s, 2 rev/s^2, common
+    /// AccelStepper settings): moves last long enough for the link's
+    /// timing (acks, keepalives, a disconnect mid-move) to be exercised.
     fn new(cfg: LinkConfig) -> Pair {
-        Pair::with_firmware(cfg, Config::default())
+        Pair::with_firmware(cfg, slow_wheel())
     }
 
     fn with_firmware(cfg: LinkConfig, fw_cfg: Config) -> Pair {
@@ -741,7 +752,7 @@ fn a_watchdog_stop_during_a_long_outage_is_recovered() {
         link_config(),
         Config {
             max_speed: 400,
-            ..Config::default()
+            ..slow_wheel()
         },
     );
     p.run_until_event(S, |e| matches!(e, RollerEvent::Connected { .. }))
