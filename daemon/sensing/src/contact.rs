@@ -224,47 +224,7 @@ impl ContactConfig {
     }
 }
 
-/// Why a press ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EndReason {
-    /// The score fell below `exit`.
-    Released,
-    /// The reference was re-captured on command during the press.
-    Recapture,
-    /// The contact looked like a stale reference and the reference was re-captured.
-    StaleReference,
-}
-
-/// Events from the detector.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ContactEvent {
-    /// A reference was captured (at start, on command, or after a stale one).
-    ReferenceCaptured {
-        /// Timestamp of the last frame averaged.
-        t_us: u64,
-    },
-    /// A press started.
-    PressStart {
-        /// Timestamp of the first frame over `enter` in the run that started it.
-        t_us: u64,
-    },
-    /// A would-be press showed that the reference had been captured while
-    /// the sensor was touched: no press started, the reference is being
-    /// re-captured.
-    ReferenceRejected {
-        /// Timestamp of the frame that showed it.
-        t_us: u64,
-    },
-    /// A press ended.
-    PressEnd {
-        /// When the press started.
-        start_us: u64,
-        /// Timestamp of the frame that ended it.
-        t_us: u64,
-        /// Why.
-        reason: EndReason,
-    },
-}
+pub use telextiles_press::{ContactEvent, EndReason};
 
 /// Result of one frame.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -3,7 +3,8 @@
 #![warn(missing_docs)]
 
 pub mod contact;
-pub mod decide;
+/// The decider lives in `telextiles-press` (pure, shared with the session core).
+pub use telextiles_press::decide;
 pub mod encoder;
 pub mod frame;
 pub mod front;

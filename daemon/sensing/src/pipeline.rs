@@ -377,31 +377,7 @@ pub struct RunSummary {
 /// gel a press touches").
 pub const PARTIAL_COVERAGE: f32 = 0.5;
 
-/// The deepest frame of a press so far: its depth and coverage (a press's
-/// coverage in [`PressReport`], in the recorder's summary and in `index
-/// build`'s and `index check`'s note on partial presses).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Deepest {
-    depth: f32,
-    coverage: Option<f32>,
-}
-
-impl Deepest {
-    /// A frame in contact of depth `depth` and coverage `coverage`.
-    pub fn add(&mut self, depth: f32, coverage: f32) {
-        if self.coverage.is_none() || depth > self.depth {
-            *self = Deepest {
-                depth,
-                coverage: Some(coverage),
-            };
-        }
-    }
-
-    /// The deepest frame's coverage (None before a frame was added).
-    pub fn coverage(&self) -> Option<f32> {
-        self.coverage
-    }
-}
+pub use telextiles_press::Deepest;
 
 fn report<I: TextileIndex>(
     index: &I,

@@ -17,8 +17,8 @@
 //! own clock and the roller's real arrivals).
 
 use roller_firmware::{Config as WheelConfig, Roller};
+use telextiles_press::decide::{DecideStep, TextileIndex};
 use telextiles_proto::roller::{slot_to_steps, Command};
-use telextiles_sensing::decide::{DecideStep, TextileIndex};
 
 use crate::motion::{Motion, MotionPolicy};
 

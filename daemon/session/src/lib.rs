@@ -33,7 +33,8 @@
 
 pub mod clock;
 pub mod felt;
-pub mod latent;
+/// [`Latent`] lives in `telextiles-press`.
+pub use telextiles_press::latent;
 pub mod motion;
 pub mod receiver;
 pub mod sender;

@@ -35,7 +35,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use telextiles_sensing::decide::{DecideStep, TextileIndex};
+use telextiles_press::decide::{DecideStep, TextileIndex};
 
 /// How the wheel follows a press (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -266,7 +266,7 @@ impl Motion {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use telextiles_sensing::decide::{Decision, FlatIndex, Nearest2};
+    use telextiles_press::decide::{Decision, FlatIndex, Nearest2};
 
     fn index() -> FlatIndex {
         let t: Vec<(String, Vec<Vec<f32>>)> = (0..4)

@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use telextiles_sensing::decide::{DecideConfig, Decider, TextileIndex};
+use telextiles_press::decide::{DecideConfig, Decider, TextileIndex};
 
 use crate::latent::Latent;
 use crate::motion::{Motion, MotionPolicy};

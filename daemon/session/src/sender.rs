@@ -1,7 +1,7 @@
 //! [`SenderCore`]: what this side's presses send to its peers.
 
-use telextiles_sensing::contact::ContactEvent;
-use telextiles_sensing::decide::{DecideConfig, PressMean};
+use telextiles_press::decide::{DecideConfig, PressMean};
+use telextiles_press::ContactEvent;
 
 use crate::latent::Latent;
 
@@ -94,7 +94,7 @@ impl SenderCore {
     }
 
     /// [`SenderCore::on_frame`] with the frame's weight in the press's mean
-    /// (`telextiles_sensing::decide::contact_weight` of its contact score),
+    /// (`telextiles_press::decide::contact_weight` of its contact score),
     /// which the latent carries as its length ([`Latent::wire`]).
     pub fn on_frame_weighted(
         &mut self,
@@ -168,7 +168,7 @@ mod tests {
         Some(ContactEvent::PressEnd {
             start_us: 0,
             t_us: t,
-            reason: telextiles_sensing::contact::EndReason::Released,
+            reason: telextiles_press::EndReason::Released,
         })
     }
 
@@ -199,7 +199,7 @@ mod tests {
                 let r = (0.1f32 / 0.9).powi(p as i32);
                 let n = (1.0 + r * r).sqrt();
                 assert!((m.as_slice()[0] - 1.0 / n).abs() < 1e-6, "{m:?}");
-                let mut d = telextiles_sensing::decide::Decider::new(DecideConfig::default(), 2);
+                let mut d = telextiles_press::decide::Decider::new(DecideConfig::default(), 2);
                 d.press_start(20);
                 for l in [&out[1], &out[2]] {
                     let TxAction::Latent { latent, .. } = l else {

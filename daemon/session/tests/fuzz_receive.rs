@@ -12,10 +12,10 @@ mod harness;
 
 use std::sync::Arc;
 
+use telextiles_press::decide::{FlatIndex, TextileIndex};
 use telextiles_proto::peer::{
     decode_control_payload, encode_control, Control, LatentFrame, QuantVec, FLAG_FINAL,
 };
-use telextiles_sensing::decide::{FlatIndex, TextileIndex};
 use telextiles_session::{ReceiverConfig, ReceiverCore, RxAction, RxInput};
 
 const DIM: usize = 16;

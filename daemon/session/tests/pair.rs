@@ -9,8 +9,8 @@ use std::sync::Arc;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use telextiles_sensing::contact::{ContactEvent, EndReason};
-use telextiles_sensing::decide::{FlatIndex, TextileIndex};
+use telextiles_press::decide::{FlatIndex, TextileIndex};
+use telextiles_press::{ContactEvent, EndReason};
 use telextiles_session::{
     Latent, ReceiverConfig, ReceiverCore, RxAction, RxInput, SenderCore, TxAction,
 };

@@ -21,7 +21,7 @@ mod file;
 pub mod map;
 pub mod metric;
 pub mod select;
-mod vecmath;
+pub mod vecmath;
 
 pub use build::{IndexBuilder, TextileRecord};
 pub use file::{from_bytes, to_bytes, IndexError, FORMAT_VERSION, MAGIC};

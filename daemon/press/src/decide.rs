@@ -72,7 +72,7 @@ pub trait TextileIndex {
         None
     }
     /// What a query is made of (the encoder's embedding alone unless the
-    /// index says otherwise): [`crate::encoder::Encoder::set_features`].
+    /// index says otherwise): `telextiles_sensing::encoder::Encoder::set_features`.
     fn features(&self) -> telextiles_index::Features {
         telextiles_index::Features::Encoder
     }
@@ -227,12 +227,7 @@ fn norm(v: &[f32]) -> f32 {
     v.iter().map(|x| x * x).sum::<f32>().sqrt()
 }
 
-fn normalise(v: &mut [f32]) {
-    let n = norm(v);
-    if n > 0.0 && n.is_finite() {
-        v.iter_mut().for_each(|x| *x /= n);
-    }
-}
+use telextiles_index::vecmath::l2_normalise as normalise;
 
 /// Contact depth (contact score, DN) at which a frame's weight reaches
 /// 1 - 1/e.
@@ -247,7 +242,7 @@ pub const WEIGHT_DEPTH_DN: f32 = 4.0;
 /// far from the reference (a dropped-out or overexposed frame) counts no
 /// more than one in full contact. Measured in `docs/benchmarks.md` ("Simulator v2",
 /// time to decision). The same function weights frames locally
-/// ([`crate::pipeline::Pipeline`]), in the lab's decision curve and, as the
+/// (`telextiles_sensing::pipeline::Pipeline`), in the lab's decision curve and, as the
 /// length of each streamed latent, on the receiving daemon.
 pub fn contact_weight(score: f32) -> f32 {
     if score.is_finite() {

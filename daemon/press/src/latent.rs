@@ -25,7 +25,7 @@ pub enum LatentError {
 ///
 /// On the wire a latent is its direction times its weight
 /// ([`Latent::wire`]): the sender weights each frame by its contact depth
-/// (`telextiles_sensing::decide::contact_weight`, in (0, 1]) and the
+/// ([`crate::decide::contact_weight`], in (0, 1]) and the
 /// receiver reads the length back as the weight, clamped to
 /// [[`MIN_WEIGHT`], 1]. A sender that sends unit vectors gives every frame
 /// weight 1, as before.
