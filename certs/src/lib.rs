@@ -74,6 +74,7 @@
 //!
 //! See `docs/identity-and-pairing.md` for the formats and the protocol.
 #![forbid(unsafe_code)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod device_id;
 pub mod identity;

@@ -10,6 +10,7 @@
 //!
 //! The wire protocol is documented in `docs/control-protocol.md`.
 #![forbid(unsafe_code)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod format;
 pub mod protocol;

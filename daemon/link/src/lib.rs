@@ -28,6 +28,7 @@
 //! connections to one peer exist, both sides keep the one dialled by the
 //! smaller ID (newest if both were), so they agree without talking.
 #![forbid(unsafe_code)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod conn;
 pub mod discovery;

@@ -4,6 +4,7 @@
 //! so that long work always shows it is alive without flooding a log.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 use std::io::{IsTerminal, Write};
 use std::sync::Mutex;

@@ -30,6 +30,7 @@
 //! is the only bridge to the local clock.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod clock;
 pub mod felt;

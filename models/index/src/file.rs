@@ -147,14 +147,20 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
             expected: HEADER as u64,
         });
     }
-    let version = u32::from_le_bytes(bytes[4..8].try_into().unwrap());
+    // The header's length was checked above: these fixed slices fit.
+    let word = |r: std::ops::Range<usize>| {
+        let mut b = [0u8; 8];
+        b[..r.len()].copy_from_slice(&bytes[r]);
+        u64::from_le_bytes(b)
+    };
+    let version = word(4..8) as u32;
     if !(1..=FORMAT_VERSION).contains(&version) {
         return Err(IndexError::Version {
             path: p(),
             found: version,
         });
     }
-    let len = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
+    let len = word(8..16);
     if len > MAX_PAYLOAD {
         return Err(IndexError::Corrupt {
             path: p(),

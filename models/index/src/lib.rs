@@ -15,6 +15,7 @@
 //! Pure: no I/O except [`Index::read`] / [`Index::write`], which write
 //! atomically and reject truncated, corrupt or foreign files with a clear error.
 #![forbid(unsafe_code)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod build;
 mod file;

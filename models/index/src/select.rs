@@ -222,13 +222,14 @@ pub fn order_wheel(points: &[Vec<f32>], chosen: &[usize]) -> Vec<usize> {
     let d = |a: usize, b: usize| distance(&points[a], &points[b]);
     let mut tour = vec![chosen[0]];
     let mut rest: Vec<usize> = chosen[1..].to_vec();
-    while !rest.is_empty() {
-        let last = *tour.last().unwrap();
-        let (k, _) = rest
+    while let Some(&last) = tour.last() {
+        let Some((k, _)) = rest
             .iter()
             .enumerate()
             .min_by(|a, b| d(last, *a.1).total_cmp(&d(last, *b.1)))
-            .unwrap();
+        else {
+            break;
+        };
         tour.push(rest.remove(k));
     }
     loop {

@@ -210,7 +210,7 @@ impl ImageSet {
             "{} is not a telextiles-lab image cache",
             path.display()
         );
-        let hlen = u64::from_le_bytes(buf[8..16].try_into().unwrap()) as usize;
+        let hlen = u64::from_le_bytes(buf[8..16].try_into().expect("an 8-byte slice")) as usize;
         ensure!(
             buf.len() >= 16 + hlen,
             "{}: truncated header",

@@ -3,6 +3,7 @@
 //! encoder contract, verifies it in ONNX Runtime, evaluates it as in the
 //! paper and measures latency. burn is a dependency of this crate only; the
 //! daemon never links it.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod attrmap;
 pub mod augment;

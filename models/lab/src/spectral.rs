@@ -394,21 +394,26 @@ pub fn render_features(
                             }
                         }
                         let rows = enc.embed(&x)?;
-                        out.lock().unwrap().push((i, p.class, n, rows));
+                        out.lock()
+                            .unwrap_or_else(|p| p.into_inner())
+                            .push((i, p.class, n, rows));
                         bar.inc(1);
                     }
                 };
                 if let Err(e) = run() {
-                    first_err.lock().unwrap().get_or_insert(e);
+                    first_err
+                        .lock()
+                        .unwrap_or_else(|p| p.into_inner())
+                        .get_or_insert(e);
                 }
             });
         }
     });
     bar.finish();
-    if let Some(e) = first_err.into_inner().unwrap() {
+    if let Some(e) = first_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
         return Err(e);
     }
-    let mut res = out.into_inner().unwrap();
+    let mut res = out.into_inner().unwrap_or_else(|p| p.into_inner());
     res.sort_by_key(|r| r.0);
     let dim = cfg.spec().dim();
     let mut f = Features {

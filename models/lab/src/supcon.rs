@@ -271,9 +271,15 @@ pub fn render_set(
                 }
                 let p = &plans[i];
                 match render_press(&sim, cfg, p, crop, side) {
-                    Ok(frames) => results.lock().unwrap().push((i, p.class, frames)),
+                    Ok(frames) => results
+                        .lock()
+                        .unwrap_or_else(|p| p.into_inner())
+                        .push((i, p.class, frames)),
                     Err(e) => {
-                        first_err.lock().unwrap().get_or_insert(e);
+                        first_err
+                            .lock()
+                            .unwrap_or_else(|p| p.into_inner())
+                            .get_or_insert(e);
                         return;
                     }
                 }
@@ -282,10 +288,10 @@ pub fn render_set(
         }
     });
     bar.finish();
-    if let Some(e) = first_err.into_inner().unwrap() {
+    if let Some(e) = first_err.into_inner().unwrap_or_else(|p| p.into_inner()) {
         return Err(e);
     }
-    let mut results = results.into_inner().unwrap();
+    let mut results = results.into_inner().unwrap_or_else(|p| p.into_inner());
     results.sort_by_key(|r| r.0);
     let mut set = DiffSet {
         side,

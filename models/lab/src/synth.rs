@@ -19,7 +19,11 @@ fn seed_of(parts: &[&[u8]]) -> u64 {
         h.update(p);
         h.update([0]);
     }
-    u64::from_le_bytes(h.finalize()[..8].try_into().unwrap())
+    u64::from_le_bytes(
+        h.finalize()[..8]
+            .try_into()
+            .expect("a SHA-256 digest has 32 bytes"),
+    )
 }
 
 impl FrameSource for SynthSource {

@@ -411,7 +411,7 @@ impl Trainer {
         ensure!(q.len() == t.queue.len() * 4, "queue.f32 has the wrong size");
         t.queue = q
             .chunks_exact(4)
-            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .map(|b| f32::from_le_bytes(b.try_into().expect("chunks of 4 bytes")))
             .collect();
         t.queue_ptr = st.queue_ptr;
         t.epoch = st.epoch;

@@ -8,6 +8,7 @@
 //! assert_eq!((press.frames[0].width(), press.frames[0].height()), (240, 320));
 //! ```
 #![forbid(unsafe_code)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod bolt;
 pub mod calib;
