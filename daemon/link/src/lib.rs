@@ -424,9 +424,55 @@ pub(crate) struct Shared {
     /// What [`LinkHandle::stats`] reports.
     pub bad_datagrams: AtomicU64,
     pub latents_dropped: AtomicU64,
+    /// The link's long-lived tasks (accepting, dialing, discovery, the
+    /// trust-store watch, each accepted connection): owned here, aborted
+    /// at shutdown and when the last [`LinkHandle`] goes; none detached. A
+    /// connection's own writer, pinger and datagram reader are owned by its
+    /// task ([`AbortOnDrop`]).
+    pub tasks: Mutex<tokio::task::JoinSet<()>>,
+}
+
+/// A task aborted when this is dropped: its owner's future ended or was
+/// cancelled.
+pub(crate) struct AbortOnDrop(pub tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// The last [`LinkHandle`]'s end: the link's tasks, which hold the shared
+/// state (and so the endpoint), are aborted.
+struct Owner(Arc<Shared>);
+
+impl Drop for Owner {
+    fn drop(&mut self) {
+        self.0.abort_tasks();
+    }
 }
 
 impl Shared {
+    /// Spawn one of the link's tasks ([`Shared::tasks`]); finished ones
+    /// are reaped first, so the set holds only live tasks.
+    pub(crate) fn spawn(&self, task: impl std::future::Future<Output = ()> + Send + 'static) {
+        let mut tasks = lock(&self.tasks);
+        while tasks.try_join_next().is_some() {}
+        tasks.spawn(task);
+    }
+
+    /// Abort every task of the link.
+    pub(crate) fn abort_tasks(&self) {
+        lock(&self.tasks).abort_all();
+    }
+
+    /// Live tasks of the link (finished ones reaped).
+    pub(crate) fn live_tasks(&self) -> usize {
+        let mut tasks = lock(&self.tasks);
+        while tasks.try_join_next().is_some() {}
+        tasks.len()
+    }
+
     pub(crate) async fn emit(&self, ev: LinkEvent) {
         let _ = self.events.send(ev).await;
     }
@@ -520,6 +566,7 @@ pub struct Link;
 #[derive(Clone)]
 pub struct LinkHandle {
     shared: Arc<Shared>,
+    _owner: Arc<Owner>,
     seq: Arc<AtomicU64>,
     local_addr: SocketAddr,
     _discovery: Option<Arc<discovery::Discovery>>,
@@ -621,16 +668,17 @@ impl Link {
             bad_datagrams: AtomicU64::new(0),
             latents_dropped: AtomicU64::new(0),
             advert: Mutex::new(None),
+            tasks: Mutex::new(tokio::task::JoinSet::new()),
         });
         shared.emit(LinkEvent::Listening { addr: local_addr }).await;
 
-        tokio::spawn(session::accept_loop(shared.clone()));
+        shared.spawn(session::accept_loop(shared.clone()));
         if let Some(dir) = shared.data_dir.clone() {
-            tokio::spawn(watch_trust_store(shared.clone(), dir));
+            shared.spawn(watch_trust_store(shared.clone(), dir));
         }
 
         for addr in connect {
-            tokio::spawn(session::dial_loop(shared.clone(), None, vec![addr], true));
+            shared.spawn(session::dial_loop(shared.clone(), None, vec![addr], true));
         }
         // Remembered addresses of paired peers.
         if let Some(dir) = &shared.data_dir {
@@ -646,7 +694,7 @@ impl Link {
             Some(dcfg) => {
                 let (d, found) =
                     discovery::Discovery::start(&dcfg, &my_id, local_addr.port(), show_mode)?;
-                tokio::spawn(session::discovery_loop(shared.clone(), found, enter_mode));
+                shared.spawn(session::discovery_loop(shared.clone(), found, enter_mode));
                 let d = Arc::new(d);
                 *lock(&shared.advert) = Some(Arc::downgrade(&d));
                 if show_mode && !shared.pairing_mode() {
@@ -659,6 +707,7 @@ impl Link {
         };
         Ok((
             LinkHandle {
+                _owner: Arc::new(Owner(shared.clone())),
                 shared,
                 seq: Arc::new(AtomicU64::new(1)),
                 local_addr,
@@ -879,7 +928,7 @@ impl LinkHandle {
 
     /// Dials an address (like `--connect`) from now on, with reconnects.
     pub fn connect(&self, addr: SocketAddr) {
-        tokio::spawn(session::dial_loop(
+        self.shared.spawn(session::dial_loop(
             self.shared.clone(),
             None,
             vec![addr],
@@ -903,5 +952,13 @@ impl LinkHandle {
             .close(close_code::BYE.into(), close_code::SHUTDOWN_REASON);
         let _ =
             tokio::time::timeout(Duration::from_secs(1), self.shared.endpoint.wait_idle()).await;
+        // Whatever did not end with the signal ends now.
+        self.shared.abort_tasks();
+    }
+
+    /// The link's live tasks (accepting, dialing, discovery, connections):
+    /// none outlive the link.
+    pub fn tasks(&self) -> usize {
+        self.shared.live_tasks()
     }
 }

@@ -153,7 +153,8 @@ pub(crate) async fn accept_loop(shared: Arc<Shared>) {
         };
         let shared = shared.clone();
         let mut stop2 = shared.shutdown.subscribe();
-        tokio::spawn(async move {
+        let owner = shared.clone();
+        owner.spawn(async move {
             let _slot = slot;
             // Cancelled at shutdown so nothing keeps the endpoint alive.
             tokio::select! {
@@ -275,7 +276,7 @@ pub(crate) fn ensure_dialing(shared: &Arc<Shared>, peer: DeviceId, addrs: Vec<So
     }
     let (tx, rx) = watch::channel(bounded_addrs(addrs, &[]));
     dialing.insert(peer, tx);
-    tokio::spawn(dial_known(shared.clone(), peer, rx));
+    shared.spawn(dial_known(shared.clone(), peer, rx));
 }
 
 async fn dial_known(
@@ -285,14 +286,15 @@ async fn dial_known(
 ) {
     let list = addrs.borrow_and_update().clone();
     let (tx, mut rx) = watch::channel(list);
-    tokio::spawn(async move {
+    // Owned by this dial: it forwards address updates while it runs.
+    let _forward = crate::AbortOnDrop(tokio::spawn(async move {
         while addrs.changed().await.is_ok() {
             let v = addrs.borrow_and_update().clone();
             if tx.send(v).is_err() {
                 return;
             }
         }
-    });
+    }));
     dial_loop_inner(shared, Some(peer), &mut rx, false, false).await;
 }
 
@@ -564,7 +566,7 @@ pub(crate) async fn discovery_loop(
             // have unpaired this one): dial every such advertiser, once.
             pairing_dialled.push(d.device_id);
             let addrs = bounded_addrs(d.addrs, &[]);
-            tokio::spawn(dial_for_pairing(shared.clone(), addrs));
+            shared.spawn(dial_for_pairing(shared.clone(), addrs));
         } else if shared.pins.contains(&d.device_id) {
             ensure_dialing(&shared, d.device_id, d.addrs);
         }
@@ -1165,7 +1167,7 @@ async fn stream(
     } = ctrl;
 
     // Writer.
-    let writer = tokio::spawn(async move {
+    let writer = crate::AbortOnDrop(tokio::spawn(async move {
         while let Some(msg) = ctrl_rx.recv().await {
             let msg = match msg {
                 // Stamp pongs as late as possible.
@@ -1190,12 +1192,12 @@ async fn stream(
                 return;
             }
         }
-    });
+    }));
 
     // Pinger: sleeps until the clock machine's next ping is due.
     let ping_tx = ctrl_tx.clone();
     let pclock = clock.clone();
-    let pinger = tokio::spawn(async move {
+    let pinger = crate::AbortOnDrop(tokio::spawn(async move {
         loop {
             let Some(due) = lock(&pclock).poll_timeout() else {
                 return;
@@ -1218,13 +1220,13 @@ async fn stream(
                 }
             }
         }
-    });
+    }));
 
     // Datagrams.
     let dconn = conn.clone();
     let dshared = shared.clone();
     let dclock = clock.clone();
-    let datagrams = tokio::spawn(async move {
+    let datagrams = crate::AbortOnDrop(tokio::spawn(async move {
         let mut latest = LatestWins::new();
         let mut errors = RateLimit::new();
         while let Ok(bytes) = dconn.read_datagram().await {
@@ -1260,7 +1262,7 @@ async fn stream(
                 received_us: recv_us,
             }));
         }
-    });
+    }));
 
     // Control reader (this task).
     let mut ctrl = ReaderOnly { recv, dec, buf };
@@ -1297,9 +1299,9 @@ async fn stream(
             }
         }
     };
-    writer.abort();
-    pinger.abort();
-    datagrams.abort();
+    // Ended before the connection closes (and on any cancellation of this
+    // future, by the guards' drop).
+    drop((writer, pinger, datagrams));
     if conn.close_reason().is_none() {
         conn.close(close_code::BYE.into(), b"session ended");
     }

@@ -400,3 +400,51 @@ async fn reconnects_after_the_peer_restarts() {
     a.shutdown().await;
     b2.shutdown().await;
 }
+
+/// The link's tasks are owned: a live pair runs accepting, dialing and a
+/// connection's tasks on each side; when the last handle of a link goes
+/// without a shutdown, every one of them ends and the endpoint's UDP port
+/// is free again (before, the accept loop kept the endpoint alive). After a
+/// shutdown, no task is left.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_links_tasks_end_with_it() {
+    let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
+    let (a, mut ra) = start(config("alice"), &ia, &[&ib]).await;
+    let mut cb = config("bob");
+    cb.connect = vec![a.local_addr()];
+    let (b, mut rb) = start(cb, &ib, &[&ia]).await;
+    for (rx, what) in [(&mut ra, "PeerUp on a"), (&mut rb, "PeerUp on b")] {
+        wait_for(rx, 10, what, |e| match e {
+            LinkEvent::PeerUp { .. } => Some(()),
+            _ => None,
+        })
+        .await;
+    }
+    assert!(a.tasks() >= 2, "accepting and a connection: {}", a.tasks());
+    assert!(b.tasks() >= 2, "dialing and accepting: {}", b.tasks());
+
+    // Dropped without a shutdown (a clone too): its port frees.
+    let port = a.local_addr();
+    let clone = a.clone();
+    drop(a);
+    assert!(
+        std::net::UdpSocket::bind(port).is_err(),
+        "a clone still holds it"
+    );
+    drop(clone);
+    drop(ra);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        if std::net::UdpSocket::bind(port).is_ok() {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{port} still bound 5 s after the link's last handle went"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+
+    b.shutdown().await;
+    assert_eq!(b.tasks(), 0, "tasks left after shutdown");
+}
