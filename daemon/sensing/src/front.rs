@@ -34,7 +34,7 @@
 
 use std::time::Instant;
 
-use telextiles_sim::Press;
+use telextiles_recording::Press;
 
 use crate::contact::{mean_pixels, ContactConfig, ContactDetector, ContactEvent, ContactUpdate};
 use crate::encoder::{Encoder, EncoderError};
@@ -370,7 +370,7 @@ impl References {
                 split_reference_arg(arg, |whole| std::path::Path::new(whole).exists())
                     .ok_or_else(|| bad("expected [SERIAL=]PNG".into()))?;
             let serial = serial.map(str::to_string);
-            let image = telextiles_sim::recording::read_image(std::path::Path::new(path))
+            let image = telextiles_recording::recording::read_image(std::path::Path::new(path))
                 .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
             let twice = |what: String| ReferenceError::Twice {
@@ -431,8 +431,8 @@ impl References {
             if !wanted {
                 continue;
             }
-            let image =
-                telextiles_sim::recording::read_image(&path).map_err(|e| bad(e.to_string()))?;
+            let image = telextiles_recording::recording::read_image(&path)
+                .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
             match serial {
                 Some(s) => {

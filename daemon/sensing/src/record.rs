@@ -7,7 +7,7 @@
 //! [`Recorder::poll`] hands out what happened ([`RecordEvent`]): waiting for
 //! an untouched sensor, ready ("press now"), press started, hold progress,
 //! released, and a complete press ([`RecordedPress`], a
-//! [`telextiles_sim::Press`] ready for `telextiles_sim::recording::write_press`)
+//! [`telextiles_recording::Press`] ready for `telextiles_recording::recording::write_press`)
 //! or a rejected one. No clocks (timestamps come with the frames), no files.
 //!
 //! A recorded press is: the last quiet frames before contact (at most
@@ -38,7 +38,7 @@ use std::collections::VecDeque;
 use std::fmt;
 
 use image::RgbImage;
-use telextiles_sim::{Press, PressMeta};
+use telextiles_recording::{Press, PressMeta};
 
 use crate::contact::{ContactEvent, ContactUpdate, EndReason};
 use crate::frame::Frame;
@@ -1329,9 +1329,9 @@ mod tests {
         let p = rig.presses()[0].press.clone();
         let dir = tempfile::tempdir().expect("tempdir");
         let d = dir.path().join("T030").join("0001");
-        telextiles_sim::recording::write_press(&d, &p).expect("write");
-        let back = telextiles_sim::recording::read_press(&d).expect("read");
+        telextiles_recording::recording::write_press(&d, &p).expect("write");
+        let back = telextiles_recording::recording::read_press(&d).expect("read");
         assert_eq!(back, p);
-        assert!(telextiles_sim::recording::write_press(&d, &p).is_err());
+        assert!(telextiles_recording::recording::write_press(&d, &p).is_err());
     }
 }

@@ -9,6 +9,7 @@ use crate::frame::{Frame, FrameError};
 #[cfg(target_os = "linux")]
 pub mod digit;
 pub mod recorded;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod sysfs;
 pub mod yuv;

@@ -6,8 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use telextiles_sim::recording::{find_recordings, Recording};
-use telextiles_sim::{Press, PressMeta};
+use telextiles_recording::recording::{find_recordings, Recording};
+use telextiles_recording::{Press, PressMeta};
 
 use super::{FrameSource, NewRecording, SourceError};
 use crate::frame::{Frame, FrameError};
@@ -42,7 +42,7 @@ pub struct RecordedSource {
 impl RecordedSource {
     /// Read a press directory. Unreadable → [`SourceError::Fatal`].
     pub fn open(dir: &Path, pace: Pace) -> Result<RecordedSource, SourceError> {
-        let press = telextiles_sim::recording::read_press(dir)
+        let press = telextiles_recording::recording::read_press(dir)
             .map_err(|e| SourceError::Fatal(format!("cannot replay {}: {e}", dir.display())))?;
         Ok(RecordedSource::from_press(
             press,
@@ -163,7 +163,7 @@ impl FrameSource for RecordedSource {
 }
 
 /// Every recording under a directory (press directories at any depth, else
-/// a PyTouch-style dataset: `telextiles_sim::recording::find_recordings`),
+/// a PyTouch-style dataset: `telextiles_recording::recording::find_recordings`),
 /// replayed one after another in sorted order, optionally looping, as one
 /// stream whose timestamps keep increasing (one frame period between the
 /// last frame of a recording and the first of the next).
@@ -228,11 +228,11 @@ impl RecordingsSource {
 
     /// Space the frames of recordings saved without timestamps (a
     /// PyTouch-style dataset) at `fps` (None: the DIGIT's stream rate at
-    /// their size, `telextiles_sim::recording::default_fps`). Press
+    /// their size, `telextiles_recording::recording::default_fps`). Press
     /// directories carry their own timestamps: a rate given for them is
     /// refused ([`SourceError::Fatal`]).
     pub fn assume_fps(mut self, fps: Option<f32>) -> Result<Self, SourceError> {
-        telextiles_sim::recording::assume_fps(&mut self.recordings, fps).map_err(|e| {
+        telextiles_recording::recording::assume_fps(&mut self.recordings, fps).map_err(|e| {
             SourceError::Fatal(format!("cannot replay {}: {e}", self.root.display()))
         })?;
         Ok(self)

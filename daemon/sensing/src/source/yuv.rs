@@ -225,7 +225,7 @@ pub fn decode_mjpg(
 /// into the 240x320 portrait frame: 90 degrees counter-clockwise
 /// (digit-interface's transpose + vertical flip). 320x240 maps 1:1; 640x480
 /// is rotated and averaged over 2x2 blocks. The mapping is
-/// [`telextiles_sim::recording::to_frame`], which the reader of others'
+/// [`telextiles_recording::recording::to_frame`], which the reader of others'
 /// saved frames shares; a stream must be landscape.
 pub fn rotate_to_frame(
     rgb: &[u8],
@@ -238,7 +238,7 @@ pub fn rotate_to_frame(
             "cannot map a {width}x{height} sensor frame to {FRAME_W}x{FRAME_H}: the camera streams landscape"
         )));
     }
-    telextiles_sim::recording::to_frame(rgb, width, height, out).map_err(FrameError::Decode)
+    telextiles_recording::recording::to_frame(rgb, width, height, out).map_err(FrameError::Decode)
 }
 
 /// Decode a captured buffer and rotate it into `out`. `scratch` is reused.
