@@ -7,6 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::classify_felt::{Felts, PressFelt};
 use anyhow::{bail, Context, Result};
 use telextiles_index::Index;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
@@ -14,8 +15,6 @@ use telextiles_sensing::front::References;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport, PARTIAL_COVERAGE};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
 use telextiles_sensing::source::sim::SimSource;
-use telextiles_session::felt::{self, FeltTally};
-use telextiles_session::MotionPolicy;
 use telextiles_sim::PressSpec;
 
 /// Options of `telextilesd classify`.
@@ -225,110 +224,6 @@ fn print(
         r.frame_total.p90_ms
     )?;
     Ok(())
-}
-
-/// One press's wheel under one motion policy, over every starting sample.
-#[derive(Clone, Debug, serde::Serialize)]
-struct PressFelt {
-    policy: String,
-    starts: usize,
-    felt_p50_ms: f64,
-    felt_max_ms: f64,
-    reversals_max: u32,
-    wrong_rest_max_ms: f64,
-    travel_mean_slots: f64,
-    targets: u32,
-}
-
-/// The simulated wheel driven through every press under each motion
-/// policy asked for ([`telextiles_session::felt`]).
-struct Felts {
-    wheel: roller_firmware::Config,
-    policies: Vec<(MotionPolicy, FeltTally)>,
-}
-
-impl Felts {
-    fn new(args: &Args, index: &Index) -> Felts {
-        let policies = if args.motions.is_empty() {
-            vec![MotionPolicy::default()]
-        } else {
-            args.motions.clone()
-        };
-        Felts {
-            wheel: roller_firmware::Config {
-                slots: index.roller.slots.len().clamp(1, u16::MAX as usize) as u16,
-                max_speed: args.wheel_speed,
-                accel: args.wheel_accel,
-                ..Default::default()
-            },
-            policies: policies
-                .into_iter()
-                .map(|p| (p, FeltTally::default()))
-                .collect(),
-        }
-    }
-
-    /// Drive the wheel through a decided press; `label` is right when the
-    /// index holds it.
-    fn press(&mut self, label: &str, r: &PressReport, index: &Index) -> Vec<PressFelt> {
-        let Some(slot) = r.slot else {
-            return Vec::new();
-        };
-        let right = index
-            .entry_by_id(label)
-            .map(|e| index.slot_of_entry(e) == slot);
-        let wheel = self.wheel;
-        self.policies
-            .iter_mut()
-            .map(|(policy, tally)| {
-                let all = felt::replay(index, *policy, wheel, &r.steps, r.start_us, r.end_us, slot);
-                let mut one = FeltTally::default();
-                for f in &all {
-                    tally.add(f, right);
-                    one.add(f, None);
-                }
-                let s = one.summary();
-                PressFelt {
-                    policy: policy.to_string(),
-                    starts: all.len(),
-                    felt_p50_ms: s.felt_p50_ms,
-                    felt_max_ms: all.iter().map(|f| f.felt_ms).fold(0.0, f64::max),
-                    reversals_max: all.iter().map(|f| f.reversals).max().unwrap_or(0),
-                    wrong_rest_max_ms: all.iter().map(|f| f.wrong_rest_ms).fold(0.0, f64::max),
-                    travel_mean_slots: s.travel_mean_slots,
-                    targets: all.first().map_or(0, |f| f.targets),
-                }
-            })
-            .collect()
-    }
-
-    fn lines(&self) -> Vec<String> {
-        self.policies
-            .iter()
-            .filter(|(_, t)| !t.is_empty())
-            .map(|(p, t)| format!("wheel ({p}): {}", t.summary().line()))
-            .collect()
-    }
-
-    fn write_json(&self, path: &Path) -> Result<()> {
-        let v = serde_json::json!({
-            "wheel": {
-                "slots": self.wheel.slots,
-                "microsteps_per_rev": self.wheel.steps_per_rev(),
-                "max_speed": self.wheel.max_speed,
-                "accel": self.wheel.accel,
-            },
-            "policies": self.policies.iter().map(|(p, t)| serde_json::json!({
-                "policy": p.to_string(),
-                "summary": t.summary(),
-            })).collect::<Vec<_>>(),
-        });
-        // Whole or not at all: written beside, then renamed over.
-        let tmp = path.with_extension("part");
-        std::fs::write(&tmp, format!("{v:#}\n"))
-            .and_then(|()| std::fs::rename(&tmp, path))
-            .with_context(|| format!("cannot write {}", path.display()))
-    }
 }
 
 /// Every press `classify` decided, against the fabric it is labelled with
@@ -654,6 +549,7 @@ mod tests {
     use std::path::Path;
     use telextiles_index::{IndexBuilder, TextileRecord};
     use telextiles_sensing::encoder::file_sha256;
+    use telextiles_session::MotionPolicy;
     use telextiles_sim::Simulator;
 
     const TEXTILES: [&str; 4] = ["T010", "T030", "T080", "T110"];

@@ -1,6 +1,7 @@
 //! `telextilesd`: the Telextiles daemon and its command line.
 use clap::{Parser, Subcommand};
 
+mod classify_felt;
 mod cmd_classify;
 mod cmd_ctl;
 mod cmd_demo;
