@@ -10,8 +10,6 @@ use telextiles_sensing::pipeline::PressReport;
 use telextiles_session::felt::{self, FeltTally};
 use telextiles_session::MotionPolicy;
 
-use crate::cmd_classify::Args;
-
 /// One press's wheel under one motion policy, over every starting sample.
 #[derive(Clone, Debug, serde::Serialize)]
 pub(crate) struct PressFelt {
@@ -33,17 +31,25 @@ pub(crate) struct Felts {
 }
 
 impl Felts {
-    pub(crate) fn new(args: &Args, index: &Index) -> Felts {
-        let policies = if args.motions.is_empty() {
+    /// The wheel of `index`'s roller at `max_speed` (microsteps/s) and
+    /// `accel` (microsteps/s²), under each of `motions` (none: the
+    /// default policy).
+    pub(crate) fn new(
+        motions: &[MotionPolicy],
+        max_speed: u32,
+        accel: u32,
+        index: &Index,
+    ) -> Felts {
+        let policies = if motions.is_empty() {
             vec![MotionPolicy::default()]
         } else {
-            args.motions.clone()
+            motions.to_vec()
         };
         Felts {
             wheel: roller_firmware::Config {
                 slots: index.roller.slots.len().clamp(1, u16::MAX as usize) as u16,
-                max_speed: args.wheel_speed,
-                accel: args.wheel_accel,
+                max_speed,
+                accel,
                 ..Default::default()
             },
             policies: policies

@@ -5,7 +5,6 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use crate::classify_felt::{Felts, PressFelt};
 use anyhow::{bail, Context, Result};
@@ -14,7 +13,9 @@ use telextiles_sensing::encoder::{Encoder, EncoderOptions};
 use telextiles_sensing::front::References;
 use telextiles_sensing::pipeline::{run_source, Pipeline, PressReport, PARTIAL_COVERAGE};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+#[cfg(feature = "sim")]
 use telextiles_sensing::source::sim::SimSource;
+#[cfg(feature = "sim")]
 use telextiles_sim::PressSpec;
 
 /// Options of `telextilesd classify`.
@@ -39,7 +40,7 @@ pub struct Args {
     /// datasets) [default: the DIGIT's stream rate at the frames' size:
     /// 60 fps for 240x320 or 320x240, 30 for VGA]. Refused for press
     /// directories, which carry their own timestamps.
-    #[arg(long, value_parser = telextiles_sim::recording::parse_fps, conflicts_with = "sim")]
+    #[arg(long, value_parser = telextiles_recording::recording::parse_fps, conflicts_with = "sim")]
     pub fps: Option<f32>,
     /// Simulate presses of this textile id instead (e.g. T030).
     #[arg(long, conflicts_with = "press")]
@@ -298,7 +299,7 @@ impl Tally {
                 check.right,
                 check.presses,
                 100.0 * check.right as f64 / check.presses as f64,
-                crate::cmd_index::confusions_text(&check, &id)
+                crate::index_choice::confusions_text(&check, &id)
             )
         };
         if self.known_flagged > 0 {
@@ -390,36 +391,7 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     };
     let mut n = 0usize;
     if let Some(id) = &args.sim {
-        // The fabrics of the index's simulator catalogue.
-        let sim = Arc::new(crate::session::models::simulator_for(&index)?);
-        let spec = PressSpec {
-            person: args.person,
-            sensor: args.sensor,
-            jig: !args.no_jig,
-            ..PressSpec::new(id.clone(), args.seed)
-        };
-        let frames = spec.frames;
-        let gap = 20;
-        let (mut src, _handle) =
-            SimSource::new(sim, spec, gap, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
-        let pcfg = args.decision.pipeline(args.contact.contact()?);
-        let mut pipeline =
-            Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
-        let total = (gap + frames) as u64 * args.presses as u64;
-        let mut err = Ok(());
-        let mut tally = Tally::default();
-        let mut felts = Felts::new(&args, &index);
-        run_source(&mut pipeline, &mut src, Some(total), |r| {
-            n += 1;
-            tally.press(id, &r, &index);
-            let felt = felts.press(id, &r, &index);
-            if err.is_ok() {
-                err = print(out, &args, &format!("sim {id}"), n, &r, &index, &felt);
-            }
-        })
-        .map_err(anyhow::Error::msg)?;
-        err?;
-        return summarise(out, &args, &tally, &felts, &index);
+        return classify_simulated(out, &args, id, enc, &index, pace);
     }
     let mut references = References::from_args(&args.references)?;
     // The sensors' no-contact frames kept beside the index, for recordings
@@ -434,7 +406,9 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     }
     let mut recordings = Vec::new();
     for p in &args.press {
-        recordings.extend(telextiles_sim::recording::find_recordings_at(p, args.fps)?);
+        recordings.extend(telextiles_recording::recording::find_recordings_at(
+            p, args.fps,
+        )?);
     }
     // One pipeline, reset for every recording with the recording's own
     // reference (else the one given for its sensor): nothing carries over
@@ -444,14 +418,14 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     let progress =
         telextiles_progress::Progress::new("classify", recordings.len() as u64, "presses");
     let mut tally = Tally::default();
-    let mut felts = Felts::new(&args, &index);
+    let mut felts = Felts::new(&args.motions, args.wheel_speed, args.wheel_accel, &index);
     for rec in recordings {
         let name = rec.path().display().to_string();
         let press = rec
             .load()
             .with_context(|| format!("cannot replay {name}"))?;
         let reference = references.for_press(&press);
-        let hint = no_reference_hint(reference.is_some());
+        let hint = telextiles_sensing::front::no_reference_hint(reference.is_some());
         pipeline.reset(reference.as_deref());
         let label = press.meta.textile.clone();
         let mut src = RecordedSource::from_press(press, pace, name.clone());
@@ -488,6 +462,62 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     }
     progress.finish();
     summarise(out, &args, &tally, &felts, &index)
+}
+
+/// `--sim <textile>`: presses of the index's simulator catalogue, through
+/// the same pipeline as recordings.
+#[cfg(feature = "sim")]
+fn classify_simulated(
+    out: &mut dyn Write,
+    args: &Args,
+    id: &str,
+    enc: Encoder,
+    index: &Index,
+    pace: Pace,
+) -> Result<()> {
+    use std::sync::Arc;
+    let mut n = 0usize;
+    // The fabrics of the index's simulator catalogue.
+    let sim = Arc::new(crate::session::models::simulator_for(index)?);
+    let spec = PressSpec {
+        person: args.person,
+        sensor: args.sensor,
+        jig: !args.no_jig,
+        ..PressSpec::new(id, args.seed)
+    };
+    let frames = spec.frames;
+    let gap = 20;
+    let (mut src, _handle) =
+        SimSource::new(sim, spec, gap, pace).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let pcfg = args.decision.pipeline(args.contact.contact()?);
+    let mut pipeline = Pipeline::new(enc, index.clone(), pcfg, None).map_err(anyhow::Error::msg)?;
+    let total = (gap + frames) as u64 * args.presses as u64;
+    let mut err = Ok(());
+    let mut tally = Tally::default();
+    let mut felts = Felts::new(&args.motions, args.wheel_speed, args.wheel_accel, index);
+    run_source(&mut pipeline, &mut src, Some(total), |r| {
+        n += 1;
+        tally.press(id, &r, index);
+        let felt = felts.press(id, &r, index);
+        if err.is_ok() {
+            err = print(out, args, &format!("sim {id}"), n, &r, index, &felt);
+        }
+    })
+    .map_err(anyhow::Error::msg)?;
+    err?;
+    summarise(out, args, &tally, &felts, index)
+}
+
+#[cfg(not(feature = "sim"))]
+fn classify_simulated(
+    _out: &mut dyn Write,
+    _args: &Args,
+    _id: &str,
+    _enc: Encoder,
+    _index: &Index,
+    _pace: Pace,
+) -> Result<()> {
+    Err(crate::sim_off("`classify --sim`"))
 }
 
 /// The summary line: after the presses on standard output, or, with
@@ -529,18 +559,6 @@ fn summarise(
         crate::felt_chart::draw(path, &title, &felts.policies)?;
     }
     Ok(())
-}
-
-/// What to add to "no contact detected" for a recording replayed without
-/// a reference (neither its own nor one given for its sensor,
-/// `References::for_press`): the way out, since its first frames, maybe
-/// in contact, became the reference.
-pub fn no_reference_hint(has_reference: bool) -> &'static str {
-    if has_reference {
-        ""
-    } else {
-        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference, or keep it beside the index as no-contact.png or no-contact-<SERIAL>.png; `telextilesd record --idle` writes one)"
-    }
 }
 
 #[cfg(test)]
@@ -738,7 +756,7 @@ mod tests {
         let sim = Simulator::new().unwrap();
         for id in ["T080", "T110"] {
             let p = sim.render_press(&PressSpec::new(id, 2)).unwrap();
-            telextiles_sim::recording::write_press(&dir.path().join("presses").join(id), &p)
+            telextiles_recording::recording::write_press(&dir.path().join("presses").join(id), &p)
                 .unwrap();
         }
         let mut out = Vec::new();
@@ -786,13 +804,16 @@ mod tests {
         // Over a fabric the index does not hold (U01) and a recording
         // that never touches: the summary says so.
         let u = sim.render_press(&PressSpec::new("U01", 2)).unwrap();
-        telextiles_sim::recording::write_press(&dir.path().join("presses/U01"), &u).unwrap();
+        telextiles_recording::recording::write_press(&dir.path().join("presses/U01"), &u).unwrap();
         let mut quiet = sim.render_press(&PressSpec::new("T030", 2)).unwrap();
         quiet.frames.truncate(20);
         quiet.meta.timestamps_us.truncate(20);
         quiet.meta.reference_frames = None;
-        telextiles_sim::recording::write_press(&dir.path().join("presses/T030-quiet"), &quiet)
-            .unwrap();
+        telextiles_recording::recording::write_press(
+            &dir.path().join("presses/T030-quiet"),
+            &quiet,
+        )
+        .unwrap();
         let mut out = Vec::new();
         run_to(
             Args {
@@ -845,7 +866,7 @@ mod tests {
                 })
                 .unwrap();
             let d = dir.path().join("presses").join(id).join(format!("{k}"));
-            telextiles_sim::recording::write_press(&d, &p).unwrap();
+            telextiles_recording::recording::write_press(&d, &p).unwrap();
             recordings.push(p);
         }
         let mut out = Vec::new();
@@ -1025,7 +1046,7 @@ mod tests {
                     ..PressSpec::new("T030", 4)
                 })
                 .unwrap();
-            telextiles_sim::recording::write_press(&dir.path().join(name).join("T030"), &p)
+            telextiles_recording::recording::write_press(&dir.path().join(name).join("T030"), &p)
                 .unwrap();
         }
         let classify = |name: &str, json: bool| {
@@ -1093,8 +1114,8 @@ mod tests {
         );
         twice.frames.extend(second.frames.iter().cloned());
         let root = dir.path().join("presses");
-        telextiles_sim::recording::write_press(&root.join("once"), &once).unwrap();
-        telextiles_sim::recording::write_press(&root.join("twice"), &twice).unwrap();
+        telextiles_recording::recording::write_press(&root.join("once"), &once).unwrap();
+        telextiles_recording::recording::write_press(&root.join("twice"), &twice).unwrap();
         let mut out = Vec::new();
         run_to(
             Args {
@@ -1251,7 +1272,8 @@ mod tests {
                     }
                 }
             }
-            telextiles_sim::recording::write_press(&root.join(format!("{k}-{id}")), &p).unwrap();
+            telextiles_recording::recording::write_press(&root.join(format!("{k}-{id}")), &p)
+                .unwrap();
         }
         let decide = |press: Vec<PathBuf>| {
             let mut out = Vec::new();
@@ -1358,7 +1380,7 @@ mod tests {
                 .unwrap();
             let frame = p.meta.params.as_ref().unwrap().contact_frame as usize;
             contact_ms.push(p.meta.timestamps_us[frame] as f64 / 1000.0);
-            telextiles_sim::recording::write_press(&dir.path().join("presses").join(id), &p)
+            telextiles_recording::recording::write_press(&dir.path().join("presses").join(id), &p)
                 .unwrap();
         }
         let run = |decision: crate::config::DecisionArgs| {

@@ -9,14 +9,13 @@ use telextiles_index::build::{MetricFit, Paired, SelfCheck};
 use telextiles_index::Features;
 use telextiles_index::{Index, IndexBuilder, SelectionMethod, TextileRecord};
 use telextiles_progress::Progress;
+use telextiles_recording::Press;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
-use telextiles_sensing::front::{recording_reference, FrontEnd, References};
+use telextiles_sensing::front::{FrontEnd, References};
 use telextiles_sensing::pipeline::{Deepest, PARTIAL_COVERAGE};
-use telextiles_sim::catalogue::{Book, Catalogue};
-use telextiles_sim::dataset::Protocol;
-use telextiles_sim::{Press, Simulator};
 
 use crate::index_choice::*;
+use crate::index_sim::{Books, Catalogue, SimSet};
 
 /// `telextilesd index ...`
 #[derive(Subcommand, Debug)]
@@ -48,7 +47,7 @@ pub struct CheckArgs {
     pub references: Vec<String>,
     /// Frame rate of recordings saved without timestamps, as for `index
     /// build --fps`.
-    #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
+    #[arg(long, value_parser = telextiles_recording::recording::parse_fps)]
     pub fps: Option<f32>,
     /// One centroid per textile only (as `index build --no-exemplars`).
     #[arg(long)]
@@ -104,7 +103,7 @@ pub struct BuildArgs {
     /// datasets) [default: the DIGIT's stream rate at the frames' size:
     /// 60 fps for 240x320 or 320x240, 30 for VGA]. Refused for press
     /// directories, which carry their own timestamps.
-    #[arg(long, value_parser = telextiles_sim::recording::parse_fps, requires = "presses")]
+    #[arg(long, value_parser = telextiles_recording::recording::parse_fps, requires = "presses")]
     pub fps: Option<f32>,
     /// Use simulated presses of the built-in catalogue instead.
     #[arg(long)]
@@ -416,25 +415,6 @@ fn choose_model(checks: &[SelfCheck], paired: &[Option<Paired>]) -> usize {
         .unwrap_or(0)
 }
 
-/// "; taken for another: A as B (3), ..." (at most five pairs), or nothing.
-pub(crate) fn confusions_text<'a>(check: &SelfCheck, id: &dyn Fn(usize) -> &'a str) -> String {
-    if check.confusions.is_empty() {
-        return String::new();
-    }
-    let shown: Vec<String> = check
-        .confusions
-        .iter()
-        .take(5)
-        .map(|&(f, d, n)| format!("{} as {} ({n})", id(f), id(d)))
-        .collect();
-    let more = check.confusions.len() - shown.len();
-    let mut text = format!("; taken for another: {}", shown.join(", "));
-    if more > 0 {
-        text += &format!(" and {more} more");
-    }
-    text
-}
-
 /// Embeddings of the in-contact frames of a press (every `stride`-th),
 /// through the same front end as the live session and `classify`, reset
 /// for this press with its own no-contact reference (the quiet frames it
@@ -444,7 +424,8 @@ pub fn press_embeddings(
     press: &Press,
     stride: usize,
 ) -> Result<Vec<Vec<f32>>> {
-    Ok(embeddings_with(front, press, recording_reference(press).as_deref(), stride)?.0)
+    let reference = telextiles_sensing::front::recording_reference(press);
+    Ok(embeddings_with(front, press, reference.as_deref(), stride)?.0)
 }
 
 /// [`press_embeddings`] with the reference to replay the press with
@@ -494,34 +475,21 @@ fn record(
     embeddings: Vec<Vec<f32>>,
     exemplars: Vec<Vec<f32>>,
 ) -> TextileRecord {
-    match cat.get(id) {
-        Some(t) => TextileRecord {
-            id: id.to_string(),
-            name: t.name.clone(),
-            seen: t.book == Book::Training,
-            structure: t.structure.label(),
-            attributes: telextiles_sim::catalogue::Attributes::NAMES
-                .iter()
-                .zip(t.attributes.to_vec())
-                .map(|(n, v)| (n.to_string(), v))
-                .collect(),
-            embeddings,
-            exemplars,
-            press_frames: Vec::new(),
-        },
-        // A user's own fabric: no catalogue entry, seen by definition; its
-        // name from `telextilesd record --name` (textile.json), else its id.
-        None => TextileRecord {
-            id: id.to_string(),
-            name: name.unwrap_or(id).to_string(),
-            seen: true,
-            structure: String::new(),
-            attributes: Vec::new(),
-            embeddings,
-            exemplars,
-            press_frames: Vec::new(),
-        },
-    }
+    // A user's own fabric: seen by definition; its name from `telextilesd
+    // record --name` (textile.json), else its id. A catalogue textile: as
+    // the catalogue describes it.
+    let mut r = TextileRecord {
+        id: id.to_string(),
+        name: name.unwrap_or(id).to_string(),
+        seen: true,
+        structure: String::new(),
+        attributes: Vec::new(),
+        embeddings,
+        exemplars,
+        press_frames: Vec::new(),
+    };
+    cat.describe(&mut r);
+    r
 }
 
 /// How well the index tells the owner's fabrics apart: its presses, each
@@ -584,7 +552,7 @@ fn embed_recordings(
     stride: usize,
     what: &str,
 ) -> Result<Embedded> {
-    let recordings = telextiles_sim::recording::find_recordings_at(root, fps)?;
+    let recordings = telextiles_recording::recording::find_recordings_at(root, fps)?;
     let progress = Progress::new(what, recordings.len() as u64, "presses");
     let mut out = Embedded {
         by_textile: vec![BTreeMap::new(); fronts.len()],
@@ -607,7 +575,7 @@ fn embed_recordings(
                 progress.println(&format!(
                     "warning: {}: no contact detected, press skipped{}",
                     d.display(),
-                    crate::cmd_classify::no_reference_hint(reference.is_some())
+                    telextiles_sensing::front::no_reference_hint(reference.is_some())
                 ));
             }
             let partial = coverage.filter(|&c| k == 0 && c < PARTIAL_COVERAGE && !embs.is_empty());
@@ -675,13 +643,12 @@ fn build(a: BuildArgs) -> Result<()> {
     let computed = features_computed(asked_features);
     enc.set_features(computed);
     let mut front = FrontEnd::new(enc, a.contact.contact()?, None);
-    let cat = Catalogue::version(a.catalogue)
-        .with_context(|| format!("no simulator catalogue {}", a.catalogue))?;
+    let cat = Catalogue::open(a.catalogue)?;
     // textile id -> (each press's frame embeddings, each press's mean)
     let mut by_textile: BTreeMap<String, FrameAndPressEmbeddings> = BTreeMap::new();
     // Names of the user's own fabrics (`telextilesd record --name`).
     let mut names: BTreeMap<String, String> = BTreeMap::new();
-    let mut presses = 0usize;
+    let presses;
     // The owner's presses that touched only part of the gel.
     let mut partial = Vec::new();
     if let Some(root) = &a.presses {
@@ -708,28 +675,17 @@ fn build(a: BuildArgs) -> Result<()> {
             return Err(none_in_contact(root, "index"));
         }
     } else if a.sim {
-        let sim = Simulator::with_options(a.catalogue, 1)?;
-        let protocol = sim_protocol(
-            &a,
-            if a.include_unseen {
-                None
-            } else {
-                Some(Book::Training)
-            },
-        )?;
-        let total = protocol.len(&cat);
-        let progress = Progress::new("index build", total as u64, "simulated presses");
-        for spec in protocol.specs(&cat) {
-            let press = sim.render_press(&spec)?;
-            add_press(
-                &mut by_textile,
-                &spec.textile,
-                press_embeddings(&mut front, &press, stride(&a))?,
-            );
-            presses += 1;
-            progress.inc(1);
-        }
-        progress.finish();
+        let books = if a.include_unseen {
+            Books::Both
+        } else {
+            Books::Training
+        };
+        presses =
+            crate::index_sim::for_each_press(&cat, &sim_set(&a), books, true, &mut |id, press| {
+                let embs = press_embeddings(&mut front, press, stride(&a))?;
+                add_press(&mut by_textile, id, embs);
+                Ok(())
+            })?;
     } else {
         bail!("say where the presses come from: --presses <dir> or --sim");
     }
@@ -873,15 +829,14 @@ fn build(a: BuildArgs) -> Result<()> {
     // one jig press of each by each simulated person, mean embedding.
     let mut unseen = Vec::new();
     if a.sim && !a.include_unseen {
-        let sim = Simulator::with_options(a.catalogue, 1)?;
-        let protocol = sim_protocol(&a, Some(Book::Unseen))?;
-        for spec in protocol.specs(&cat) {
-            let press = sim.render_press(&spec)?;
-            let embs = press_embeddings(&mut front, &press, stride(&a))?;
-            if let Some(m) = mean_normalised(&embs) {
-                unseen.push(m);
-            }
-        }
+        crate::index_sim::for_each_press(&cat, &sim_set(&a), Books::Unseen, false, &mut |_, p| {
+            unseen.extend(mean_normalised(&press_embeddings(
+                &mut front,
+                p,
+                stride(&a),
+            )?));
+            Ok(())
+        })?;
     }
     write!(
         crate::out::stdout(),
@@ -892,6 +847,17 @@ fn build(a: BuildArgs) -> Result<()> {
 }
 
 /// The L2-normalised mean of L2-normalised vectors (None when empty).
+fn mean_normalised(v: &[Vec<f32>]) -> Option<Vec<f32>> {
+    let first = v.first()?;
+    let mut m = vec![0.0f32; first.len()];
+    for x in v {
+        let n = x.iter().map(|a| a * a).sum::<f32>().sqrt().max(1e-12);
+        m.iter_mut().zip(x).for_each(|(s, a)| *s += a / n);
+    }
+    telextiles_index::l2_normalise(&mut m);
+    Some(m)
+}
+
 /// The name `telextilesd record --name` stored for textile `id` next to
 /// its presses (`<out>/<id>/textile.json`), if any.
 fn textile_name(press_dir: &std::path::Path, id: &str) -> Option<String> {
@@ -962,35 +928,16 @@ fn unknown_summary(index: &Index) -> String {
 }
 
 /// Whether the index keeps per-press exemplars (see `--exemplars`).
+/// The simulated people and sensor units of `--sim`.
+fn sim_set(a: &BuildArgs) -> SimSet {
+    SimSet {
+        people: a.people,
+        sensors: a.sensors.clone(),
+    }
+}
+
 fn keep_exemplars(a: &BuildArgs) -> bool {
     a.exemplars || (a.presses.is_some() && !a.no_exemplars)
-}
-
-/// The simulated presses of `--sim`: every person (0..people) on every
-/// sensor unit, jig, one press per textile of `book` (both books: None).
-fn sim_protocol(a: &BuildArgs, book: Option<Book>) -> Result<Protocol> {
-    if a.people == 0 || a.sensors.is_empty() {
-        bail!("--people and --sensors must name at least one simulated person and sensor");
-    }
-    let mut protocol = Protocol::paper();
-    protocol.people = a.people;
-    protocol.sensors = a.sensors.clone();
-    protocol.jig = vec![true];
-    if let Some(b) = book {
-        protocol.books = vec![b];
-    }
-    Ok(protocol)
-}
-
-fn mean_normalised(v: &[Vec<f32>]) -> Option<Vec<f32>> {
-    let first = v.first()?;
-    let mut m = vec![0.0f32; first.len()];
-    for x in v {
-        let n = x.iter().map(|a| a * a).sum::<f32>().sqrt().max(1e-12);
-        m.iter_mut().zip(x).for_each(|(s, a)| *s += a / n);
-    }
-    telextiles_index::l2_normalise(&mut m);
-    Some(m)
 }
 
 /// Roller coverage of every selection method: mean and worst Euclidean
@@ -1142,7 +1089,9 @@ fn inspect(a: InspectArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::index_sim::sim_protocol;
     use clap::Parser;
+    use telextiles_sim::Simulator;
 
     /// `telextilesd index build`'s arguments alone.
     #[derive(clap::Parser)]
@@ -1183,7 +1132,7 @@ mod tests {
                     ..telextiles_sim::PressSpec::new("T030", 4)
                 })
                 .unwrap();
-            telextiles_sim::recording::write_press(&dir.path().join("T030").join(name), &p)
+            telextiles_recording::recording::write_press(&dir.path().join("T030").join(name), &p)
                 .unwrap();
         }
         let enc = open_encoder(&fixture_model(), 1).unwrap();
@@ -1249,7 +1198,7 @@ mod tests {
         let cat = telextiles_sim::Catalogue::builtin();
         let a = parse(&["--people", "2", "--sensors", "0,3,5"]);
         assert_eq!(a.sensors, vec![0, 3, 5]);
-        let p = sim_protocol(&a, Some(Book::Training)).unwrap();
+        let p = sim_protocol(&sim_set(&a), Books::Training).unwrap();
         let specs: Vec<_> = p.specs(&cat).collect();
         assert_eq!(specs.len(), 119 * 2 * 3);
         let mut combos: Vec<(u32, u32)> = specs.iter().map(|s| (s.person, s.sensor)).collect();
@@ -1260,7 +1209,7 @@ mod tests {
         // The default: four units; unseen presses for coverage.
         assert_eq!(parse(&[]).sensors, vec![0, 1, 2, 3]);
         let d = parse(&["--sensors", "0"]);
-        let u: Vec<_> = sim_protocol(&d, Some(Book::Unseen))
+        let u: Vec<_> = sim_protocol(&sim_set(&d), Books::Unseen)
             .unwrap()
             .specs(&cat)
             .collect();
@@ -1268,7 +1217,7 @@ mod tests {
             .iter()
             .all(|s| s.textile.starts_with('U') && s.sensor == 0));
         let none = parse(&["--people", "0"]);
-        assert!(sim_protocol(&none, None).is_err());
+        assert!(sim_protocol(&sim_set(&none), Books::Both).is_err());
     }
 
     /// `index build --model m.onnx` with these arguments, parsed.
@@ -1441,7 +1390,7 @@ mod tests {
                     })
                     .unwrap();
                 p.meta.textile = id.into();
-                telextiles_sim::recording::write_press(
+                telextiles_recording::recording::write_press(
                     &rec.join(id).join(format!("{seed:04}")),
                     &p,
                 )
@@ -1527,7 +1476,7 @@ mod tests {
                     ..telextiles_sim::PressSpec::new(id, 1)
                 })
                 .unwrap();
-            telextiles_sim::recording::write_press(&rec.join(id).join("0001"), &p).unwrap();
+            telextiles_recording::recording::write_press(&rec.join(id).join("0001"), &p).unwrap();
         }
         let model = fixture_model();
         let build_with = |extra: &[&str]| {
@@ -1539,7 +1488,7 @@ mod tests {
         assert_eq!(v2.catalogue_version, 2);
         assert_eq!(v1.catalogue_version, 1);
         for (cat, index) in [(2, &v2), (1, &v1)] {
-            let c = Catalogue::version(cat).unwrap();
+            let c = telextiles_sim::Catalogue::version(cat).unwrap();
             for e in &index.entries {
                 let t = c.get(&e.id).unwrap();
                 assert_eq!(e.name, t.name);
@@ -1574,7 +1523,7 @@ mod tests {
         .unwrap();
         let sim_index = Index::read(&out).unwrap();
         assert_eq!(sim_index.catalogue_version, 2);
-        let c2 = Catalogue::version(2).unwrap();
+        let c2 = telextiles_sim::Catalogue::version(2).unwrap();
         assert_eq!(sim_index.entries.len(), c2.training().count());
         let e = &sim_index.entries[0];
         assert_eq!(e.name, c2.get(&e.id).unwrap().name);

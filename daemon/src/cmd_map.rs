@@ -36,11 +36,20 @@ pub struct Args {
     pub presses: Option<u64>,
 }
 
+#[cfg(feature = "sim")]
+fn demo_index(seed: u64) -> Result<Index> {
+    telextiles_map::demo::catalogue_index(None, 16, seed).context("building the demo index")
+}
+
+#[cfg(not(feature = "sim"))]
+fn demo_index(_seed: u64) -> Result<Index> {
+    Err(crate::sim_off("`map --demo`"))
+}
+
 pub fn run(a: Args) -> Result<()> {
     let index = match (&a.index, a.demo) {
         (Some(p), _) => Index::read(p).with_context(|| format!("reading index {}", p.display()))?,
-        (None, true) => telextiles_map::demo::catalogue_index(None, 16, a.seed)
-            .context("building the demo index")?,
+        (None, true) => demo_index(a.seed)?,
         (None, false) => bail!(
             "give --index <file> (an index from `telextilesd index build`), \
              or --demo to watch simulated presses on a demo index of the built-in catalogue"
@@ -71,6 +80,7 @@ pub fn run(a: Args) -> Result<()> {
             index.entries.len(),
             &server.fingerprint()[..12]
         );
+        #[cfg(feature = "sim")]
         let demo = a.demo.then(|| {
             tokio::spawn(telextiles_map::demo::run(
                 index.clone(),
@@ -79,6 +89,9 @@ pub fn run(a: Args) -> Result<()> {
                 a.presses,
             ))
         });
+        // Without the simulator `--demo` was refused above.
+        #[cfg(not(feature = "sim"))]
+        let demo: Option<tokio::task::JoinHandle<()>> = None;
         let stop = async move {
             match demo {
                 Some(d) if a.presses.is_some() => {

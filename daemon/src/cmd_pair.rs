@@ -15,12 +15,10 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, TrustStore, DEFAULT_CODE_TTL};
-use telextiles_link::{
-    discovery::DEFAULT_SKIP_PREFIXES, DiscoveryConfig, ErrorKind, HelloInfo, Interfaces, Link,
-    LinkConfig, LinkEvent, PairingMode,
-};
+use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode};
 
 use crate::config::{Config, ConfigArgs};
+use crate::session::discovery::{discovery_config, enter_expired_message};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -106,37 +104,6 @@ fn hello_info(cfg: &Config) -> HelloInfo {
             }
         }
     }
-}
-
-/// mDNS discovery on the configured interfaces: only `mdns_allow` when
-/// given, else every interface except virtual ones and `mdns_deny`.
-pub fn discovery_config(cfg: &Config) -> DiscoveryConfig {
-    let interfaces = if !cfg.mdns_allow.is_empty() {
-        Interfaces::Only(cfg.mdns_allow.clone())
-    } else {
-        let mut deny: Vec<String> = DEFAULT_SKIP_PREFIXES
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        deny.extend(cfg.mdns_deny.iter().cloned());
-        Interfaces::AllExcept(deny)
-    };
-    DiscoveryConfig {
-        interfaces,
-        instance_name: None,
-    }
-}
-
-/// Why `pair --enter` gave up at its deadline (`ttl`: how long it tried).
-pub fn enter_expired_message(ttl: std::time::Duration) -> String {
-    let took = if ttl.as_secs() >= 120 {
-        format!("{} minutes", ttl.as_secs() / 60)
-    } else {
-        format!("{:.1} s", ttl.as_secs_f64())
-    };
-    format!(
-        "no device proved the code within {took}; check the code shown on the other device (it expires after that time too) and run `telextilesd pair --enter` again"
-    )
 }
 
 pub fn resolve(list: &[String]) -> anyhow::Result<Vec<SocketAddr>> {

@@ -42,8 +42,10 @@ use telextiles_sensing::record::{
     RecorderConfig,
 };
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
+#[cfg(feature = "sim")]
 use telextiles_sensing::source::sim::SimSource;
 use telextiles_sensing::source::{FrameSource, SourceError};
+#[cfg(feature = "sim")]
 use telextiles_sim::{PressSpec, Simulator};
 
 /// Where the frames come from.
@@ -120,7 +122,7 @@ pub struct Args {
     /// timestamps (PyTouch-style datasets) [default: the DIGIT's stream
     /// rate at the frames' size: 60 fps for 240x320 or 320x240, 30 for
     /// VGA].
-    #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
+    #[arg(long, value_parser = telextiles_recording::recording::parse_fps)]
     pub fps: Option<f32>,
     /// With --sensor replay: the sensor's no-contact frame (an RGB PNG or
     /// JPEG, taken with nothing touching the gel) for recordings that
@@ -161,13 +163,14 @@ enum Frames {
     /// Recordings, each replayed with its own reference, else the one
     /// given for its sensor.
     Replay(
-        Vec<telextiles_sim::recording::Recording>,
+        Vec<telextiles_recording::recording::Recording>,
         telextiles_sensing::front::References,
     ),
 }
 
 /// Frames between simulated presses: the contact detector's reference
 /// capture, then enough quiet frames for the recorder's reference and ready.
+#[cfg(feature = "sim")]
 const SIM_GAP_FRAMES: usize = 48;
 
 fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Result<Opened> {
@@ -178,34 +181,11 @@ fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Re
         bail!("--reference is for --sensor replay:<dir> (recordings that carry no no-contact frames); a live sensor's is captured before each press");
     }
     match &args.sensor {
-        SensorArg::Sim => {
-            let sim = Arc::new(Simulator::new()?);
-            if sim.catalogue().get(textile).is_none() {
-                bail!(
-                    "--sensor sim presses textiles of the built-in catalogue (T001..T119, U01..U20), not {:?}",
-                    textile
-                );
-            }
-            let spec = PressSpec::new(textile, first_seed);
-            let per_press = (SIM_GAP_FRAMES + spec.frames) as u64;
-            let (src, _handle) = SimSource::new(sim, spec, SIM_GAP_FRAMES, Pace::AsFastAsPossible)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            // Every simulated press is accepted in practice; a few spare
-            // presses, then give up rather than loop for ever.
-            let budget = per_press * (presses.unwrap_or(1) as u64 * 2 + 2);
-            Ok(Opened {
-                frames: Frames::Live(Box::new(src), Some(budget)),
-                serial: Some("SIM0000".into()),
-                sensor_unit: 0,
-                jig: true,
-                source: "sim",
-                desc: format!("simulated DIGIT pressing {textile}"),
-            })
-        }
+        SensorArg::Sim => open_sim(textile, presses, first_seed),
         SensorArg::Replay(dir) => {
             // The walk every command shares: press directories, else a
             // PyTouch-style dataset.
-            let recordings = telextiles_sim::recording::find_recordings_at(dir, args.fps)
+            let recordings = telextiles_recording::recording::find_recordings_at(dir, args.fps)
                 .with_context(|| format!("no recordings to replay under {}", dir.display()))?;
             let references = telextiles_sensing::front::References::from_args(&args.references)?;
             let desc = format!(
@@ -224,6 +204,39 @@ fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Re
         }
         SensorArg::Digit(serial) => open_digit(serial.clone()),
     }
+}
+
+/// `--sensor sim`: the simulator pressing `textile` of the built-in
+/// catalogue, as fast as it renders.
+#[cfg(feature = "sim")]
+fn open_sim(textile: &str, presses: Option<u32>, first_seed: u64) -> Result<Opened> {
+    let sim = Arc::new(Simulator::new()?);
+    if sim.catalogue().get(textile).is_none() {
+        bail!(
+            "--sensor sim presses textiles of the built-in catalogue (T001..T119, U01..U20), not {:?}",
+            textile
+        );
+    }
+    let spec = PressSpec::new(textile, first_seed);
+    let per_press = (SIM_GAP_FRAMES + spec.frames) as u64;
+    let (src, _handle) = SimSource::new(sim, spec, SIM_GAP_FRAMES, Pace::AsFastAsPossible)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // Every simulated press is accepted in practice; a few spare
+    // presses, then give up rather than loop for ever.
+    let budget = per_press * (presses.unwrap_or(1) as u64 * 2 + 2);
+    Ok(Opened {
+        frames: Frames::Live(Box::new(src), Some(budget)),
+        serial: Some("SIM0000".into()),
+        sensor_unit: 0,
+        jig: true,
+        source: "sim",
+        desc: format!("simulated DIGIT pressing {textile}"),
+    })
+}
+
+#[cfg(not(feature = "sim"))]
+fn open_sim(_textile: &str, _presses: Option<u32>, _first_seed: u64) -> Result<Opened> {
+    Err(crate::sim_off("`record --sensor sim`"))
 }
 
 #[cfg(target_os = "linux")]
@@ -353,7 +366,7 @@ impl Writer {
                     if path.exists() {
                         continue;
                     }
-                    match telextiles_sim::recording::write_press(&path, &p.press) {
+                    match telextiles_recording::recording::write_press(&path, &p.press) {
                         Ok(()) => break Ok((k, path, p.summary.clone())),
                         Err(_) if path.exists() => continue,
                         Err(e) => break Err(anyhow::Error::new(e)),
@@ -694,11 +707,11 @@ fn prepare_dir(out: &Path, textile: &str, name: Option<&str>) -> Result<PathBuf>
 
 /// The textile a recording is labelled with: its `press.json`'s, or its
 /// PyTouch class.
-fn textile_of(r: &telextiles_sim::recording::Recording) -> Result<String> {
-    use telextiles_sim::recording::Recording;
+fn textile_of(r: &telextiles_recording::recording::Recording) -> Result<String> {
+    use telextiles_recording::recording::Recording;
     Ok(match r {
         Recording::Press(p) => {
-            telextiles_sim::recording::read_meta(p)
+            telextiles_recording::recording::read_meta(p)
                 .with_context(|| format!("cannot replay {}", p.display()))?
                 .textile
         }
@@ -715,7 +728,7 @@ fn run_each_own_textile(args: &Args, out: &mut dyn Write, stop: &AtomicBool) -> 
     let Frames::Replay(recordings, references) = opened.frames else {
         unreachable!("only a replay records without --textile")
     };
-    let mut groups: Vec<(String, Vec<telextiles_sim::recording::Recording>)> = Vec::new();
+    let mut groups: Vec<(String, Vec<telextiles_recording::recording::Recording>)> = Vec::new();
     for r in recordings {
         let t = textile_of(&r)?;
         check_id(&t).with_context(|| {
@@ -977,7 +990,7 @@ fn record_textile(
                     s.guide.line(&format!(
                         "note: {}{}",
                         d.display(),
-                        crate::cmd_classify::no_reference_hint(false)
+                        telextiles_sensing::front::no_reference_hint(false)
                     ));
                 }
                 let mut src = RecordedSource::from_press(
@@ -1378,14 +1391,38 @@ impl LiveRecording {
 /// The longest `--idle` recording, seconds.
 pub const MAX_IDLE_S: f64 = 600.0;
 
+/// `--idle` with `--sensor sim`: the simulator's idle footage of unit 0.
+#[cfg(feature = "sim")]
+fn idle_sim(args: &Args, seconds: f64) -> Result<IdleSource> {
+    let sim = Simulator::new()?;
+    let spec = PressSpec::new("T001", args.sim_seed.unwrap_or(1));
+    let fps = sim.press_meta(&spec)?.fps as f64;
+    let n = ((seconds * fps).round() as usize).max(1);
+    let clip = sim.idle_clip(&PressSpec { frames: n, ..spec })?;
+    let src = IdleSimSource { sim, clip, next: 0 };
+    Ok(IdleSource {
+        desc: src.describe(),
+        frames: Box::new(src),
+        serial: "SIM0000".to_string(),
+        source: "sim",
+    })
+}
+
+#[cfg(not(feature = "sim"))]
+fn idle_sim(_args: &Args, _seconds: f64) -> Result<IdleSource> {
+    Err(crate::sim_off("`record --idle --sensor sim`"))
+}
+
 /// The simulator's idle footage of a unit as a frame source (as fast as
 /// it renders; `Ended` after the clip).
+#[cfg(feature = "sim")]
 struct IdleSimSource {
     sim: Simulator,
     clip: telextiles_sim::IdleClip,
     next: usize,
 }
 
+#[cfg(feature = "sim")]
 impl FrameSource for IdleSimSource {
     fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
         if self.next >= self.clip.len() {
@@ -1424,7 +1461,7 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
             let p = e.path();
             if e.file_name() != "idle"
                 && p.is_dir()
-                && !telextiles_sim::recording::find_presses(&p)
+                && !telextiles_recording::recording::find_presses(&p)
                     .unwrap_or_default()
                     .is_empty()
             {
@@ -1440,20 +1477,7 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
         SensorArg::Replay(_) => bail!(
             "--idle records a live sensor (--sensor digit[:SERIAL], or sim): footage of a resting sensor, not presses to replay"
         ),
-        SensorArg::Sim => {
-            let sim = Simulator::new()?;
-            let spec = PressSpec::new("T001", args.sim_seed.unwrap_or(1));
-            let fps = sim.press_meta(&spec)?.fps as f64;
-            let n = ((seconds * fps).round() as usize).max(1);
-            let clip = sim.idle_clip(&PressSpec { frames: n, ..spec })?;
-            let src = IdleSimSource { sim, clip, next: 0 };
-            IdleSource {
-                desc: src.describe(),
-                frames: Box::new(src),
-                serial: "SIM0000".to_string(),
-                source: "sim",
-            }
-        }
+        SensorArg::Sim => idle_sim(args, seconds)?,
         SensorArg::Digit(serial) => {
             let opened = open_digit(serial.clone())?;
             let Frames::Live(src, _) = opened.frames else {
@@ -1501,7 +1525,7 @@ fn run_idle(
         "recording {seconds} s of {desc} into {}: do not touch the sensor",
         path.display()
     );
-    let mut writer = telextiles_sim::recording::PressWriter::create(&path)?;
+    let mut writer = telextiles_recording::recording::PressWriter::create(&path)?;
     let mut check = IdleCheck::new(contact);
     let progress = Progress::new("idle", seconds.ceil() as u64, "s");
     let mut frame = Frame::blank();
@@ -1564,7 +1588,7 @@ fn run_idle(
         bail!("no frame was recorded (interrupted at once); nothing saved");
     }
     let summary = check.summary();
-    let meta = telextiles_sim::PressMeta {
+    let meta = telextiles_recording::PressMeta {
         textile: "idle".into(),
         person: 0,
         sensor: 0,
@@ -1775,8 +1799,8 @@ mod tests {
                 }
             })
             .collect();
-        let footage = telextiles_sim::Press {
-            meta: telextiles_sim::PressMeta {
+        let footage = telextiles_recording::Press {
+            meta: telextiles_recording::PressMeta {
                 timestamps_us: clip.timestamps_us.clone(),
                 params: None,
                 ..press.meta.clone()
@@ -1818,7 +1842,7 @@ mod tests {
         assert!(text.contains("FAILED"), "{text}");
         // The footage is kept, every frame, for a report.
         let kept =
-            telextiles_sim::recording::read_press(&d.path().join("idle/0001")).expect("kept");
+            telextiles_recording::recording::read_press(&d.path().join("idle/0001")).expect("kept");
         assert_eq!(kept.frames.len(), 240);
         assert_eq!(kept.meta.textile, "idle");
         assert_eq!(kept.meta.sensor_serial.as_deref(), Some("D00001"));
@@ -1925,7 +1949,7 @@ mod tests {
         );
         assert!(text.contains("ok:"), "{text}");
         let kept =
-            telextiles_sim::recording::read_press(&d.path().join("idle/0001")).expect("kept");
+            telextiles_recording::recording::read_press(&d.path().join("idle/0001")).expect("kept");
         assert_eq!(kept.frames.len(), 91);
     }
 
@@ -1960,7 +1984,8 @@ mod tests {
                 ..PressSpec::new("T001", 1)
             })
             .expect("press");
-        telextiles_sim::recording::write_press(&d.path().join("T001/0001"), &p).expect("write");
+        telextiles_recording::recording::write_press(&d.path().join("T001/0001"), &p)
+            .expect("write");
         assert!(run(&|_| {}).contains("holds presses of textiles"));
         assert!(!d.path().join("idle").exists());
     }
@@ -2041,7 +2066,7 @@ mod tests {
         assert_eq!(saved[0].0, 1);
         assert!(saved[0].1.ends_with("T030/0002"), "{}", saved[0].1);
         assert!(saved[1].1.ends_with("T030/0003"), "{}", saved[1].1);
-        let m = telextiles_sim::recording::read_meta(Path::new(&saved[0].1)).expect("meta");
+        let m = telextiles_recording::recording::read_meta(Path::new(&saved[0].1)).expect("meta");
         assert_eq!(m.source, "sim");
         assert_eq!(m.sensor_serial.as_deref(), Some("SIM0000"));
         assert_eq!(m.reference_frames, Some(30));

@@ -285,7 +285,7 @@ pub struct ConfigArgs {
     #[arg(long, value_name = "[SERIAL=]PNG")]
     pub reference: Option<Vec<String>>,
     /// Frame rate of replayed recordings saved without timestamps (PyTouch data) [env: TELEXTILESD_REPLAY_FPS] [default: the DIGIT's stream rate at the frames' size: 60 fps QVGA, 30 VGA]
-    #[arg(long, value_name = "FPS", value_parser = telextiles_sim::recording::parse_fps)]
+    #[arg(long, value_name = "FPS", value_parser = telextiles_recording::recording::parse_fps)]
     pub replay_fps: Option<f32>,
     /// Contact detector: score above the noise floor (grey levels) at which a frame counts towards a press; raise it if `record --idle` finds presses on your resting sensor [env: TELEXTILESD_CONTACT_ENTER] [default: 0.35]
     #[arg(long, value_name = "SCORE", value_parser = parse_contact_enter)]
@@ -391,7 +391,7 @@ pub struct Config {
     /// the file are already joined to the file's directory.
     pub reference: Vec<String>,
     /// Frame rate of replayed recordings saved without timestamps (None:
-    /// by their frames' size, `telextiles_sim::recording::default_fps`).
+    /// by their frames' size, `telextiles_recording::recording::default_fps`).
     pub replay_fps: Option<f32>,
     /// The contact detector's entry threshold (`ContactConfig::with_entry`).
     pub contact_enter: f32,
@@ -584,11 +584,13 @@ impl Config {
         .unwrap_or_default();
         let file_replay_fps = file
             .replay_fps
-            .map(|f| telextiles_sim::recording::check_fps(f).map_err(|m| file_err("replay_fps", m)))
+            .map(|f| {
+                telextiles_recording::recording::check_fps(f).map_err(|m| file_err("replay_fps", m))
+            })
             .transpose()?;
         let replay_fps = pick(
             args.replay_fps,
-            e.get("REPLAY_FPS", telextiles_sim::recording::parse_fps)?,
+            e.get("REPLAY_FPS", telextiles_recording::recording::parse_fps)?,
             file_replay_fps,
         );
         let shipped = telextiles_sensing::contact::ContactConfig::default();

@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use telextiles_index::build::{FitCheck, MetricFit};
+use telextiles_index::build::{FitCheck, MetricFit, SelfCheck};
 use telextiles_index::Features;
 
 /// The frame embeddings of each press of one textile, and each press's
@@ -252,4 +252,22 @@ pub(crate) fn fits_text(fits: &[(Features, FitCheck)], chosen: usize) -> String 
         })
         .collect();
     lines.join("\n")
+}
+/// "; taken for another: A as B (3), ..." (at most five pairs), or nothing.
+pub(crate) fn confusions_text<'a>(check: &SelfCheck, id: &dyn Fn(usize) -> &'a str) -> String {
+    if check.confusions.is_empty() {
+        return String::new();
+    }
+    let shown: Vec<String> = check
+        .confusions
+        .iter()
+        .take(5)
+        .map(|&(f, d, n)| format!("{} as {} ({n})", id(f), id(d)))
+        .collect();
+    let more = check.confusions.len() - shown.len();
+    let mut text = format!("; taken for another: {}", shown.join(", "));
+    if more > 0 {
+        text += &format!(" and {more} more");
+    }
+    text
 }

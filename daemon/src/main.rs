@@ -4,6 +4,7 @@ use clap::{Parser, Subcommand};
 mod classify_felt;
 mod cmd_classify;
 mod cmd_ctl;
+#[cfg(feature = "sim")]
 mod cmd_demo;
 mod cmd_index;
 mod cmd_map;
@@ -11,10 +12,12 @@ mod cmd_pair;
 mod cmd_peers;
 mod cmd_record;
 mod cmd_roller;
+#[cfg(feature = "sim")]
 mod cmd_sim;
 mod config;
 mod felt_chart;
 mod index_choice;
+mod index_sim;
 mod out;
 mod session;
 mod trace;
@@ -42,6 +45,7 @@ enum Cmd {
     #[command(subcommand)]
     Index(cmd_index::Args),
     /// Simulated DIGIT presses, the dataset protocol and the contact sheet
+    #[cfg(feature = "sim")]
     Sim(cmd_sim::Args),
     /// Show this device's ID (creates the identity on first run)
     Id(cmd_peers::IdArgs),
@@ -50,6 +54,7 @@ enum Cmd {
     /// Run the live session with the paired peers (as under systemd)
     Run(cmd_pair::RunArgs),
     /// Two daemons on this machine with simulated hardware: pair, press, feel
+    #[cfg(feature = "sim")]
     Demo(cmd_demo::Args),
     /// List paired peers from the trust store
     Peers(cmd_peers::PeersArgs),
@@ -75,6 +80,17 @@ pub fn set_log_filter(filter: tracing_subscriber::EnvFilter) {
     }
 }
 
+/// The error of a feature that needs the simulator in a daemon built
+/// without it (`cargo build --no-default-features`).
+#[cfg_attr(feature = "sim", allow(dead_code))]
+pub(crate) fn sim_off(what: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{what} needs the simulator, and this telextilesd was built without it \
+         (cargo feature `sim`); use a DIGIT (`--sensor digit`) or recorded presses \
+         (`--sensor replay:<dir>`, `--presses <dir>`)"
+    )
+}
+
 fn main() -> anyhow::Result<()> {
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
@@ -92,10 +108,12 @@ fn main() -> anyhow::Result<()> {
         Cmd::Ctl(a) => cmd_ctl::run(a),
         Cmd::Index(a) => cmd_index::run(a),
         Cmd::Record(a) => cmd_record::run(a),
+        #[cfg(feature = "sim")]
         Cmd::Sim(a) => cmd_sim::run(a),
         Cmd::Id(a) => cmd_peers::id(a),
         Cmd::Pair(a) => cmd_pair::run(a),
         Cmd::Run(a) => cmd_pair::run_session(a),
+        #[cfg(feature = "sim")]
         Cmd::Demo(a) => cmd_demo::run(a),
         Cmd::Peers(a) => cmd_peers::peers(a),
         Cmd::Unpair(a) => cmd_peers::unpair(a),

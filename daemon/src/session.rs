@@ -24,6 +24,7 @@
 //!   local clients.
 
 mod control;
+pub(crate) mod discovery;
 mod map;
 pub(crate) mod models;
 mod receive;
@@ -47,7 +48,6 @@ use telextiles_index::Index;
 use telextiles_link::{HelloInfo, LinkConfig, LinkHandle, PairingMode};
 use telextiles_roller::RollerDriver;
 use telextiles_sensing::encoder::ModelInfo;
-use telextiles_sensing::source::sim::SimHandle;
 use telextiles_session::{ReceiverConfig, ReceiverCore};
 use tokio::sync::{broadcast, watch};
 
@@ -68,6 +68,7 @@ pub struct SessionOptions {
     /// Simulated roller speed factor (1 = a real roller).
     pub sim_roller_speed: Option<f64>,
     /// No-contact frames between simulated presses.
+    #[cfg_attr(not(feature = "sim"), allow(dead_code))]
     pub sim_gap_frames: Option<usize>,
     /// Write a per-frame latency trace here (`crate::trace`).
     pub latency_trace: Option<PathBuf>,
@@ -110,8 +111,8 @@ struct State {
     roller_desc: String,
     sensor_desc: String,
     sensor_tx: std_mpsc::Sender<SensorCmd>,
-    sim: Option<SimHandle>,
-    simulator: Option<Arc<telextiles_sim::Simulator>>,
+    /// The simulated DIGIT, when the sensor is one.
+    sim: Option<sensing::Simulated>,
     events: broadcast::Sender<Event>,
     peers: Mutex<BTreeMap<String, Value>>,
     counters: Mutex<Counters>,
@@ -183,7 +184,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         lc.connect.push(resolve_addr(c)?);
     }
     if cfg.mdns {
-        lc.discovery = Some(crate::cmd_pair::discovery_config(&cfg));
+        lc.discovery = Some(discovery::discovery_config(&cfg));
     }
     lc.data_dir = Some(cfg.state_dir.clone());
     lc.pairing = opts.pairing.take();
@@ -226,8 +227,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         roller_desc,
         sensor_desc,
         sensor_tx,
-        simulator: sim.as_ref().map(|s| s.1.clone()),
-        sim: sim.map(|s| s.0),
+        sim,
         events: events.clone(),
         peers: Mutex::new(BTreeMap::new()),
         counters: Mutex::new(Counters::default()),
@@ -328,7 +328,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         _ = shutdown_rx.wait_for(|v| *v) => {}
         _ = expiry => {
             *lock(&state.fatal) = Some(if entering {
-                crate::cmd_pair::enter_expired_message(opts.code_ttl)
+                discovery::enter_expired_message(opts.code_ttl)
             } else {
                 "the pairing code expired before the other device used it; run `telextilesd pair` again for a new code".into()
             });

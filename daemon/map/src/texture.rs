@@ -7,7 +7,10 @@ use image::{ImageFormat, RgbImage};
 use std::collections::HashMap;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, OnceLock};
+#[cfg(feature = "sim")]
+use std::sync::OnceLock;
+use std::sync::{Arc, Mutex};
+#[cfg(feature = "sim")]
 use telextiles_sim::{PressSpec, Simulator};
 use tokio::sync::Semaphore;
 
@@ -30,6 +33,7 @@ const MAX_FILE_BYTES: u64 = 8 << 20;
 /// Renders, loads and caches texture PNGs.
 pub(crate) struct Textures {
     source: TextureSource,
+    #[cfg(feature = "sim")]
     sim: OnceLock<Result<Arc<Simulator>, String>>,
     cache: Mutex<HashMap<String, Result<Bytes, String>>>,
     /// One render or load at a time: a burst of hovers must not take every
@@ -41,6 +45,7 @@ impl Textures {
     pub(crate) fn new(source: TextureSource) -> Textures {
         Textures {
             source,
+            #[cfg(feature = "sim")]
             sim: OnceLock::new(),
             cache: Mutex::new(HashMap::new()),
             gate: Semaphore::new(1),
@@ -90,6 +95,12 @@ impl Textures {
         encode_png(&img)
     }
 
+    #[cfg(not(feature = "sim"))]
+    fn simulate(&self, _id: &str) -> Result<RgbImage, String> {
+        Err("this build has no simulator (feature `sim`), so no simulated texture images: give a texture directory".into())
+    }
+
+    #[cfg(feature = "sim")]
     fn simulate(&self, id: &str) -> Result<RgbImage, String> {
         let sim = self
             .sim
@@ -136,7 +147,7 @@ fn load_from_dir(dir: &Path, id: &str) -> Result<RgbImage, String> {
     }
     let press = dir.join(id);
     if press.is_dir() {
-        let meta = telextiles_sim::recording::read_meta(&press)
+        let meta = telextiles_recording::recording::read_meta(&press)
             .map_err(|e| format!("recorded press {}: {e}", press.display()))?;
         let n = meta.timestamps_us.len();
         if n == 0 {
@@ -147,8 +158,8 @@ fn load_from_dir(dir: &Path, id: &str) -> Result<RgbImage, String> {
             .map(|p| p.hold_frame as usize + 15)
             .unwrap_or(n / 2)
             .min(n - 1);
-        let f = press.join(telextiles_sim::recording::frame_name(i));
-        return telextiles_sim::recording::read_frame(&f)
+        let f = press.join(telextiles_recording::recording::frame_name(i));
+        return telextiles_recording::recording::read_frame(&f)
             .map_err(|e| format!("recorded frame {}: {e}", f.display()));
     }
     Err(format!(
@@ -212,7 +223,7 @@ mod tests {
         spec.frames = 40;
         let press = sim.render_press(&spec).unwrap();
         let dir = tempfile::tempdir().unwrap();
-        telextiles_sim::recording::write_press(&dir.path().join("T005"), &press).unwrap();
+        telextiles_recording::recording::write_press(&dir.path().join("T005"), &press).unwrap();
         let got = load_from_dir(dir.path(), "T005").unwrap();
         assert_eq!((got.width(), got.height()), (240, 320));
         assert!(press.frames.contains(&got));

@@ -593,3 +593,14 @@ pub fn segment_with(
         contact,
     })
 }
+/// What to add to "no contact detected" for a recording replayed without
+/// a reference (neither its own nor one given for its sensor,
+/// `References::for_press`): the way out, since its first frames, maybe
+/// in contact, became the reference.
+pub fn no_reference_hint(has_reference: bool) -> &'static str {
+    if has_reference {
+        ""
+    } else {
+        " (the recording carries no no-contact reference, so its first frames became one: if they are in contact, give the sensor's no-contact frame with --reference, or keep it beside the index as no-contact.png or no-contact-<SERIAL>.png; `telextilesd record --idle` writes one)"
+    }
+}

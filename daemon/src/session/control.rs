@@ -7,6 +7,7 @@ use serde_json::{json, Value};
 use telextiles_certs::TrustStore;
 use telextiles_control::{Command, CtlError, GotoTarget, Handler, HandlerFuture};
 use telextiles_roller::{RollerDriver, Target};
+#[cfg(feature = "sim")]
 use telextiles_sensing::source::sim::SimCommand;
 
 use super::sensing::SensorCmd;
@@ -55,6 +56,56 @@ impl Daemon {
             .roller
             .as_ref()
             .ok_or_else(|| CtlError::unavailable("this daemon drives no roller (roller = none)"))
+    }
+
+    /// `sensor.sim`: press the simulated DIGIT once, or lift it.
+    #[cfg(feature = "sim")]
+    fn press_simulated(
+        &self,
+        sim: &super::sensing::Simulated,
+        a: telextiles_control::SimPressArgs,
+    ) -> Result<Value, CtlError> {
+        let s = &self.0;
+        if a.textile == "none" {
+            s.sensor_tx
+                .send(SensorCmd::Sim(SimCommand::Lift))
+                .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
+            return Ok(json!({"lifted": true}));
+        }
+        if telextiles_sim::catalogue::Catalogue::builtin()
+            .get(&a.textile)
+            .is_none()
+        {
+            return Err(CtlError::invalid_args(format!(
+                "unknown textile {:?}: the simulator knows T001..T119 and U01..U20",
+                a.textile
+            )));
+        }
+        let mut spec = telextiles_sim::PressSpec::new(a.textile.clone(), a.seed.unwrap_or(1));
+        spec.jig = a.jig.unwrap_or(true);
+        spec.person = a.person.unwrap_or(0);
+        spec.sensor = a.sensor.unwrap_or(0);
+        spec.rotation_deg = a.rotation_deg.map(|v| v as f32);
+        spec.force = a.force.map(|v| v as f32);
+        sim.simulator
+            .press_meta(&spec)
+            .map_err(|e| CtlError::invalid_args(e.to_string()))?;
+        s.sensor_tx
+            .send(SensorCmd::Sim(SimCommand::PressOnce(spec.clone())))
+            .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
+        Ok(json!({
+            "pressing": spec.textile, "person": spec.person, "sensor": spec.sensor,
+            "jig": spec.jig, "seed": spec.seed,
+        }))
+    }
+
+    #[cfg(not(feature = "sim"))]
+    fn press_simulated(
+        &self,
+        sim: &super::sensing::Simulated,
+        _a: telextiles_control::SimPressArgs,
+    ) -> Result<Value, CtlError> {
+        match *sim {}
     }
 }
 
@@ -124,45 +175,13 @@ impl Handler for Daemon {
                     }
                 }
                 Command::SensorSim(a) => {
-                    if s.sim.is_none() {
+                    let Some(sim) = &s.sim else {
                         return Err(CtlError::unavailable(format!(
                             "the sensor is not simulated ({})",
                             s.sensor_desc
                         )));
-                    }
-                    if a.textile == "none" {
-                        s.sensor_tx
-                            .send(SensorCmd::Sim(SimCommand::Lift))
-                            .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
-                        return Ok(json!({"lifted": true}));
-                    }
-                    if telextiles_sim::catalogue::Catalogue::builtin()
-                        .get(&a.textile)
-                        .is_none()
-                    {
-                        return Err(CtlError::invalid_args(format!(
-                            "unknown textile {:?}: the simulator knows T001..T119 and U01..U20",
-                            a.textile
-                        )));
-                    }
-                    let mut spec =
-                        telextiles_sim::PressSpec::new(a.textile.clone(), a.seed.unwrap_or(1));
-                    spec.jig = a.jig.unwrap_or(true);
-                    spec.person = a.person.unwrap_or(0);
-                    spec.sensor = a.sensor.unwrap_or(0);
-                    spec.rotation_deg = a.rotation_deg.map(|v| v as f32);
-                    spec.force = a.force.map(|v| v as f32);
-                    if let Some(sim) = &s.simulator {
-                        sim.press_meta(&spec)
-                            .map_err(|e| CtlError::invalid_args(e.to_string()))?;
-                    }
-                    s.sensor_tx
-                        .send(SensorCmd::Sim(SimCommand::PressOnce(spec.clone())))
-                        .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
-                    Ok(json!({
-                        "pressing": spec.textile, "person": spec.person, "sensor": spec.sensor,
-                        "jig": spec.jig, "seed": spec.seed,
-                    }))
+                    };
+                    self.press_simulated(sim, a)
                 }
                 Command::RollerGoto(t) => {
                     let r = self.roller()?;

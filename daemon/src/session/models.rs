@@ -54,6 +54,7 @@ pub(crate) fn load_model(cfg: &Config, threads: usize) -> Result<(Encoder, Index
 /// default catalogue 1). The simulated DIGIT of `run`/`pair` and
 /// `classify --sim` press with it, so that a catalogue-2 index is queried
 /// with catalogue-2 fabrics.
+#[cfg(feature = "sim")]
 pub(crate) fn simulator_for(index: &Index) -> Result<telextiles_sim::Simulator> {
     let version = index.catalogue_version.max(1);
     telextiles_sim::Simulator::with_options(version, 1).with_context(|| {
@@ -84,6 +85,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "sim")]
     fn the_simulated_sensor_presses_fabrics_of_the_index_catalogue() {
         for (index, sim) in [(0, 1), (1, 1), (2, 2)] {
             let s = simulator_for(&index_of(index)).unwrap();

@@ -16,6 +16,7 @@ use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{FrontEnd, References};
 use telextiles_sensing::pipeline::Deepest;
 use telextiles_sensing::source::recorded::{Pace, RecordingsSource};
+#[cfg(feature = "sim")]
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::{FrameSource, SourceError};
 use telextiles_session::clock::CaptureClock;
@@ -30,6 +31,7 @@ pub(crate) enum SensorCmd {
     /// Re-capture every reference the pipeline keeps.
     Recapture,
     /// Steer the simulated DIGIT.
+    #[cfg(feature = "sim")]
     Sim(SimCommand),
     /// Set the DIGIT's LEDs (0..=15 each); the answer goes to `reply`.
     Led {
@@ -46,11 +48,18 @@ pub(crate) enum SensorCmd {
 
 /// The frame source, the simulator's handle (when simulated) and a
 /// description for people.
-pub(crate) type OpenedSource = (
-    Box<dyn FrameSource>,
-    Option<(SimHandle, Arc<telextiles_sim::Simulator>)>,
-    String,
-);
+pub(crate) type OpenedSource = (Box<dyn FrameSource>, Option<Simulated>, String);
+
+/// The simulated DIGIT: its steering handle and its simulator.
+#[cfg(feature = "sim")]
+pub(crate) struct Simulated {
+    pub(crate) handle: SimHandle,
+    pub(crate) simulator: Arc<telextiles_sim::Simulator>,
+}
+
+/// A build without the simulator has no simulated DIGIT.
+#[cfg(not(feature = "sim"))]
+pub(crate) enum Simulated {}
 
 /// The no-contact frames given for replayed recordings that carry none
 /// (`reference`), read and checked. They are for `sensor = replay:<dir>`
@@ -81,6 +90,44 @@ pub(crate) fn check_replay_fps(cfg: &Config) -> Result<()> {
     Ok(())
 }
 
+/// A simulated DIGIT: pressing `textile` again and again, or (None)
+/// lifted until `ctl sensor sim <textile>` asks for a press.
+#[cfg(feature = "sim")]
+fn sim_source(
+    opts: &SessionOptions,
+    index: &telextiles_index::Index,
+    textile: Option<&str>,
+    why: &str,
+) -> Result<OpenedSource> {
+    let simulator = Arc::new(super::models::simulator_for(index)?);
+    let spec = telextiles_sim::PressSpec::new(textile.unwrap_or("T001"), 1);
+    let (src, handle) = SimSource::new(
+        simulator.clone(),
+        spec,
+        opts.sim_gap_frames.unwrap_or(60),
+        Pace::RealTime,
+    )?;
+    let (src, desc) = match textile {
+        Some(t) => (src, format!("simulated DIGIT pressing {t} repeatedly{why}")),
+        None => (
+            src.start_idle(),
+            format!("simulated DIGIT, lifted until `telextilesd ctl sensor sim <textile>`{why}"),
+        ),
+    };
+    let src: Box<dyn FrameSource> = Box::new(src);
+    Ok((src, Some(Simulated { handle, simulator }), desc))
+}
+
+#[cfg(not(feature = "sim"))]
+fn sim_source(
+    _opts: &SessionOptions,
+    _index: &telextiles_index::Index,
+    _textile: Option<&str>,
+    why: &str,
+) -> Result<OpenedSource> {
+    Err(crate::sim_off(&format!("the simulated DIGIT{why}")))
+}
+
 /// Opens the configured frame source. A simulated DIGIT presses fabrics
 /// of the index's simulator catalogue (so that its textile ids mean the
 /// fabrics the index was built from).
@@ -89,33 +136,11 @@ pub(crate) fn open_source(
     opts: &SessionOptions,
     index: &telextiles_index::Index,
 ) -> Result<OpenedSource> {
-    // A simulated DIGIT: pressing `textile` again and again, or (None)
-    // lifted until `ctl sensor sim <textile>` asks for a press.
-    let sim_source = |textile: Option<&str>, why: &str| -> Result<OpenedSource> {
-        let simulator = Arc::new(super::models::simulator_for(index)?);
-        let spec = telextiles_sim::PressSpec::new(textile.unwrap_or("T001"), 1);
-        let (src, handle) = SimSource::new(
-            simulator.clone(),
-            spec,
-            opts.sim_gap_frames.unwrap_or(60),
-            Pace::RealTime,
-        )?;
-        let (src, desc) = match textile {
-            Some(t) => (src, format!("simulated DIGIT pressing {t} repeatedly{why}")),
-            None => (
-                src.start_idle(),
-                format!(
-                    "simulated DIGIT, lifted until `telextilesd ctl sensor sim <textile>`{why}"
-                ),
-            ),
-        };
-        let src: Box<dyn FrameSource> = Box::new(src);
-        Ok((src, Some((handle, simulator)), desc))
-    };
+    let session = opts;
     let references = given_references(cfg)?;
     check_replay_fps(cfg)?;
     match &cfg.sensor {
-        SensorSource::Sim { textile } => sim_source(textile.as_deref(), ""),
+        SensorSource::Sim { textile } => sim_source(session, index, textile.as_deref(), ""),
         SensorSource::Replay { dir } => {
             let src = RecordingsSource::open(dir, Pace::RealTime, references)?
                 .assume_fps(cfg.replay_fps)?
@@ -149,7 +174,7 @@ pub(crate) fn open_source(
                 }
                 Err(e) if serial.is_none() => {
                     eprintln!("{e}; using the simulated DIGIT");
-                    sim_source(None, " (no DIGIT found)")
+                    sim_source(session, index, None, " (no DIGIT found)")
                 }
                 Err(e) => Err(e.into()),
             }
@@ -191,9 +216,10 @@ pub(crate) fn sensing_thread(
         while let Ok(cmd) = cmds.try_recv() {
             match cmd {
                 SensorCmd::Recapture => front.recapture(),
+                #[cfg(feature = "sim")]
                 SensorCmd::Sim(c) => {
-                    if let Some(h) = &state.sim {
-                        h.send(c);
+                    if let Some(sim) = &state.sim {
+                        sim.handle.send(c);
                     }
                 }
                 SensorCmd::Led { r, g, b, reply } => {
