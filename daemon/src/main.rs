@@ -19,6 +19,8 @@ mod felt_chart;
 mod index_choice;
 mod index_sim;
 mod out;
+mod press_dir;
+mod record_idle;
 mod session;
 mod trace;
 

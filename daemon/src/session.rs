@@ -28,6 +28,7 @@ pub(crate) mod discovery;
 mod map;
 pub(crate) mod models;
 mod receive;
+pub(crate) mod recording;
 mod roller;
 mod sensing;
 mod supervise;

@@ -233,7 +233,7 @@ impl Handler for Daemon {
                     Err(CtlError::internal("subscribe is handled by the server"))
                 }
                 Command::RecordStart(a) => {
-                    use crate::cmd_record::{label_from_description, LiveRecording, RecordCtl};
+                    use super::recording::{label_from_description, LiveRecording, RecordCtl};
                     let (source, serial) = label_from_description(&s.sensor_desc);
                     let (rec, reply) = LiveRecording::start(&a, source, serial)
                         .map_err(|e| CtlError::failed(format!("{e:#}")))?;
@@ -245,7 +245,7 @@ impl Handler for Daemon {
                 Command::RecordStop => {
                     let (tx, rx) = tokio::sync::oneshot::channel();
                     s.sensor_tx
-                        .send(SensorCmd::Record(crate::cmd_record::RecordCtl::Stop(tx)))
+                        .send(SensorCmd::Record(super::recording::RecordCtl::Stop(tx)))
                         .map_err(|_| CtlError::unavailable("the sensor has stopped"))?;
                     // Stopping waits for the presses already complete to be written.
                     match tokio::time::timeout(std::time::Duration::from_secs(30), rx).await {

@@ -41,7 +41,7 @@ pub(crate) enum SensorCmd {
         reply: tokio::sync::oneshot::Sender<Result<(), String>>,
     },
     /// Start or stop a recording (`record.start` / `record.stop`).
-    Record(crate::cmd_record::RecordCtl),
+    Record(super::recording::RecordCtl),
     /// End the thread.
     Stop,
 }
@@ -208,7 +208,7 @@ pub(crate) fn sensing_thread(
     let mut frame = Frame::blank();
     let mut actions = Vec::new();
     // A recording asked for over the control socket, fed below.
-    let mut recording: Option<crate::cmd_record::LiveRecording> = None;
+    let mut recording: Option<super::recording::LiveRecording> = None;
     // The press's deepest frame so far: its coverage goes with the
     // contact end event.
     let mut deepest = Deepest::default();
