@@ -31,6 +31,7 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod conn;
+mod dial;
 pub mod discovery;
 mod session;
 
@@ -678,14 +679,14 @@ impl Link {
         }
 
         for addr in connect {
-            shared.spawn(session::dial_loop(shared.clone(), None, vec![addr], true));
+            shared.spawn(dial::dial_loop(shared.clone(), None, vec![addr], true));
         }
         // Remembered addresses of paired peers.
         if let Some(dir) = &shared.data_dir {
             if let Ok(store) = telextiles_certs::TrustStore::load(dir) {
                 for p in store.peers() {
                     if shared.pins.contains(&p.device_id) && !p.last_addresses.is_empty() {
-                        session::ensure_dialing(&shared, p.device_id, p.last_addresses.clone());
+                        dial::ensure_dialing(&shared, p.device_id, p.last_addresses.clone());
                     }
                 }
             }
@@ -694,7 +695,7 @@ impl Link {
             Some(dcfg) => {
                 let (d, found) =
                     discovery::Discovery::start(&dcfg, &my_id, local_addr.port(), show_mode)?;
-                shared.spawn(session::discovery_loop(shared.clone(), found, enter_mode));
+                shared.spawn(dial::discovery_loop(shared.clone(), found, enter_mode));
                 let d = Arc::new(d);
                 *lock(&shared.advert) = Some(Arc::downgrade(&d));
                 if show_mode && !shared.pairing_mode() {
@@ -928,12 +929,8 @@ impl LinkHandle {
 
     /// Dials an address (like `--connect`) from now on, with reconnects.
     pub fn connect(&self, addr: SocketAddr) {
-        self.shared.spawn(session::dial_loop(
-            self.shared.clone(),
-            None,
-            vec![addr],
-            true,
-        ));
+        self.shared
+            .spawn(dial::dial_loop(self.shared.clone(), None, vec![addr], true));
     }
 
     /// Closes every connection and stops dialing and accepting.
