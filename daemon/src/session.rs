@@ -36,10 +36,10 @@ mod supervise;
 use supervise::{supervise, EndGuard};
 
 use anyhow::{anyhow, Context, Result};
-use serde_json::Value;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -80,22 +80,45 @@ type Receiver = ReceiverCore<Index>;
 
 #[derive(Default)]
 struct Counters {
-    frames: u64,
-    presses_sent: u64,
-    latents_sent: u64,
-    presses_received: u64,
-    latents_received: u64,
-    decisions: u64,
+    frames: AtomicU64,
+    presses_sent: AtomicU64,
+    latents_sent: AtomicU64,
+    presses_received: AtomicU64,
+    latents_received: AtomicU64,
+    decisions: AtomicU64,
     /// Frames the source or the encoder rejected.
-    bad_frames: u64,
+    bad_frames: AtomicU64,
     /// Recordings of a replay (`sensor = replay:<dir>`) skipped because
     /// they could not be read, had no frames, or stopped being readable
     /// part-way (the rest of that one skipped).
-    recordings_skipped: u64,
+    recordings_skipped: AtomicU64,
     /// Messages from peers the receiver core refused (a latent of the
     /// wrong dimension, not finite or zero; a press stop's final latent
     /// likewise): each dropped, nothing else changed.
-    refused: u64,
+    refused: AtomicU64,
+}
+
+/// A connected peer, as `ctl status` lists it.
+#[derive(Clone, Debug, serde::Serialize)]
+struct ConnectedPeer {
+    /// Its device ID.
+    id: String,
+    /// The name it gave at hello.
+    name: String,
+    /// The address its connection comes from.
+    addr: String,
+}
+
+impl Counters {
+    /// Count one; the new total.
+    fn bump(counter: &AtomicU64) -> u64 {
+        counter.fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    /// The current value of one counter.
+    fn get(counter: &AtomicU64) -> u64 {
+        counter.load(Ordering::Relaxed)
+    }
 }
 
 /// What the tasks share (the session core's state is not here: the
@@ -115,9 +138,10 @@ struct State {
     /// The simulated DIGIT, when the sensor is one.
     sim: Option<sensing::Simulated>,
     events: broadcast::Sender<Event>,
-    peers: Mutex<BTreeMap<String, Value>>,
-    counters: Mutex<Counters>,
-    in_contact: Mutex<bool>,
+    /// The connected peers, by device ID.
+    peers: Mutex<BTreeMap<String, ConnectedPeer>>,
+    counters: Counters,
+    in_contact: AtomicBool,
     /// Last roller position: (millidegrees, slot, moving).
     roller_pos: Mutex<Option<(u32, Option<u16>, bool)>>,
     /// Felt latency of received presses: their final decisions against
@@ -147,7 +171,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 fn peer_name(state: &State, id: &str) -> String {
     lock(&state.peers)
         .get(id)
-        .and_then(|v| v["name"].as_str().map(String::from))
+        .map(|p| p.name.clone())
         .unwrap_or_else(|| id.to_string())
 }
 
@@ -231,8 +255,8 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         sim,
         events: events.clone(),
         peers: Mutex::new(BTreeMap::new()),
-        counters: Mutex::new(Counters::default()),
-        in_contact: Mutex::new(false),
+        counters: Counters::default(),
+        in_contact: AtomicBool::new(false),
         roller_pos: Mutex::new(None),
         felt: Mutex::new(Default::default()),
         pairing_pending: Mutex::new(pairing),

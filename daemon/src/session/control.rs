@@ -11,14 +11,15 @@ use telextiles_roller::{RollerDriver, Target};
 use telextiles_sensing::source::sim::SimCommand;
 
 use super::sensing::SensorCmd;
-use super::{lock, State};
+use super::{lock, Counters, State};
 
 pub(crate) struct Daemon(pub(crate) Arc<State>);
 
 impl Daemon {
     fn status(&self) -> Value {
         let s = &self.0;
-        let c = lock(&s.counters);
+        let c = &s.counters;
+        let n = Counters::get;
         let link = s.link.stats();
         let roller = s.roller.as_ref().map(|r| {
             let st = r.state();
@@ -36,16 +37,16 @@ impl Daemon {
             "version": env!("CARGO_PKG_VERSION"),
             "uptime_s": s.started.elapsed().as_secs_f64(),
             "listen": s.link.local_addr().to_string(),
-            "sensor": {"source": s.sensor_desc, "in_contact": *lock(&s.in_contact)},
+            "sensor": {"source": s.sensor_desc, "in_contact": s.in_contact.load(std::sync::atomic::Ordering::Relaxed)},
             "roller": {"source": s.roller_desc, "state": roller},
             "peers": lock(&s.peers).values().cloned().collect::<Vec<_>>(),
             "model": {"path": s.model.path, "sha256": s.model.sha256, "arch": s.model.arch, "dim": s.model.dim},
             "index": {"fingerprint": s.index.fingerprint(), "textiles": s.index.entries.len(), "slots": s.index.roller.n()},
             "counters": {
-                "frames": c.frames, "bad_frames": c.bad_frames, "recordings_skipped": c.recordings_skipped,
-                "presses_sent": c.presses_sent, "latents_sent": c.latents_sent,
-                "presses_received": c.presses_received, "latents_received": c.latents_received,
-                "decisions": c.decisions, "refused": c.refused,
+                "frames": n(&c.frames), "bad_frames": n(&c.bad_frames), "recordings_skipped": n(&c.recordings_skipped),
+                "presses_sent": n(&c.presses_sent), "latents_sent": n(&c.latents_sent),
+                "presses_received": n(&c.presses_received), "latents_received": n(&c.latents_received),
+                "decisions": n(&c.decisions), "refused": n(&c.refused),
                 "bad_datagrams": link.bad_datagrams, "latents_dropped": link.latents_dropped,
             },
         })
@@ -118,14 +119,15 @@ impl Handler for Daemon {
                 Command::Peers => {
                     let store = TrustStore::load(&s.state_dir)
                         .map_err(|e| CtlError::failed(e.to_string()))?;
-                    let connected = lock(&s.peers).clone();
+                    let connected: std::collections::BTreeSet<String> =
+                        lock(&s.peers).keys().cloned().collect();
                     Ok(Value::Array(
                         store
                             .peers()
                             .iter()
                             .map(|p| {
                                 let id = p.device_id.to_string();
-                                json!({"id": id, "name": p.name, "connected": connected.contains_key(&id)})
+                                json!({"id": id, "name": p.name, "connected": connected.contains(&id)})
                             })
                             .collect(),
                     ))

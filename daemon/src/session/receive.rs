@@ -3,14 +3,13 @@
 
 use std::sync::Arc;
 
-use serde_json::json;
 use telextiles_control::Event;
 use telextiles_link::{now_us, LinkEvent};
 use telextiles_proto::peer::Control;
 use telextiles_roller::Target;
 use telextiles_session::{RxAction, RxInput};
 
-use super::{lock, say, Receiver, State};
+use super::{lock, say, ConnectedPeer, Counters, Receiver, State};
 
 /// One link event; the receiver core's actions are carried out here.
 pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent) {
@@ -54,7 +53,11 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
             ));
             lock(&state.peers).insert(
                 peer.to_string(),
-                json!({"id": peer.to_string(), "name": name, "addr": addr.to_string()}),
+                ConnectedPeer {
+                    id: peer.to_string(),
+                    name: name.clone(),
+                    addr: addr.to_string(),
+                },
             );
             let _ = state.events.send(Event::PeerUp {
                 peer: name,
@@ -70,7 +73,7 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
             rx.handle(&peer.to_string(), RxInput::PeerDown, &mut actions);
             let name = lock(&state.peers)
                 .remove(&peer.to_string())
-                .and_then(|v| v["name"].as_str().map(String::from))
+                .map(|p| p.name)
                 .unwrap_or_else(|| peer.to_string());
             let _ = state.events.send(Event::PeerDown {
                 peer: name,
@@ -129,7 +132,7 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
         }
         LinkEvent::Latent(l) => {
             let handled_us = now_us();
-            lock(&state.counters).latents_received += 1;
+            Counters::bump(&state.counters.latents_received);
             rx.handle(
                 &l.peer.to_string(),
                 RxInput::Latent {
@@ -161,7 +164,9 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
     let mut commanded = None;
     for a in actions.drain(..) {
         match a {
-            RxAction::PressStarted { .. } => lock(&state.counters).presses_received += 1,
+            RxAction::PressStarted { .. } => {
+                Counters::bump(&state.counters.presses_received);
+            }
             RxAction::RollerTarget { slot } => {
                 if let Some(r) = &state.roller {
                     r.set_target(Target::Slot(slot as u16));
@@ -178,7 +183,7 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
                 }
             }
             RxAction::Decision(d) => {
-                lock(&state.counters).decisions += 1;
+                Counters::bump(&state.counters.decisions);
                 // The press's contact on the local clock (known once the
                 // link has a clock-offset estimate): felt latency runs
                 // from there to the wheel at rest at the final sample.
@@ -209,11 +214,7 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
             RxAction::Refused { peer, why } => {
                 // Counted always, logged at the 1st, 2nd, 4th, 8th, ...
                 // refusal: a peer cannot flood the log.
-                let n = {
-                    let mut c = lock(&state.counters);
-                    c.refused += 1;
-                    c.refused
-                };
+                let n = Counters::bump(&state.counters.refused);
                 if n.is_power_of_two() {
                     eprintln!(
                         "refused a message from {} ({n} refused so far): {why}",

@@ -3,6 +3,7 @@
 //! (camera reads, ONNX inference), so a thread of its own; it sends
 //! latents straight into the link (a datagram per frame, no queue).
 
+use std::sync::atomic::Ordering;
 use std::sync::mpsc as std_mpsc;
 use std::sync::Arc;
 
@@ -22,7 +23,7 @@ use telextiles_sensing::source::{FrameSource, SourceError};
 use telextiles_session::clock::CaptureClock;
 use telextiles_session::{SenderCore, TxAction};
 
-use super::{lock, SessionOptions, State};
+use super::{Counters, SessionOptions, State};
 use crate::config::{Config, SensorSource};
 
 /// Commands for the sensing thread.
@@ -245,13 +246,17 @@ pub(crate) fn sensing_thread(
                 message: e.to_string(),
             });
             {
-                let mut c = lock(&state.counters);
+                let c = &state.counters;
                 match e {
                     // A recording of a replay, not a frame: the replay
                     // goes on with the next.
-                    SourceError::Skipped(_) => c.recordings_skipped += 1,
+                    SourceError::Skipped(_) => {
+                        Counters::bump(&c.recordings_skipped);
+                    }
                     SourceError::Fatal(_) | SourceError::Ended => {}
-                    _ => c.bad_frames += 1,
+                    _ => {
+                        Counters::bump(&c.bad_frames);
+                    }
                 }
             }
             if matches!(e, SourceError::Fatal(_) | SourceError::Ended) {
@@ -275,7 +280,7 @@ pub(crate) fn sensing_thread(
             if sender.in_press() {
                 sender.stop(capture_us, &mut actions);
                 send(&state, &mut actions, [capture_us; 3]);
-                *lock(&state.in_contact) = false;
+                state.in_contact.store(false, Ordering::Relaxed);
                 let _ = state.events.send(Event::Contact {
                     phase: ContactPhase::End,
                     score: None,
@@ -285,11 +290,11 @@ pub(crate) fn sensing_thread(
             tracing::debug!(recording = %rec.name, "replaying the next recording");
             front.reset(rec.reference.as_deref());
         }
-        lock(&state.counters).frames += 1;
+        Counters::bump(&state.counters.frames);
         let out = match front.process(&frame) {
             Ok(o) => o,
             Err(e) => {
-                lock(&state.counters).bad_frames += 1;
+                Counters::bump(&state.counters.bad_frames);
                 let _ = state.events.send(Event::Error {
                     source: "encoder".into(),
                     message: e.to_string(),
@@ -326,7 +331,9 @@ pub(crate) fn sensing_thread(
             None => {}
         }
         if let Some(phase) = phase {
-            *lock(&state.in_contact) = phase == ContactPhase::Start;
+            state
+                .in_contact
+                .store(phase == ContactPhase::Start, Ordering::Relaxed);
             let _ = state.events.send(Event::Contact {
                 phase,
                 score: Some(up.score),
@@ -378,7 +385,7 @@ fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
                 press_id,
                 capture_us,
             } => {
-                lock(&state.counters).presses_sent += 1;
+                Counters::bump(&state.counters.presses_sent);
                 let _ = state.link.send_control(Control::PressStart {
                     press_id,
                     capture_us,
@@ -395,7 +402,7 @@ fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
                         .send_latent_timed(press_id, &latent.wire(), capture_us, false)
                 {
                     let sent_us = now_us();
-                    lock(&state.counters).latents_sent += 1;
+                    Counters::bump(&state.counters.latents_sent);
                     if let Some(t) = &state.trace {
                         let [c, k, e] = stages;
                         t.tx(sent.seq, press_id, [c, k, e, sent.encoded_us, sent_us]);
