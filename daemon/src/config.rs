@@ -467,7 +467,10 @@ impl Config {
     /// Resolves with an explicit environment.
     pub fn resolve(args: &ConfigArgs, env: EnvLookup<'_>) -> Result<Config, ConfigError> {
         let e = Env(env);
-        let system = pick(args.system, e.get("SYSTEM", parse_bool)?, None).unwrap_or(false);
+        let system = args
+            .system
+            .or(e.get("SYSTEM", parse_bool)?)
+            .unwrap_or(false);
         // The file: explicit (must exist) or default (may be absent).
         let explicit = args.config.clone().or(e.get("CONFIG", parse_path)?);
         let (file_path, must_exist) = match explicit {
@@ -491,47 +494,36 @@ impl Config {
                 Err(source) => return Err(ConfigError::Read { path, source }),
             }
         }
-        let file_err = |key: &str, message: String| ConfigError::File {
-            path: config_file.clone().unwrap_or_default(),
-            message: format!("key `{key}`: {message}"),
+        let l = Layers {
+            env: &e,
+            file_path: config_file.as_deref(),
+            file_dir: &file_dir,
         };
-        // Relative paths in the file are relative to the file's directory.
-        let rel = |p: Option<PathBuf>| p.map(|p| file_dir.join(p));
 
         // `system` from the file also counts (flag/env already decided above if given).
-        let system = pick(args.system, e.get("SYSTEM", parse_bool)?, file.system).unwrap_or(system);
+        let system = l
+            .get("system", args.system, parse_bool, file.system)?
+            .unwrap_or(system);
 
-        let name = match pick(args.name.clone(), e.get("NAME", parse_string)?, file.name) {
+        let name = match l.get("name", args.name.clone(), parse_string, file.name)? {
             Some(n) if n.trim().is_empty() => {
                 return Err(ConfigError::Invalid("`name` must not be empty".into()))
             }
             Some(n) => n,
             None => default_name(),
         };
-        let state_dir = match pick(
-            args.state_dir.clone(),
-            e.get("STATE_DIR", parse_path)?,
-            rel(file.state_dir),
-        ) {
+        let state_dir = match l.path("state_dir", args.state_dir.clone(), file.state_dir)? {
             Some(p) => p,
             None if system => PathBuf::from("/var/lib/telextilesd"),
             None => xdg_dir(&e, "XDG_STATE_HOME", ".local/state", "state_dir")?.join("telextiles"),
         };
-        let data_dir = match pick(
-            args.data_dir.clone(),
-            e.get("DATA_DIR", parse_path)?,
-            rel(file.data_dir),
-        ) {
+        let data_dir = match l.path("data_dir", args.data_dir.clone(), file.data_dir)? {
             Some(p) => p,
             None if system => PathBuf::from("/usr/share/telextiles"),
             None => xdg_dir(&e, "XDG_DATA_HOME", ".local/share", "data_dir")?.join("telextiles"),
         };
-        let socket_given = pick(
-            args.socket.clone(),
-            e.get("SOCKET", parse_path)?,
-            rel(file.socket),
-        );
-        let runtime_dir = match pick(args.runtime_dir.clone(), e.get("RUNTIME_DIR", parse_path)?, rel(file.runtime_dir)) {
+        let socket_given = l.path("socket", args.socket.clone(), file.socket)?;
+        let runtime_dir = match l.path("runtime_dir", args.runtime_dir.clone(), file.runtime_dir)? {
             Some(p) => p,
             None if system => PathBuf::from(telextiles_control::socket::SYSTEM_DIR),
             None => match e.raw("XDG_RUNTIME_DIR") {
@@ -549,162 +541,142 @@ impl Config {
         };
         let socket = socket_given
             .unwrap_or_else(|| runtime_dir.join(telextiles_control::socket::SOCKET_NAME));
-        let group = pick(
-            args.group.clone(),
-            e.get("GROUP", parse_string)?,
-            file.group,
-        )
-        .unwrap_or_else(|| telextiles_control::socket::DEFAULT_GROUP.to_string());
-        let file_sensor = file
-            .sensor
-            .map(|s| s.parse::<SensorSource>().map_err(|m| file_err("sensor", m)))
-            .transpose()?
-            .map(|s| match s {
-                SensorSource::Replay { dir } => SensorSource::Replay {
-                    dir: file_dir.join(dir),
+        let group = l
+            .get("group", args.group.clone(), parse_string, file.group)?
+            .unwrap_or_else(|| telextiles_control::socket::DEFAULT_GROUP.to_string());
+        let sensor = l
+            .checked(
+                "sensor",
+                args.sensor.clone(),
+                parse_from_str,
+                file.sensor,
+                |s| {
+                    Ok(match s.parse::<SensorSource>()? {
+                        SensorSource::Replay { dir } => SensorSource::Replay {
+                            dir: file_dir.join(dir),
+                        },
+                        other => other,
+                    })
                 },
-                other => other,
-            });
-        let sensor = pick(
-            args.sensor.clone(),
-            e.get("SENSOR", parse_from_str)?,
-            file_sensor,
-        )
-        .unwrap_or(SensorSource::Digit { serial: None });
-        let file_reference = file.reference.map(|v| {
-            v.iter()
-                .map(|r| reference_in_file(&file_dir, r))
-                .collect::<Vec<_>>()
-        });
-        let reference = pick(
-            args.reference.clone(),
-            e.get("REFERENCE", parse_list)?,
-            file_reference,
-        )
-        .unwrap_or_default();
-        let file_replay_fps = file
-            .replay_fps
-            .map(|f| {
-                telextiles_recording::recording::check_fps(f).map_err(|m| file_err("replay_fps", m))
-            })
-            .transpose()?;
-        let replay_fps = pick(
+            )?
+            .unwrap_or(SensorSource::Digit { serial: None });
+        let reference = l
+            .checked(
+                "reference",
+                args.reference.clone(),
+                parse_list,
+                file.reference,
+                |v| Ok(v.iter().map(|r| reference_in_file(&file_dir, r)).collect()),
+            )?
+            .unwrap_or_default();
+        let replay_fps = l.checked(
+            "replay_fps",
             args.replay_fps,
-            e.get("REPLAY_FPS", telextiles_recording::recording::parse_fps)?,
-            file_replay_fps,
-        );
+            telextiles_recording::recording::parse_fps,
+            file.replay_fps,
+            telextiles_recording::recording::check_fps,
+        )?;
         let shipped = telextiles_sensing::contact::ContactConfig::default();
-        let file_contact_enter = file
-            .contact_enter
-            .map(|v| check_contact_enter(v).map_err(|m| file_err("contact_enter", m)))
-            .transpose()?;
-        let contact_enter = pick(
-            args.contact_enter,
-            e.get("CONTACT_ENTER", parse_contact_enter)?,
-            file_contact_enter,
-        )
-        .unwrap_or(shipped.enter);
-        let file_contact_frames = file
-            .contact_frames
-            .map(|v| check_contact_frames(v).map_err(|m| file_err("contact_frames", m)))
-            .transpose()?;
-        let contact_frames = pick(
-            args.contact_frames,
-            e.get("CONTACT_FRAMES", parse_contact_frames)?,
-            file_contact_frames,
-        )
-        .unwrap_or(shipped.min_enter_frames);
-        let file_contact_tile = file
-            .contact_tile
-            .map(|v| check_contact_tile(v).map_err(|m| file_err("contact_tile", m)))
-            .transpose()?;
-        let contact_tile = pick(
-            args.contact_tile,
-            e.get("CONTACT_TILE", parse_contact_tile)?,
-            file_contact_tile,
-        )
-        .unwrap_or(shipped.tile);
-        let file_commit_margin = file
-            .commit_margin
-            .map(|v| check_commit_margin(v).map_err(|m| file_err("commit_margin", m)))
-            .transpose()?;
-        let commit_margin = pick(
-            args.commit_margin,
-            e.get("COMMIT_MARGIN", parse_commit_margin)?,
-            file_commit_margin,
-        )
-        .unwrap_or(telextiles_sensing::decide::DecideConfig::default().commit_margin);
-        let encode_run = pick(
-            args.encode_run,
-            e.get("ENCODE_RUN", parse_bool)?,
-            file.encode_run,
-        )
-        .unwrap_or(false);
-        let file_motion = file
-            .motion
-            .map(|v| parse_motion(&v).map_err(|m| file_err("motion", m)))
-            .transpose()?;
-        let motion =
-            pick(args.motion, e.get("MOTION", parse_motion)?, file_motion).unwrap_or_default();
-        let model = pick(
-            args.model.clone(),
-            e.get("MODEL", parse_path)?,
-            rel(file.model),
-        )
-        .unwrap_or_else(|| data_dir.join("encoder.onnx"));
-        let index = pick(
-            args.index.clone(),
-            e.get("INDEX", parse_path)?,
-            rel(file.index),
-        )
-        .unwrap_or_else(|| data_dir.join("index.tlxi"));
-        let file_roller = file
-            .roller
-            .map(|s| s.parse::<RollerSource>().map_err(|m| file_err("roller", m)))
-            .transpose()?
-            .map(|r| match r {
-                RollerSource::Path(p) => RollerSource::Path(file_dir.join(p)),
-                other => other,
-            });
-        let roller = pick(
-            args.roller.clone(),
-            e.get("ROLLER", parse_from_str)?,
-            file_roller,
-        )
-        .unwrap_or(RollerSource::Auto);
-        let listen = pick(args.listen, e.get("LISTEN", parse_from_str)?, file.listen)
+        let contact_enter = l
+            .checked(
+                "contact_enter",
+                args.contact_enter,
+                parse_contact_enter,
+                file.contact_enter,
+                check_contact_enter,
+            )?
+            .unwrap_or(shipped.enter);
+        let contact_frames = l
+            .checked(
+                "contact_frames",
+                args.contact_frames,
+                parse_contact_frames,
+                file.contact_frames,
+                check_contact_frames,
+            )?
+            .unwrap_or(shipped.min_enter_frames);
+        let contact_tile = l
+            .checked(
+                "contact_tile",
+                args.contact_tile,
+                parse_contact_tile,
+                file.contact_tile,
+                check_contact_tile,
+            )?
+            .unwrap_or(shipped.tile);
+        let commit_margin = l
+            .checked(
+                "commit_margin",
+                args.commit_margin,
+                parse_commit_margin,
+                file.commit_margin,
+                check_commit_margin,
+            )?
+            .unwrap_or(telextiles_sensing::decide::DecideConfig::default().commit_margin);
+        let encode_run = l
+            .get("encode_run", args.encode_run, parse_bool, file.encode_run)?
+            .unwrap_or(false);
+        let motion = l
+            .checked("motion", args.motion, parse_motion, file.motion, |v| {
+                parse_motion(&v)
+            })?
+            .unwrap_or_default();
+        let model = l
+            .path("model", args.model.clone(), file.model)?
+            .unwrap_or_else(|| data_dir.join("encoder.onnx"));
+        let index = l
+            .path("index", args.index.clone(), file.index)?
+            .unwrap_or_else(|| data_dir.join("index.tlxi"));
+        let roller = l
+            .checked(
+                "roller",
+                args.roller.clone(),
+                parse_from_str,
+                file.roller,
+                |s| {
+                    Ok(match s.parse::<RollerSource>()? {
+                        RollerSource::Path(p) => RollerSource::Path(file_dir.join(p)),
+                        other => other,
+                    })
+                },
+            )?
+            .unwrap_or(RollerSource::Auto);
+        let listen = l
+            .get("listen", args.listen, parse_from_str, file.listen)?
             .unwrap_or_else(|| DEFAULT_LISTEN.parse().expect("valid default"));
-        let connect = pick(
-            args.connect.clone(),
-            e.get("CONNECT", parse_list)?,
-            file.connect,
-        )
-        .unwrap_or_default();
+        let connect = l
+            .get("connect", args.connect.clone(), parse_list, file.connect)?
+            .unwrap_or_default();
         for c in &connect {
             validate_host_port(c).map_err(|m| ConfigError::Invalid(format!("`connect`: {m}")))?;
         }
-        let mdns = pick(args.mdns, e.get("MDNS", parse_bool)?, file.mdns).unwrap_or(true);
-        let mdns_allow = pick(
-            args.mdns_allow.clone(),
-            e.get("MDNS_ALLOW", parse_list)?,
-            file.mdns_allow,
-        )
-        .unwrap_or_default();
-        let mdns_deny = pick(
-            args.mdns_deny.clone(),
-            e.get("MDNS_DENY", parse_list)?,
-            file.mdns_deny,
-        )
-        .unwrap_or_default();
-        let map = pick(args.map, e.get("MAP", parse_bool)?, file.map).unwrap_or(false);
-        let map_bind = pick(
-            args.map_bind,
-            e.get("MAP_BIND", parse_from_str)?,
-            file.map_bind,
-        )
-        .unwrap_or_else(|| DEFAULT_MAP_BIND.parse().expect("valid default"));
+        let mdns = l
+            .get("mdns", args.mdns, parse_bool, file.mdns)?
+            .unwrap_or(true);
+        let mdns_allow = l
+            .get(
+                "mdns_allow",
+                args.mdns_allow.clone(),
+                parse_list,
+                file.mdns_allow,
+            )?
+            .unwrap_or_default();
+        let mdns_deny = l
+            .get(
+                "mdns_deny",
+                args.mdns_deny.clone(),
+                parse_list,
+                file.mdns_deny,
+            )?
+            .unwrap_or_default();
+        let map = l
+            .get("map", args.map, parse_bool, file.map)?
+            .unwrap_or(false);
+        let map_bind = l
+            .get("map_bind", args.map_bind, parse_from_str, file.map_bind)?
+            .unwrap_or_else(|| DEFAULT_MAP_BIND.parse().expect("valid default"));
         // Logging: flag > TELEXTILESD_LOG > RUST_LOG > file > "info".
-        let log = match pick(args.log.clone(), e.get("LOG", parse_string)?, None) {
+        let log = match l.get("log", args.log.clone(), parse_string, None)? {
             Some(l) => l,
             None => match e.raw("RUST_LOG") {
                 Some(r) => r.to_string_lossy().into_owned(),
@@ -853,9 +825,59 @@ fn reference_in_file(file_dir: &Path, r: &str) -> String {
     }
 }
 
-/// First of flag, env, file that is set.
-fn pick<T>(flag: Option<T>, env: Option<T>, file: Option<T>) -> Option<T> {
-    flag.or(env).or(file)
+/// The one resolver of a setting's layers: flag > `TELEXTILESD_<KEY>` >
+/// the file's `key` > (the caller's default). The file's value is checked
+/// (relative paths joined to the file's directory) and the variable parsed
+/// even when a layer above overrides them, so a bad value is an error
+/// naming where it is, never silently shadowed.
+struct Layers<'a> {
+    env: &'a Env<'a>,
+    file_path: Option<&'a Path>,
+    file_dir: &'a Path,
+}
+
+impl Layers<'_> {
+    /// A setting whose file value needs no checking.
+    fn get<T>(
+        &self,
+        key: &str,
+        flag: Option<T>,
+        parse: fn(&str) -> Result<T, String>,
+        file: Option<T>,
+    ) -> Result<Option<T>, ConfigError> {
+        self.checked(key, flag, parse, file, Ok)
+    }
+
+    /// A path: the file's relative to the file's directory.
+    fn path(
+        &self,
+        key: &str,
+        flag: Option<PathBuf>,
+        file: Option<PathBuf>,
+    ) -> Result<Option<PathBuf>, ConfigError> {
+        self.checked(key, flag, parse_path, file, |p| Ok(self.file_dir.join(p)))
+    }
+
+    /// A setting whose file value `check` turns into the setting (or
+    /// refuses, the error naming the file and the key).
+    fn checked<T, F>(
+        &self,
+        key: &str,
+        flag: Option<T>,
+        parse: fn(&str) -> Result<T, String>,
+        file: Option<F>,
+        check: impl FnOnce(F) -> Result<T, String>,
+    ) -> Result<Option<T>, ConfigError> {
+        let file = file
+            .map(check)
+            .transpose()
+            .map_err(|message| ConfigError::File {
+                path: self.file_path.map(Path::to_path_buf).unwrap_or_default(),
+                message: format!("key `{key}`: {message}"),
+            })?;
+        let env = self.env.get(&key.to_ascii_uppercase(), parse)?;
+        Ok(flag.or(env).or(file))
+    }
 }
 
 struct Env<'a>(EnvLookup<'a>);
