@@ -899,11 +899,7 @@ mod tests {
             let mut mean = PressMean::new(index.dim, cfg.depth_power);
             let mut in_press = false;
             for (i, (image, &t)) in p.frames.iter().zip(&p.meta.timestamps_us).enumerate() {
-                let f = telextiles_sensing::frame::Frame {
-                    image: image.clone(),
-                    timestamp_us: t,
-                    seq: i as u64,
-                };
+                let f = telextiles_sensing::frame::Frame::new(image.clone(), t, i as u64).unwrap();
                 let o = front.process(&f).unwrap();
                 match o.contact.event {
                     Some(ContactEvent::PressStart { .. }) => in_press = true,

@@ -448,11 +448,7 @@ fn embeddings_with(
         .zip(&press.meta.timestamps_us)
         .enumerate()
     {
-        let frame = telextiles_sensing::frame::Frame {
-            image: image.clone(),
-            timestamp_us: t,
-            seq: i as u64,
-        };
+        let frame = telextiles_sensing::frame::Frame::new(image.clone(), t, i as u64)?;
         let o = front.process(&frame)?;
         if o.contact.in_contact {
             deepest.add(o.contact.depth, o.contact.coverage);

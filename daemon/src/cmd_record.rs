@@ -791,7 +791,7 @@ fn record_textile(
                         );
                     }
                 }
-                let u = det.update(&frame.image, frame.timestamp_us);
+                let u = det.update(frame.image(), frame.timestamp_us());
                 rec.push(&frame, &u);
                 s.drain(&mut rec, false);
             }
@@ -863,7 +863,7 @@ fn record_textile(
                         Err(SourceError::Ended) => break,
                         Err(e) => bail!("{}: {e}", d.display()),
                     }
-                    let u = det.update(&frame.image, frame.timestamp_us);
+                    let u = det.update(frame.image(), frame.timestamp_us());
                     rec.push(&frame, &u);
                     s.drain(&mut rec, true);
                     if s.done() {

@@ -70,12 +70,12 @@ impl FrameSource for IdleSimSource {
         if self.next >= self.clip.len() {
             return Err(SourceError::Ended);
         }
-        out.image = self
-            .sim
-            .idle_frame(&self.clip, self.next)
-            .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
-        out.timestamp_us = self.clip.timestamps_us[self.next];
-        out.seq = self.next as u64;
+        out.set_image(
+            self.sim
+                .idle_frame(&self.clip, self.next)
+                .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?,
+        )?;
+        out.set_time(self.clip.timestamps_us[self.next], self.next as u64);
         self.next += 1;
         Ok(())
     }
@@ -144,12 +144,12 @@ pub(crate) fn run_idle(
                 timestamps.len()
             ),
         }
-        let t0 = *first.get_or_insert(frame.timestamp_us);
-        let t = frame.timestamp_us.saturating_sub(t0);
+        let t0 = *first.get_or_insert(frame.timestamp_us());
+        let t = frame.timestamp_us().saturating_sub(t0);
         if t as f64 >= seconds * 1e6 {
             break;
         }
-        let u = check.push(&frame.image, t);
+        let u = check.push(frame.image(), t);
         if let Some(telextiles_sensing::contact::ContactEvent::PressStart { t_us }) = u.event {
             progress.println(&format!(
                 "a press started at {:.2} s on the untouched sensor",
@@ -157,12 +157,12 @@ pub(crate) fn run_idle(
             ));
         }
         writer
-            .push(&frame.image)
+            .push(frame.image())
             .with_context(|| format!("cannot write {}", path.display()))?;
         if rest_n < NO_CONTACT_FRAMES {
             rest_sum
                 .iter_mut()
-                .zip(frame.image.as_raw())
+                .zip(frame.image().as_raw())
                 .for_each(|(a, &v)| *a += v as f32);
             rest_n += 1;
         }

@@ -124,16 +124,19 @@ fn main() {
     let mut stats = StageStats::with_capacity(frames_n);
     // Warm-up.
     for i in 0..60 {
-        decode_buffer(
-            &yuyv[i % yuyv.len()],
-            PixelFormat::Yuyv,
-            320,
-            240,
-            &mut scratch,
-            &mut frame.image,
-        )
-        .unwrap();
-        frame.timestamp_us = i as u64 * 16_667;
+        frame
+            .write(|img| {
+                decode_buffer(
+                    &yuyv[i % yuyv.len()],
+                    PixelFormat::Yuyv,
+                    320,
+                    240,
+                    &mut scratch,
+                    img,
+                )
+            })
+            .unwrap();
+        frame.set_time(i as u64 * 16_667, 0);
         pipeline
             .process(&frame, &mut StageTimes::default())
             .unwrap();
@@ -143,20 +146,23 @@ fn main() {
     let cpu0 = cpu_seconds();
     for i in 0..frames_n {
         let t0 = Instant::now();
-        decode_buffer(
-            &yuyv[i % yuyv.len()],
-            PixelFormat::Yuyv,
-            320,
-            240,
-            &mut scratch,
-            &mut frame.image,
-        )
-        .unwrap();
+        frame
+            .write(|img| {
+                decode_buffer(
+                    &yuyv[i % yuyv.len()],
+                    PixelFormat::Yuyv,
+                    320,
+                    240,
+                    &mut scratch,
+                    img,
+                )
+            })
+            .unwrap();
         let mut times = StageTimes {
             decode_ns: t0.elapsed().as_nanos() as u64,
             ..Default::default()
         };
-        frame.timestamp_us = (60 + i) as u64 * 16_667;
+        frame.set_time((60 + i) as u64 * 16_667, 0);
         let out = pipeline.process(&frame, &mut times).unwrap();
         if out.step.is_some() {
             encoded += 1;
@@ -185,19 +191,22 @@ fn main() {
         } else if now - due > Duration::from_micros(16_667) {
             late += 1;
         }
-        decode_buffer(
-            &yuyv[i % yuyv.len()],
-            PixelFormat::Yuyv,
-            320,
-            240,
-            &mut scratch,
-            &mut frame.image,
-        )
-        .unwrap();
+        frame
+            .write(|img| {
+                decode_buffer(
+                    &yuyv[i % yuyv.len()],
+                    PixelFormat::Yuyv,
+                    320,
+                    240,
+                    &mut scratch,
+                    img,
+                )
+            })
+            .unwrap();
         // Frame time goes on from the loop above: a jump would be a gap in
         // the stream, which ends the press, and the hold frames would then
         // be taken for the new no-contact reference (nothing encoded).
-        frame.timestamp_us = (60 + frames_n + i) as u64 * 16_667;
+        frame.set_time((60 + frames_n + i) as u64 * 16_667, 0);
         let out = pipeline
             .process(&frame, &mut StageTimes::default())
             .unwrap();

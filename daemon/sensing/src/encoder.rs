@@ -361,7 +361,7 @@ impl Encoder {
         // subtracting model sees a blank frame against a blank reference). A
         // zero embedding is allowed here: fixed descriptors give one for a
         // featureless frame.
-        let blank = Frame::blank().image;
+        let blank = Frame::blank().into_image();
         enc.set_reference(&blank)?;
         enc.preprocess(&blank)?;
         enc.run_raw()

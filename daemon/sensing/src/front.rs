@@ -188,11 +188,10 @@ impl FrontEnd {
         self.encoder
     }
 
-    /// Process one frame (checked for size first).
+    /// Process one frame (valid by construction: no size to check).
     pub fn process(&mut self, frame: &Frame) -> Result<FrontOutput<'_>, EncoderError> {
-        frame.check()?;
         let t0 = Instant::now();
-        let up = self.contact.update(&frame.image, frame.timestamp_us);
+        let up = self.contact.update(frame.image(), frame.timestamp_us());
         let version = self.contact.reference_version();
         if self.synced != Some(version) {
             if let Some(px) = self.contact.reference_pixels() {
@@ -229,8 +228,8 @@ impl FrontEnd {
         self.held_n = 0;
         if self.encode_run && run >= 1 && run <= self.held.len() {
             let h = &mut self.held[run - 1];
-            h.image.copy_from_slice(frame.image.as_raw());
-            h.t_us = frame.timestamp_us;
+            h.image.copy_from_slice(frame.image().as_raw());
+            h.t_us = frame.timestamp_us();
             h.depth = up.depth;
             self.held_n = run;
         }
@@ -242,7 +241,7 @@ impl FrontEnd {
         if touching && self.encoder.has_reference() {
             embedding = Some(encode(
                 &mut self.encoder,
-                &frame.image,
+                frame.image(),
                 &mut preprocess_ns,
                 &mut encode_ns,
             )?);

@@ -235,7 +235,7 @@ impl<I: TextileIndex> Pipeline<I> {
         frame: &Frame,
         times: &mut StageTimes,
     ) -> Result<FrameOutput, EncoderError> {
-        let t = frame.timestamp_us;
+        let t = frame.timestamp_us();
         let out = self.front.process(frame)?;
         let c = out.contact;
         times.contact_ns = out.contact_ns;
@@ -459,14 +459,14 @@ pub fn run_source<I: TextileIndex>(
             Err(e) => return Err(e.to_string()),
         };
         summary.frames += 1;
-        last_t = frame.timestamp_us;
+        last_t = frame.timestamp_us();
         if let Some(ContactEvent::PressStart { .. }) = out.contact_event {
             stats.clear();
             deepest = Deepest::default();
             steps.clear();
         }
         if let Some(s) = out.step {
-            steps.push((frame.timestamp_us, s));
+            steps.push((frame.timestamp_us(), s));
         }
         if out.in_contact || out.ended.is_some() {
             stats.record(&times);

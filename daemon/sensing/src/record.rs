@@ -437,21 +437,21 @@ impl Recorder {
     fn push_ring(&mut self, frame: &Frame, quiet: bool) {
         let image = if self.ring.len() >= self.ring_cap() {
             let mut old = self.ring.pop_front().expect("ring is full").image;
-            old.clone_from(&frame.image);
+            old.clone_from(frame.image());
             old
         } else {
-            self.copy(&frame.image)
+            self.copy(frame.image())
         };
         self.ring.push_back(Held {
             image,
-            t_us: frame.timestamp_us,
+            t_us: frame.timestamp_us(),
             quiet,
         });
     }
 
     /// Feed one frame and the contact detector's update for it.
     pub fn push(&mut self, frame: &Frame, update: &ContactUpdate) {
-        let t = frame.timestamp_us;
+        let t = frame.timestamp_us();
         self.quiet_run = if update.quiet { self.quiet_run + 1 } else { 0 };
         let state = std::mem::replace(&mut self.state, State::Waiting);
         self.state = match state {
@@ -478,7 +478,7 @@ impl Recorder {
                 _ => State::Ignoring,
             },
             State::Pressing(mut take) => {
-                let image = self.copy(&frame.image);
+                let image = self.copy(frame.image());
                 take.frames.push(Held {
                     image,
                     t_us: t,
@@ -540,7 +540,7 @@ impl Recorder {
                     self.push_ring(frame, update.quiet);
                     self.start(t_us, update)
                 } else {
-                    let image = self.copy(&frame.image);
+                    let image = self.copy(frame.image());
                     take.frames.push(Held {
                         image,
                         t_us: t,
@@ -739,11 +739,7 @@ mod tests {
     use telextiles_sim::{PressSpec, Simulator};
 
     fn frame(image: &RgbImage, t_us: u64, seq: u64) -> Frame {
-        Frame {
-            image: image.clone(),
-            timestamp_us: t_us,
-            seq,
-        }
+        Frame::new(image.clone(), t_us, seq).expect("a 240x320 frame")
     }
 
     /// Feeds a detector and a recorder, collecting the events.
@@ -768,7 +764,7 @@ mod tests {
         fn feed(&mut self, image: &RgbImage) {
             let f = frame(image, self.seq * self.period_us, self.seq);
             self.seq += 1;
-            let u = self.det.update(&f.image, f.timestamp_us);
+            let u = self.det.update(f.image(), f.timestamp_us());
             self.rec.push(&f, &u);
             while let Some(e) = self.rec.poll() {
                 self.events.push(e);

@@ -185,7 +185,7 @@ fn the_pipelines_decider_counts_the_run_from_the_press_start() {
                 let frame = Frame::new(f.clone(), p.meta.timestamps_us[i], i as u64).unwrap();
                 let o = pl.process(&frame, &mut Default::default()).unwrap();
                 if let Some(s) = o.step.filter(|s| s.changed) {
-                    first.get_or_insert((frame.timestamp_us, s.decision.unwrap().entry));
+                    first.get_or_insert((frame.timestamp_us(), s.decision.unwrap().entry));
                 }
             }
             let end = *p.meta.timestamps_us.last().unwrap();

@@ -215,7 +215,7 @@ fn an_idle_sim_source_presses_once_on_command_then_rests_and_lifts_on_command() 
     let mut is_bg = |src: &mut SimSource| {
         src.next_frame(&mut f).unwrap();
         let d: f64 = f
-            .image
+            .image()
             .as_raw()
             .iter()
             .zip(bg.as_raw())

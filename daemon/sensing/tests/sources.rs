@@ -313,8 +313,8 @@ impl FrameSource for Script {
             return Err(SourceError::Ended);
         }
         let img = self.0.remove(0)?;
-        out.image = img;
-        out.timestamp_us = self.1;
+        out.set_image(img)?;
+        out.set_time(self.1, out.seq());
         self.1 += 16_667;
         Ok(())
     }
@@ -388,7 +388,7 @@ fn unplug_replug_and_bad_frames_are_survived_and_counted() {
     loop {
         match src.next_frame(&mut f) {
             Ok(()) => {
-                assert_eq!((f.image.width(), f.image.height()), (FRAME_W, FRAME_H));
+                assert_eq!((f.image().width(), f.image().height()), (FRAME_W, FRAME_H));
                 got += 1
             }
             Err(SourceError::Ended) => break,
@@ -448,8 +448,8 @@ fn recorded_replay_fast_real_time_and_errors() {
     let mut f = Frame::blank();
     let mut ts = Vec::new();
     while src.next_frame(&mut f).is_ok() {
-        ts.push(f.timestamp_us);
-        assert_eq!(f.image, press.frames[ts.len() - 1]);
+        ts.push(f.timestamp_us());
+        assert_eq!(f.image(), &press.frames[ts.len() - 1]);
     }
     assert_eq!(ts, press.meta.timestamps_us);
     // Real time: 12 frames at 60 fps take about 183 ms (11 periods).
@@ -467,8 +467,8 @@ fn recorded_replay_fast_real_time_and_errors() {
     let mut last = None;
     for _ in 0..30 {
         src.next_frame(&mut f).unwrap();
-        assert!(last.is_none_or(|l| f.timestamp_us > l));
-        last = Some(f.timestamp_us);
+        assert!(last.is_none_or(|l| f.timestamp_us() > l));
+        last = Some(f.timestamp_us());
     }
     // A frame of the wrong size in a recording is a counted bad frame.
     let mut bad = press.clone();
@@ -578,8 +578,8 @@ fn a_directory_of_recordings_replays_one_after_another_each_with_its_reference()
         for (press, name) in [(&a, "T030/0001"), (&b, "T045/0001")] {
             for (i, want) in press.frames.iter().enumerate() {
                 src.next_frame(&mut f).unwrap();
-                assert_eq!(&f.image, want, "round {round}, {name}, frame {i}");
-                let t = f.timestamp_us;
+                assert_eq!(f.image(), want, "round {round}, {name}, frame {i}");
+                let t = f.timestamp_us();
                 match (i, last_t) {
                     // Within a recording, its own spacing.
                     (1.., Some(l)) => assert_eq!(
@@ -737,7 +737,7 @@ fn a_pytouch_dataset_replays_with_the_references_given_for_its_sensors() {
         let mut f = Frame::blank();
         let mut t = Vec::new();
         while src.next_frame(&mut f).is_ok() {
-            t.push(f.timestamp_us);
+            t.push(f.timestamp_us());
         }
         t
     };

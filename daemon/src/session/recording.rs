@@ -371,7 +371,7 @@ mod tests {
         let mut finished = false;
         for _ in 0..3000 {
             src.next_frame(&mut frame).expect("frame");
-            let u = det.update(&frame.image, frame.timestamp_us);
+            let u = det.update(frame.image(), frame.timestamp_us());
             if live.push(&frame, &u, &mut |e| events.push(e)) {
                 finished = true;
                 break;
@@ -440,7 +440,7 @@ mod tests {
         // Into the first press, not out of it.
         for _ in 0..(SIM_GAP_FRAMES + 80) {
             src.next_frame(&mut frame).expect("frame");
-            let u = det.update(&frame.image, frame.timestamp_us);
+            let u = det.update(frame.image(), frame.timestamp_us());
             assert!(!live.push(&frame, &u, &mut |e| events.push(e)));
         }
         let mut slot = Some(live);

@@ -271,7 +271,7 @@ pub(crate) fn sensing_thread(
         // The frame's own timestamp on the local clock: the deciders time
         // the press as the sensor spaced its frames, as `classify` does.
         let arrived_us = now_us();
-        let capture_us = clock.stamp(frame.timestamp_us, arrived_us);
+        let capture_us = clock.stamp(frame.timestamp_us(), arrived_us);
         if let Some(rec) = source.new_recording() {
             // Another recording: its frames owe nothing to the last one's.
             // A press still in progress ends here, and the front end starts
@@ -511,11 +511,7 @@ mod tests {
                 .zip(&press.meta.timestamps_us)
                 .enumerate()
             {
-                let frame = Frame {
-                    image: image.clone(),
-                    timestamp_us: t,
-                    seq: i as u64,
-                };
+                let frame = Frame::new(image.clone(), t, i as u64).unwrap();
                 let out = front.process(&frame).unwrap();
                 if matches!(out.contact.event, Some(ContactEvent::PressStart { .. })) {
                     assert!(out.embedding.is_some());

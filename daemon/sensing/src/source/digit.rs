@@ -24,7 +24,7 @@ use v4l::{Device, FourCC, Fraction};
 use super::sysfs::{find_digit, DigitDevice};
 use super::yuv::{decode_buffer, negotiate, Negotiated, OfferedFormat, PixelFormat, StreamMode};
 use super::{FrameSource, SourceError};
-use crate::frame::{Frame, FrameError};
+use crate::frame::Frame;
 
 /// `V4L2_CID_ZOOM_ABSOLUTE` (`V4L2_CID_CAMERA_CLASS_BASE + 13`).
 pub const V4L2_CID_ZOOM_ABSOLUTE: u32 = 0x009a_090d;
@@ -249,22 +249,16 @@ impl FrameSource for DigitSource {
         // time_t is i32 on some 32-bit targets.
         #[allow(clippy::unnecessary_cast)]
         let ts = meta.timestamp.sec as i64 * 1_000_000 + meta.timestamp.usec as i64;
-        let image: &mut RgbImage = &mut out.image;
-        decode_buffer(
-            &buf[..used],
-            self.negotiated.format,
-            w,
-            h,
-            &mut self.scratch,
-            image,
-        )
-        .map_err(|e: FrameError| SourceError::BadFrame(e))?;
-        out.timestamp_us = if ts > 0 {
+        let (format, scratch) = (self.negotiated.format, &mut self.scratch);
+        out.write(|image: &mut RgbImage| {
+            decode_buffer(&buf[..used], format, w, h, scratch, image).map_err(SourceError::BadFrame)
+        })?;
+        let t = if ts > 0 {
             ts as u64
         } else {
             self.epoch.elapsed().as_micros() as u64
         };
-        out.seq = self.seq;
+        out.set_time(t, self.seq);
         self.seq += 1;
         Ok(())
     }

@@ -244,10 +244,7 @@ impl FrameSource for Resilient {
                 }
             }
             let src = self.current.as_mut().expect("opened above");
-            match src
-                .next_frame(out)
-                .and_then(|()| out.check().map_err(SourceError::from))
-            {
+            match src.next_frame(out) {
                 Ok(()) => {
                     self.stats.frames += 1;
                     self.backoff.reset();

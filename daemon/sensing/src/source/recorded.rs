@@ -10,7 +10,7 @@ use telextiles_recording::recording::{find_recordings, Recording};
 use telextiles_recording::{Press, PressMeta};
 
 use super::{FrameSource, NewRecording, SourceError};
-use crate::frame::{Frame, FrameError};
+use crate::frame::Frame;
 use crate::front::References;
 
 /// How fast to replay.
@@ -138,17 +138,9 @@ impl FrameSource for RecordedSource {
         if self.pace == Pace::RealTime {
             super::sleep_until_due(&mut self.started, t);
         }
-        let img = &self.frames[i];
-        out.timestamp_us = t;
-        out.seq = self.seq;
+        out.set_time(t, self.seq);
         self.seq += 1;
-        if (img.width(), img.height()) != (crate::frame::FRAME_W, crate::frame::FRAME_H) {
-            return Err(SourceError::BadFrame(FrameError::WrongSize {
-                width: img.width(),
-                height: img.height(),
-            }));
-        }
-        out.image.clone_from(img);
+        out.copy_image(&self.frames[i])?;
         Ok(())
     }
 
@@ -294,13 +286,12 @@ impl FrameSource for RecordingsSource {
                 Ok(()) => {
                     *gave = true;
                     self.failed = 0;
-                    let t = self.offset_us + out.timestamp_us;
+                    let t = self.offset_us + out.timestamp_us();
                     if self.pace == Pace::RealTime {
                         super::sleep_until_due(&mut self.started, t);
                     }
                     self.last = Some((t, src.period_us));
-                    out.timestamp_us = t;
-                    out.seq = self.seq;
+                    out.set_time(t, self.seq);
                     self.seq += 1;
                     return Ok(());
                 }

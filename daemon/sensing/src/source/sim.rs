@@ -189,20 +189,21 @@ impl FrameSource for SimSource {
                 self.resting = Some(clip);
             }
             let clip = self.resting.as_ref().expect("set above");
-            out.image = self
-                .sim
-                .idle_frame(clip, self.resting_pos % clip.len().max(1))
-                .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+            out.set_image(
+                self.sim
+                    .idle_frame(clip, self.resting_pos % clip.len().max(1))
+                    .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?,
+            )?;
             self.resting_pos += 1;
         } else {
             let i = self.pos - self.gap_frames;
-            out.image = self
-                .sim
-                .render_frame(&self.spec, i)
-                .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?;
+            out.set_image(
+                self.sim
+                    .render_frame(&self.spec, i)
+                    .map_err(|e| SourceError::Fatal(format!("simulator: {e}")))?,
+            )?;
         }
-        out.timestamp_us = t;
-        out.seq = self.seq;
+        out.set_time(t, self.seq);
         self.seq += 1;
         if self.idle {
             return Ok(());
