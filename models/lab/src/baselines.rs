@@ -9,6 +9,7 @@
 //! whole, cut to a power of two) and returns an L2-normalised vector, so the same cosine kNN as for
 //! the encoders applies.
 
+use crate::knn::l2;
 use std::f32::consts::PI;
 
 /// Side of the centre square the descriptors look at (native resolution).
@@ -186,14 +187,6 @@ fn grey(rgb: &[f32]) -> Vec<f32> {
     rgb.chunks_exact(3)
         .map(|p| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2])
         .collect()
-}
-
-/// L2-normalise in place (zero vectors stay zero).
-pub fn l2(v: &mut [f32]) {
-    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
-    if n > 1e-12 {
-        v.iter_mut().for_each(|x| *x /= n);
-    }
 }
 
 fn pixels(rgb: &[f32], n: usize) -> Vec<f32> {

@@ -2,7 +2,7 @@
 //! (`telextiles-lab decider-timing`, docs/benchmarks.md "When the decider
 //! commits").
 //!
-//! The decision curve ([`crate::stability::decision_curve`]) scores the
+//! The decision curve ([`crate::decision_curve::decision_curve`]) scores the
 //! running mean of a press's first frames, with no contact detector and no
 //! hysteresis: what a press *could* tell at a given time. The roller moves
 //! on what the decider *commits* to. This study runs the daemon's own
@@ -782,7 +782,7 @@ pub struct TimingReport {
     /// The contact detector that started the presses (None: the shipped
     /// one of the study's date; studies before 2026-11-29 do not say).
     #[serde(default)]
-    pub contact: Option<crate::contact_idle::Detector>,
+    pub contact: Option<crate::detector::Detector>,
 }
 
 /// Frames of a simulated press from a few quiet frames before its first
@@ -975,7 +975,7 @@ pub fn run(cfg: &StudyConfig, model: &crate::methods::Method) -> Result<TimingRe
         detect_ms_p50: detect,
         undetected,
         seconds: t0.elapsed().as_secs_f64(),
-        contact: Some(crate::contact_idle::Detector::of(&cfg.contact)),
+        contact: Some(crate::detector::Detector::of(&cfg.contact)),
     })
 }
 
@@ -1080,11 +1080,11 @@ pub fn markdown(r: &TimingReport) -> String {
 /// Committed-right against time, one line per candidate (the chosen one
 /// thicker), one chart per group.
 pub fn chart(r: &TimingReport, group: &str, svg: &std::path::Path) -> Result<()> {
-    let series: Vec<crate::stability::Line> = r
+    let series: Vec<crate::stability_charts::Line> = r
         .scores
         .iter()
         .filter(|x| x.group == group)
-        .map(|x| crate::stability::Line {
+        .map(|x| crate::stability_charts::Line {
             label: format!(
                 "min {:.0} / confirm {:.0} ms{}",
                 x.timing.min_ms,
@@ -1095,7 +1095,7 @@ pub fn chart(r: &TimingReport, group: &str, svg: &std::path::Path) -> Result<()>
             width: if x.timing == r.chosen { 4 } else { 2 },
         })
         .collect();
-    crate::stability::line_chart(
+    crate::stability_charts::line_chart(
         svg,
         &format!("Committed decisions right against time after first contact ({group})"),
         (

@@ -837,7 +837,7 @@ mod tests {
     use crate::preprocess::normalize_into;
 
     fn l2(mut v: Vec<f32>) -> Vec<f32> {
-        crate::baselines::l2(&mut v);
+        crate::knn::l2(&mut v);
         v
     }
 

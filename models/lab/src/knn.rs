@@ -139,6 +139,14 @@ pub fn knn_score(
     }
 }
 
+/// L2-normalise in place (zero vectors stay zero).
+pub fn l2(v: &mut [f32]) {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n > 1e-12 {
+        v.iter_mut().for_each(|x| *x /= n);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -239,7 +239,7 @@ pub struct MethodResult {
     /// (frames aggregated, top-1): the mean of a press's first n cached
     /// frames in capture order (9 frames spread over the press; the
     /// time-to-decision curve from consecutive frames is
-    /// [`crate::stability::decision_curve`]).
+    /// [`crate::decision_curve::decision_curve`]).
     pub by_frames: Vec<(usize, f64)>,
     pub queries: usize,
     pub presses: usize,

@@ -226,7 +226,11 @@ pub fn scale_of_presses(dir: &std::path::Path, every: usize) -> anyhow::Result<S
         let Some(seg) = telextiles_sensing::front::segment(&press, &cfg) else {
             continue;
         };
-        let rv = centre_crop_resize(&crate::recorded::reference_image(&seg.reference)?, 240, 240)?;
+        let rv = centre_crop_resize(
+            &crate::preprocess::reference_image(&seg.reference)?,
+            240,
+            240,
+        )?;
         let before = st.len();
         for c in seg
             .contact
@@ -238,7 +242,7 @@ pub fn scale_of_presses(dir: &std::path::Path, every: usize) -> anyhow::Result<S
             let x = crate::wspec::planar_of_image(fv.as_raw(), 240, Some(rv.as_raw()), 120);
             st.push(of_planar(&x, 120));
             let mut f = crate::wspec::reference_with(&x, 120, crate::wspec::Window::Centre);
-            crate::baselines::l2(&mut f);
+            crate::knn::l2(&mut f);
             sp.push(f.iter().map(|&v| v as f64).collect());
         }
         presses += (st.len() > before) as usize;

@@ -77,6 +77,11 @@ pub fn preprocess_frame(frame: &RgbImage, crop: u32, size: u32) -> Result<Vec<f3
     Ok(out)
 }
 
+/// Reference pixels (f32, 0..255) as an image.
+pub(crate) fn reference_image(px: &[f32]) -> anyhow::Result<image::RgbImage> {
+    telextiles_sensing::front::image_of(px)
+        .ok_or_else(|| anyhow::anyhow!("reference of the wrong size"))
+}
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,10 +19,11 @@ use std::time::Instant;
 
 use crate::baselines::{Baseline, BaselineKind};
 use crate::data::write_atomic;
+use crate::decision_curve::DecisionCurve;
 use crate::graph::{descriptor_model, DescriptorSpec};
 use crate::methods::{self, background_of, Embedder, Method, MethodResult, Views};
 use crate::protocol::{self, Protocol, SourceKind};
-use crate::stability::{self, DecisionCurve, Factor, StabilityReport, SuiteConfig};
+use crate::stability::{self, Factor, StabilityReport, SuiteConfig};
 use crate::usertest::{self, MethodUserTest};
 
 /// What to run.
@@ -298,7 +299,7 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
                 .filter(|c| c.starts_with('T'))
                 .cloned()
                 .collect();
-            let q = stability::decision_queries(
+            let q = crate::decision_curve::decision_queries(
                 &sim,
                 &sets.train.classes,
                 &training,
@@ -308,7 +309,7 @@ pub fn run(cfg: &BenchConfig, methods: &[Method]) -> Result<BenchReport> {
             )?;
             for m in methods {
                 let mut e = Embedder::new(m, threads_max)?;
-                decision.push(stability::decision_curve(
+                decision.push(crate::decision_curve::decision_curve(
                     m,
                     &mut e,
                     &q,
@@ -394,16 +395,16 @@ pub fn write(report: &BenchReport, out: &Path) -> Result<()> {
             .filter(|d| names.contains(&d.name))
             .cloned()
             .collect();
-        stability::decision_chart(&shown, &out.join("decision-time.svg"))?;
+        crate::stability_charts::decision_chart(&shown, &out.join("decision-time.svg"))?;
     }
     if let Some(s) = &report.stability {
-        stability::charts(
+        crate::stability_charts::charts(
             s,
             &names,
             &out.join("stability-accuracy.svg"),
             &out.join("stability-flips.svg"),
         )?;
-        stability::coverage_chart(s, &names, &out.join("coverage.svg"))?;
+        crate::stability_charts::coverage_chart(s, &names, &out.join("coverage.svg"))?;
     }
     if !report.usertest.is_empty() {
         usertest_chart(report, &names, &out.join("usertest.svg"))?;
@@ -564,16 +565,16 @@ pub fn markdown(r: &BenchReport) -> String {
                 "### The decider's depth power\n\nThe weighted mean above with each frame counted `(w / w_max)^p` (w: its contact weight, w_max: the press's largest so far; the decider's `depth_power`, default {}; 0: every frame the same, 1: by the weight as it is).\n\n| method | p |",
                 telextiles_sensing::decide::DecideConfig::default().depth_power
             ));
-            for n in stability::POWER_SCAN_FRAMES {
+            for n in crate::decision_curve::POWER_SCAN_FRAMES {
                 s.push_str(&format!(" {:.0} ms ({n}) |", n as f64 * 1000.0 / 60.0));
             }
             s.push_str("\n|---|---:|");
-            s.push_str(&"---:|".repeat(stability::POWER_SCAN_FRAMES.len()));
+            s.push_str(&"---:|".repeat(crate::decision_curve::POWER_SCAN_FRAMES.len()));
             s.push('\n');
             for d in &r.decision {
                 for (p, scores) in &d.by_power {
                     s.push_str(&format!("| {} | {p} |", d.name));
-                    for n in stability::POWER_SCAN_FRAMES {
+                    for n in crate::decision_curve::POWER_SCAN_FRAMES {
                         let v = scores.iter().find(|x| x.0 == n);
                         s.push_str(&format!(" {} |", v.map_or("-".into(), |x| pct(x.1))));
                     }
@@ -611,7 +612,9 @@ pub fn markdown(r: &BenchReport) -> String {
                     .curves
                     .iter()
                     .find(|c| c.factor == *f)
-                    .map_or("-".into(), |c| stability::failure_point(c, 0.9));
+                    .map_or("-".into(), |c| {
+                        crate::stability_charts::failure_point(c, 0.9)
+                    });
                 s.push_str(&format!(" {cell} |"));
             }
             s.push('\n');

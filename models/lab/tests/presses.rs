@@ -129,7 +129,7 @@ fn presses_study_index_split_and_leave_one_out() {
     let out = dir.path().join("out");
     let mut cfg = StudyConfig::new(&rec, Split::IndexPresses(3));
     cfg.runs = 5;
-    let r = recorded::run(&cfg, &methods, Some(&out)).unwrap();
+    let r = telextiles_lab::recorded_report::run(&cfg, &methods, Some(&out)).unwrap();
     // Three queries: at least two right.
     check(&r, 3, 0.66);
     // The index: the first three recordings of each textile by path.
@@ -170,7 +170,7 @@ fn presses_study_index_split_and_leave_one_out() {
         runs: 0,
         ..cfg
     };
-    let r = recorded::run(&cfg, &methods, None).unwrap();
+    let r = telextiles_lab::recorded_report::run(&cfg, &methods, None).unwrap();
     check(&r, 12, 0.75);
     assert!(r.recordings.iter().all(|x| x.role == "both"));
 
@@ -181,7 +181,7 @@ fn presses_study_index_split_and_leave_one_out() {
         encode_run: true,
         ..cfg
     };
-    let with_run = recorded::run(&on, &methods, None).unwrap();
+    let with_run = telextiles_lab::recorded_report::run(&on, &methods, None).unwrap();
     assert!(with_run.encode_run && !r.encode_run);
     for (a, b) in with_run.methods.iter().zip(&r.methods) {
         let name = &a.summary.name;
@@ -190,8 +190,8 @@ fn presses_study_index_split_and_leave_one_out() {
         assert!(a.first_decision_ms <= b.first_decision_ms, "{name}");
         assert_eq!(a.summary.presses, 12, "{name}");
     }
-    assert!(recorded::markdown(&with_run).contains("`--encode-run`"));
-    assert!(!recorded::markdown(&r).contains("`--encode-run`"));
+    assert!(telextiles_lab::recorded_report::markdown(&with_run).contains("`--encode-run`"));
+    assert!(!telextiles_lab::recorded_report::markdown(&r).contains("`--encode-run`"));
 }
 
 #[test]
@@ -239,8 +239,8 @@ fn presses_one_run_equals_each_recording_alone() {
     }
     // And so are the per-press decisions scored from them.
     let cfg = StudyConfig { runs: 0, ..cfg };
-    let a = recorded::score_all(&cfg, &methods, &refs, &together).unwrap();
-    let b = recorded::score_all(&cfg, &methods, &refs, &alone).unwrap();
+    let a = telextiles_lab::recorded_score::score_all(&cfg, &methods, &refs, &together).unwrap();
+    let b = telextiles_lab::recorded_score::score_all(&cfg, &methods, &refs, &alone).unwrap();
     for (x, y) in a.methods.iter().zip(&b.methods) {
         let dx: Vec<_> = x
             .decisions
@@ -417,7 +417,7 @@ fn presses_in_the_pytouch_layout() {
         .into_iter()
         .filter(|m| m.name() == "shipped")
         .collect();
-    let r = recorded::run(&cfg, &methods, None).unwrap();
+    let r = telextiles_lab::recorded_report::run(&cfg, &methods, None).unwrap();
     assert_eq!(r.layout, "pytouch");
     assert_eq!(r.fps, vec![(60.0, 6)]);
     let roles: Vec<&str> = r.recordings.iter().map(|x| x.role.as_str()).collect();

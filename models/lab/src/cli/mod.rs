@@ -1,0 +1,3 @@
+//! The command line of `telextiles-lab`: every subcommand's arguments.
+
+pub(crate) mod args;
