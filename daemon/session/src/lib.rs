@@ -43,4 +43,4 @@ pub mod sender;
 pub use latent::{Latent, LatentError};
 pub use motion::{Motion, MotionPolicy};
 pub use receiver::{ReceiverConfig, ReceiverCore, RxAction, RxDecision, RxInput};
-pub use sender::{SenderCore, TxAction};
+pub use sender::{ContactChange, EarlierFrame, SenderCore, Sensed, TxAction};

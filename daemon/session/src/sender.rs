@@ -1,9 +1,59 @@
 //! [`SenderCore`]: what this side's presses send to its peers.
 
-use telextiles_press::decide::{DecideConfig, PressMean};
-use telextiles_press::ContactEvent;
+use telextiles_press::decide::{contact_weight, DecideConfig, PressMean};
+use telextiles_press::{ContactEvent, Deepest};
 
+use crate::clock::CaptureClock;
 use crate::latent::Latent;
+
+/// One frame as the front end left it, for [`SenderCore::on_sensed`].
+#[derive(Clone, Copy, Debug)]
+pub struct Sensed<'a> {
+    /// The frame's own timestamp, on the source's clock.
+    pub timestamp_us: u64,
+    /// When it arrived from the source, on the local clock.
+    pub arrived_us: u64,
+    /// It is the first frame of another recording (a replay): a press in
+    /// progress ends, and the capture clock starts afresh.
+    pub new_recording: bool,
+    /// The contact detector's event on it (times on the source's clock).
+    pub event: Option<ContactEvent>,
+    /// The contact detector's state after it.
+    pub in_contact: bool,
+    /// Its contact score (the detector's, reported at a press's start and end).
+    pub score: f32,
+    /// Its contact depth, which weighs its latent.
+    pub depth: f32,
+    /// The share of the gel its contact changed.
+    pub coverage: f32,
+    /// Its embedding, if it was encoded.
+    pub embedding: Option<&'a [f32]>,
+}
+
+/// One of the run's earlier frames, encoded on the frame that starts a
+/// press ([`SenderCore::on_sensed`] sends them first, in order).
+#[derive(Clone, Copy, Debug)]
+pub struct EarlierFrame<'a> {
+    /// Its timestamp, on the source's clock.
+    pub t_us: u64,
+    /// Its embedding.
+    pub embedding: &'a [f32],
+    /// Its contact depth.
+    pub depth: f32,
+}
+
+/// A press started or ended on this side's sensor: what the wiring
+/// reports on the control socket (`contact` events).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactChange {
+    /// A press started (else it ended).
+    pub started: bool,
+    /// The detector's score on the frame (None: the press ended because
+    /// another recording began).
+    pub score: Option<f32>,
+    /// At an end, the press's coverage: its deepest frame's.
+    pub coverage: Option<f32>,
+}
 
 /// A message for the peers (the wiring sends controls on the reliable
 /// stream and latents as datagrams).
@@ -52,6 +102,10 @@ pub struct SenderCore {
     /// default `depth_power`, which the receiver's decider uses too).
     sum: PressMean,
     frames: u32,
+    /// Frame timestamps onto the local clock ([`SenderCore::on_sensed`]).
+    clock: CaptureClock,
+    /// The press's deepest frame so far: its coverage goes with the end.
+    deepest: Deepest,
 }
 
 impl SenderCore {
@@ -63,7 +117,85 @@ impl SenderCore {
             in_press: false,
             sum: PressMean::new(dim, DecideConfig::default().depth_power),
             frames: 0,
+            clock: CaptureClock::new(),
+            deepest: Deepest::default(),
         }
+    }
+
+    /// One frame through the front end, as the sensing thread has it: its
+    /// timestamp mapped onto the local clock ([`CaptureClock`]: a press's
+    /// frames keep the offset it began with, so its intervals are exactly
+    /// the sensor's), a press in progress ended when another recording
+    /// begins, the press's deepest frame kept for its coverage, the run's
+    /// `earlier` frames sent first on the frame that starts a press (the
+    /// press starting at the run's first frame), each latent weighted by
+    /// its depth. Messages for the peers go to `out`, contact starts and
+    /// ends to `contacts`; returns the frame's capture time (local clock).
+    pub fn on_sensed(
+        &mut self,
+        f: &Sensed<'_>,
+        earlier: &[EarlierFrame<'_>],
+        out: &mut Vec<TxAction>,
+        contacts: &mut Vec<ContactChange>,
+    ) -> u64 {
+        let capture_us = self.clock.stamp(f.timestamp_us, f.arrived_us);
+        if f.new_recording {
+            // Its frames owe nothing to the last recording's.
+            self.clock.release();
+            if self.in_press {
+                self.stop(capture_us, out);
+                contacts.push(ContactChange {
+                    started: false,
+                    score: None,
+                    coverage: self.deepest.coverage(),
+                });
+            }
+        }
+        if matches!(f.event, Some(ContactEvent::PressStart { .. })) {
+            self.deepest = Deepest::default();
+        }
+        if f.in_contact {
+            self.deepest.add(f.depth, f.coverage);
+        }
+        let started = match f.event {
+            Some(ContactEvent::PressStart { .. }) => Some(true),
+            Some(ContactEvent::PressEnd { .. }) => Some(false),
+            _ => None,
+        };
+        match started {
+            Some(true) => self.clock.hold(),
+            Some(false) => self.clock.release(),
+            None => {}
+        }
+        if let Some(started) = started {
+            contacts.push(ContactChange {
+                started,
+                score: Some(f.score),
+                coverage: if started {
+                    None
+                } else {
+                    self.deepest.coverage()
+                },
+            });
+        }
+        let mut event = f.event.map(|e| match e {
+            ContactEvent::PressStart { t_us } => ContactEvent::PressStart {
+                t_us: self.clock.map(t_us),
+            },
+            other => other,
+        });
+        for e in earlier {
+            let t = self.clock.map(e.t_us);
+            self.on_frame_weighted(
+                t,
+                event.take(),
+                Some(e.embedding),
+                contact_weight(e.depth),
+                out,
+            );
+        }
+        self.on_frame_weighted(capture_us, event, f.embedding, contact_weight(f.depth), out);
+        capture_us
     }
 
     /// Whether a press is in progress.
@@ -337,5 +469,178 @@ mod tests {
                 ("latent", 1)
             ]
         );
+    }
+
+    /// A frame of the test's source: timestamp `t` (source clock), arriving
+    /// 0.5 s later on the local clock with `jitter` µs of delay on top.
+    fn sensed(
+        t: u64,
+        jitter: u64,
+        event: Option<ContactEvent>,
+        depth: f32,
+        coverage: f32,
+    ) -> Sensed<'static> {
+        const EMB: &[f32] = &[1.0, 0.0];
+        Sensed {
+            timestamp_us: t,
+            arrived_us: t + 500_000 + jitter,
+            new_recording: false,
+            event,
+            in_contact: depth > 0.0,
+            score: depth,
+            depth,
+            coverage,
+            embedding: (depth > 0.0).then_some(EMB),
+        }
+    }
+
+    #[test]
+    fn a_sensed_press_is_timed_by_its_frames_and_reports_its_deepest_coverage() {
+        let mut s = SenderCore::new(2);
+        let (mut out, mut contacts) = (Vec::new(), Vec::new());
+        // Between presses: no message, and capture times the frames'
+        // own, on the local clock (the least delay: 0.5 s).
+        for k in 0..3u64 {
+            let c = s.on_sensed(
+                &sensed(k * 16_667, 3 * k, None, 0.0, 0.0),
+                &[],
+                &mut out,
+                &mut contacts,
+            );
+            assert_eq!(c, k * 16_667 + 500_000);
+        }
+        assert!(out.is_empty() && contacts.is_empty());
+        // The press starts on a frame whose run began two frames earlier:
+        // both earlier frames go first, at their own times; the press
+        // starts at the run's first frame.
+        let earlier = [
+            EarlierFrame {
+                t_us: 50_000,
+                embedding: &[0.0, 1.0],
+                depth: 0.2,
+            },
+            EarlierFrame {
+                t_us: 66_667,
+                embedding: &[0.0, 1.0],
+                depth: 0.4,
+            },
+        ];
+        s.on_sensed(
+            &sensed(83_333, 900, start(50_000), 0.6, 0.3),
+            &earlier,
+            &mut out,
+            &mut contacts,
+        );
+        let times: Vec<u64> =
+            out.iter()
+                .map(|a| match a {
+                    TxAction::PressStart { capture_us, .. }
+                    | TxAction::Latent { capture_us, .. } => *capture_us,
+                    other => panic!("{other:?}"),
+                })
+                .collect();
+        assert_eq!(times, vec![550_000, 550_000, 566_667, 583_333]);
+        assert_eq!(
+            contacts,
+            vec![ContactChange {
+                started: true,
+                score: Some(0.6),
+                coverage: None
+            }]
+        );
+        // Held: a frame of the press with more delay keeps the press's
+        // offset, so the press's intervals are exactly the sensor's.
+        out.clear();
+        contacts.clear();
+        let c = s.on_sensed(
+            &sensed(100_000, 40_000, None, 0.9, 0.8),
+            &[],
+            &mut out,
+            &mut contacts,
+        );
+        assert_eq!(c, 600_000);
+        s.on_sensed(
+            &sensed(116_667, 0, None, 0.5, 0.95),
+            &[],
+            &mut out,
+            &mut contacts,
+        );
+        // The end reports the coverage of the deepest frame (0.9 deep),
+        // not the widest.
+        s.on_sensed(
+            &sensed(133_333, 0, end(133_333), 0.0, 0.0),
+            &[],
+            &mut out,
+            &mut contacts,
+        );
+        assert!(matches!(
+            out.last(),
+            Some(TxAction::PressStop {
+                capture_us: 633_333,
+                final_latent: Some(_),
+                ..
+            })
+        ));
+        assert_eq!(
+            contacts,
+            vec![ContactChange {
+                started: false,
+                score: Some(0.0),
+                coverage: Some(0.8)
+            }]
+        );
+    }
+
+    #[test]
+    fn another_recording_ends_the_press_in_progress() {
+        let mut s = SenderCore::new(2);
+        let (mut out, mut contacts) = (Vec::new(), Vec::new());
+        s.on_sensed(
+            &sensed(0, 0, start(0), 0.7, 0.6),
+            &[],
+            &mut out,
+            &mut contacts,
+        );
+        s.on_sensed(
+            &sensed(16_667, 0, None, 0.7, 0.6),
+            &[],
+            &mut out,
+            &mut contacts,
+        );
+        contacts.clear();
+        out.clear();
+        // The next recording's first frame: its clock starts again at 0.
+        let mut first = sensed(0, 0, None, 0.0, 0.0);
+        first.new_recording = true;
+        first.arrived_us = 2_000_000;
+        s.on_sensed(&first, &[], &mut out, &mut contacts);
+        assert!(!s.in_press());
+        assert!(matches!(
+            out.as_slice(),
+            [TxAction::PressStop {
+                press_id: 1,
+                final_latent: Some(_),
+                ..
+            }]
+        ));
+        assert_eq!(
+            contacts,
+            vec![ContactChange {
+                started: false,
+                score: None,
+                coverage: Some(0.6)
+            }]
+        );
+        // Without another recording, nothing ends.
+        let mut t = SenderCore::new(2);
+        t.on_sensed(
+            &sensed(0, 0, start(0), 0.7, 0.6),
+            &[],
+            &mut Vec::new(),
+            &mut Vec::new(),
+        );
+        let (mut out2, mut c2) = (Vec::new(), Vec::new());
+        t.on_sensed(&sensed(16_667, 0, None, 0.7, 0.6), &[], &mut out2, &mut c2);
+        assert!(t.in_press() && c2.is_empty());
     }
 }

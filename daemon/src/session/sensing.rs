@@ -11,17 +11,15 @@ use anyhow::Result;
 use telextiles_control::{ContactPhase, Event};
 use telextiles_link::now_us;
 use telextiles_proto::peer::Control;
-use telextiles_sensing::contact::{ContactConfig, ContactEvent};
+use telextiles_sensing::contact::ContactConfig;
 use telextiles_sensing::encoder::Encoder;
 use telextiles_sensing::frame::Frame;
 use telextiles_sensing::front::{FrontEnd, References};
-use telextiles_sensing::pipeline::Deepest;
 use telextiles_sensing::source::recorded::{Pace, RecordingsSource};
 #[cfg(feature = "sim")]
 use telextiles_sensing::source::sim::{SimCommand, SimHandle, SimSource};
 use telextiles_sensing::source::{FrameSource, SourceError};
-use telextiles_session::clock::CaptureClock;
-use telextiles_session::{SenderCore, TxAction};
+use telextiles_session::{EarlierFrame, SenderCore, Sensed, TxAction};
 
 use super::{Counters, SessionOptions, State};
 use crate::config::{Config, SensorSource};
@@ -204,15 +202,15 @@ pub(crate) fn sensing_thread(
     cmds: std_mpsc::Receiver<SensorCmd>,
 ) -> Result<(), String> {
     let mut front = front_end(encoder, contact, encode_run);
+    // The session's sending half: the capture clock, the press's deepest
+    // frame and its numbering are the core's; this thread reads, runs the
+    // front end and carries out what the core says.
     let mut sender = SenderCore::new(front.encoder().dim());
-    let mut clock = CaptureClock::new();
     let mut frame = Frame::blank();
     let mut actions = Vec::new();
+    let mut contacts = Vec::new();
     // A recording asked for over the control socket, fed below.
     let mut recording: Option<super::recording::LiveRecording> = None;
-    // The press's deepest frame so far: its coverage goes with the
-    // contact end event.
-    let mut deepest = Deepest::default();
     loop {
         while let Ok(cmd) = cmds.try_recv() {
             match cmd {
@@ -268,25 +266,11 @@ pub(crate) fn sensing_thread(
             }
             continue;
         }
-        // The frame's own timestamp on the local clock: the deciders time
-        // the press as the sensor spaced its frames, as `classify` does.
         let arrived_us = now_us();
-        let capture_us = clock.stamp(frame.timestamp_us(), arrived_us);
-        if let Some(rec) = source.new_recording() {
-            // Another recording: its frames owe nothing to the last one's.
-            // A press still in progress ends here, and the front end starts
-            // afresh with the recording's own reference.
-            clock.release();
-            if sender.in_press() {
-                sender.stop(capture_us, &mut actions);
-                send(&state, &mut actions, [capture_us; 3]);
-                state.in_contact.store(false, Ordering::Relaxed);
-                let _ = state.events.send(Event::Contact {
-                    phase: ContactPhase::End,
-                    score: None,
-                    coverage: deepest.coverage(),
-                });
-            }
+        let new_recording = source.new_recording();
+        if let Some(rec) = &new_recording {
+            // Another recording: the front end starts afresh with its own
+            // reference (the sender core ends a press still in progress).
             tracing::debug!(recording = %rec.name, "replaying the next recording");
             front.reset(rec.reference.as_deref());
         }
@@ -303,12 +287,6 @@ pub(crate) fn sensing_thread(
             }
         };
         let up = out.contact;
-        if matches!(up.event, Some(ContactEvent::PressStart { .. })) {
-            deepest = Deepest::default();
-        }
-        if up.in_contact {
-            deepest.add(up.depth, up.coverage);
-        }
         if let Some(r) = recording.as_mut() {
             if r.push(&frame, &up, &mut |e| {
                 let _ = state.events.send(e);
@@ -317,57 +295,39 @@ pub(crate) fn sensing_thread(
             }
         }
         let contact_us = arrived_us + out.contact_ns / 1000;
-        let phase = match up.event {
-            Some(ContactEvent::PressStart { .. }) => Some(ContactPhase::Start),
-            Some(ContactEvent::PressEnd { .. }) => Some(ContactPhase::End),
-            _ => None,
+        let earlier: Vec<EarlierFrame<'_>> = out
+            .earlier
+            .iter()
+            .map(|e| EarlierFrame {
+                t_us: e.t_us,
+                embedding: &e.embedding,
+                depth: e.depth,
+            })
+            .collect();
+        let sensed = Sensed {
+            timestamp_us: frame.timestamp_us(),
+            arrived_us,
+            new_recording: new_recording.is_some(),
+            event: up.event,
+            in_contact: up.in_contact,
+            score: up.score,
+            depth: up.depth,
+            coverage: up.coverage,
+            embedding: out.embedding,
         };
-        // A press's frames keep the offset it began with: its intervals
-        // are exactly the sensor's (the run's earlier frames are mapped
-        // with it below).
-        match phase {
-            Some(ContactPhase::Start) => clock.hold(),
-            Some(ContactPhase::End) => clock.release(),
-            None => {}
-        }
-        if let Some(phase) = phase {
-            state
-                .in_contact
-                .store(phase == ContactPhase::Start, Ordering::Relaxed);
+        sender.on_sensed(&sensed, &earlier, &mut actions, &mut contacts);
+        for c in contacts.drain(..) {
+            state.in_contact.store(c.started, Ordering::Relaxed);
             let _ = state.events.send(Event::Contact {
-                phase,
-                score: Some(up.score),
-                coverage: (phase == ContactPhase::End)
-                    .then(|| deepest.coverage())
-                    .flatten(),
+                phase: if c.started {
+                    ContactPhase::Start
+                } else {
+                    ContactPhase::End
+                },
+                score: c.score,
+                coverage: c.coverage,
             });
         }
-        // On the frame that starts a press, the run's earlier frames go
-        // first, each at its own capture time; the press starts at the
-        // run's first frame, encoded or not (on the local clock, as
-        // `classify` times it from the detector's start).
-        let mut event = up.event.map(|e| match e {
-            ContactEvent::PressStart { t_us } => ContactEvent::PressStart {
-                t_us: clock.map(t_us),
-            },
-            other => other,
-        });
-        for e in out.earlier {
-            sender.on_frame_weighted(
-                clock.map(e.t_us),
-                event.take(),
-                Some(&e.embedding),
-                telextiles_sensing::decide::contact_weight(e.depth),
-                &mut actions,
-            );
-        }
-        sender.on_frame_weighted(
-            capture_us,
-            event,
-            out.embedding,
-            telextiles_sensing::decide::contact_weight(up.depth),
-            &mut actions,
-        );
         let encoded_us = contact_us + (out.preprocess_ns + out.encode_ns) / 1000;
         // The trace times the daemon's stages from the frame's arrival
         // (the latents carry its capture time).
@@ -428,6 +388,7 @@ fn send(state: &State, actions: &mut Vec<TxAction>, stages: [u64; 3]) {
 mod tests {
     use super::*;
     use crate::config::ConfigArgs;
+    use telextiles_sensing::contact::ContactEvent;
     use telextiles_sim::RgbImage;
 
     fn config(sensor: &str, reference: &[String]) -> Config {
