@@ -208,6 +208,51 @@ impl<I: TextileIndex> ReceiverCore<I> {
         s
     }
 
+    /// A message of `peer`'s control stream, as the link delivers it:
+    /// press starts and stops go in ([`ReceiverCore::handle`]); the link's
+    /// own messages (hello, clock probes, pairing, errors) are not the
+    /// session's and are left alone.
+    pub fn on_control(
+        &mut self,
+        peer: &str,
+        msg: &telextiles_proto::peer::Control,
+        out: &mut Vec<RxAction>,
+    ) {
+        use telextiles_proto::peer::Control;
+        match msg {
+            Control::PressStart {
+                press_id,
+                capture_us,
+            } => self.handle(
+                peer,
+                RxInput::PressStart {
+                    press_id: *press_id,
+                    capture_us: *capture_us,
+                },
+                out,
+            ),
+            Control::PressStop {
+                press_id,
+                capture_us,
+                final_latent,
+            } => {
+                let fin = final_latent
+                    .as_ref()
+                    .map(|l| (l.vector.dequantize(), l.capture_us));
+                self.handle(
+                    peer,
+                    RxInput::PressStop {
+                        press_id: *press_id,
+                        capture_us: *capture_us,
+                        final_latent: fin.as_ref().map(|(v, t)| (v.as_slice(), *t)),
+                    },
+                    out,
+                );
+            }
+            _ => {}
+        }
+    }
+
     /// One message from `peer`; actions go to `out`.
     pub fn handle(&mut self, peer: &str, input: RxInput<'_>, out: &mut Vec<RxAction>) {
         let dim = self.index.dim();

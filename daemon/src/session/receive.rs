@@ -5,7 +5,6 @@ use std::sync::Arc;
 
 use telextiles_control::Event;
 use telextiles_link::{now_us, LinkEvent};
-use telextiles_proto::peer::Control;
 use telextiles_roller::Target;
 use telextiles_session::{RxAction, RxInput};
 
@@ -97,37 +96,7 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
             });
         }
         LinkEvent::Control { peer, msg } => {
-            let peer = peer.to_string();
-            match msg {
-                Control::PressStart {
-                    press_id,
-                    capture_us,
-                } => rx.handle(
-                    &peer,
-                    RxInput::PressStart {
-                        press_id,
-                        capture_us,
-                    },
-                    &mut actions,
-                ),
-                Control::PressStop {
-                    press_id,
-                    capture_us,
-                    final_latent,
-                } => {
-                    let fin = final_latent.map(|l| (l.vector.dequantize(), l.capture_us));
-                    rx.handle(
-                        &peer,
-                        RxInput::PressStop {
-                            press_id,
-                            capture_us,
-                            final_latent: fin.as_ref().map(|(v, t)| (v.as_slice(), *t)),
-                        },
-                        &mut actions,
-                    );
-                }
-                _ => {}
-            }
+            rx.on_control(&peer.to_string(), &msg, &mut actions);
             apply(state, rx, &mut actions);
         }
         LinkEvent::Latent(l) => {
