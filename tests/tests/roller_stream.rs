@@ -67,8 +67,14 @@ async fn roller_follows_a_live_decision_stream_without_pile_up() {
 async fn roller_survives_repeated_link_drops() {
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("roller");
+    // A slow wheel (1 rev/s, 2 rev/s²): each move outlasts the drop made
+    // during it, so every drop happens mid-move and is noticed. With the
+    // paper's fast wheel at 8x a move can end before its drop, and a drop
+    // on an idle link may pass unseen until the next command.
     let sim = SimRoller::spawn(SimConfig {
         speed: 8.0,
+        max_speed: 3200,
+        accel: 6400,
         link: Some(link.clone()),
         ..SimConfig::default()
     })
