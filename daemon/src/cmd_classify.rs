@@ -478,7 +478,7 @@ fn classify_simulated(
     use std::sync::Arc;
     let mut n = 0usize;
     // The fabrics of the index's simulator catalogue.
-    let sim = Arc::new(crate::session::models::simulator_for(index)?);
+    let sim = Arc::new(crate::live::models::simulator_for(index)?);
     let spec = PressSpec {
         person: args.person,
         sensor: args.sensor,

@@ -18,7 +18,7 @@ use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, TrustStore, DEF
 use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode};
 
 use crate::config::{Config, ConfigArgs};
-use crate::session::discovery::{discovery_config, enter_expired_message};
+use crate::live::discovery::{discovery_config, enter_expired_message};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -152,9 +152,9 @@ pub fn run_session(args: RunArgs) -> anyhow::Result<()> {
             if TrustStore::load(&cfg.state_dir)?.is_empty() {
                 eprintln!("note: this device is not paired yet; run `telextilesd pair` to pair it (the session runs and waits)");
             }
-            crate::session::run(
+            crate::live::run(
                 cfg,
-                crate::session::SessionOptions {
+                crate::live::SessionOptions {
                     sim_roller_speed: args.sim_roller_speed,
                     latency_trace: args.latency_trace.clone(),
                     ..Default::default()
@@ -224,9 +224,9 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
         }
         // Pairing (if asked for) and then the live session: sensing, link,
         // decisions, roller, control socket.
-        return crate::session::run(
+        return crate::live::run(
             cfg,
-            crate::session::SessionOptions {
+            crate::live::SessionOptions {
                 pairing: mode,
                 pairing_deadline,
                 code_ttl: args.code_ttl(),

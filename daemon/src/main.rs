@@ -18,10 +18,10 @@ mod config;
 mod felt_chart;
 mod index_choice;
 mod index_sim;
+mod live;
 mod out;
 mod press_dir;
 mod record_idle;
-mod session;
 mod trace;
 
 #[derive(Parser)]

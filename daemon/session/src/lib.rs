@@ -1,6 +1,6 @@
 //! The live session's core, without I/O (as quinn-proto is to quinn): pure,
 //! deterministic state machines fed explicit time and inputs, returning
-//! actions for the daemon's thin tokio wiring (`daemon/src/session.rs`) to
+//! actions for the daemon's thin tokio wiring (`daemon/src/live.rs`) to
 //! carry out.
 //!
 //! - [`latent::Latent`]: an embedding that is valid by construction (the

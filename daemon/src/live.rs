@@ -12,15 +12,15 @@
 //! Threads and tasks (all supervised: if any of them ends or panics before
 //! shutdown, the session ends with an error, so systemd restarts it rather
 //! than leaving a deaf daemon):
-//! - the sensing thread (`session/sensing.rs`; blocking: camera reads and
+//! - the sensing thread (`live/sensing.rs`; blocking: camera reads and
 //!   ONNX inference) owns the frame source and the front end; its sender
 //!   core's messages go straight into the link (a datagram per frame, no
 //!   queue);
-//! - the receiver task (`session/receive.rs`) feeds link events to the
+//! - the receiver task (`live/receive.rs`) feeds link events to the
 //!   receiver core and carries out its actions;
 //! - the roller driver task (telextiles-roller) owns the serial port; its
-//!   events go to the bus (`session/roller.rs`);
-//! - the control server (`session/control.rs`) and the map server serve
+//!   events go to the bus (`live/roller.rs`);
+//! - the control server (`live/control.rs`) and the map server serve
 //!   local clients.
 
 mod control;
