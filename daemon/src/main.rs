@@ -12,6 +12,7 @@ mod cmd_pair;
 mod cmd_peers;
 mod cmd_record;
 mod cmd_roller;
+mod cmd_sensors;
 #[cfg(feature = "sim")]
 mod cmd_sim;
 mod config;
@@ -64,6 +65,8 @@ enum Cmd {
     Unpair(cmd_peers::UnpairArgs),
     /// Serve the live 2D textile map in a browser (--demo: simulated presses)
     Map(cmd_map::Args),
+    /// The tactile sensors plugged in: profile, modes, millimetres per pixel
+    Sensors(cmd_sensors::Args),
     /// Drive a roller directly, or run the simulated roller on a pty
     #[command(subcommand)]
     Roller(cmd_roller::Args),
@@ -120,6 +123,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Peers(a) => cmd_peers::peers(a),
         Cmd::Unpair(a) => cmd_peers::unpair(a),
         Cmd::Map(a) => cmd_map::run(a),
+        Cmd::Sensors(a) => cmd_sensors::run(a),
         Cmd::Roller(a) => cmd_roller::run(a),
     };
     match result {

@@ -9,6 +9,7 @@
 
 use serde::{Deserialize, Serialize};
 
+pub mod profile;
 pub mod recording;
 
 /// Frames per second of a DIGIT press.

@@ -92,6 +92,61 @@ pub fn find_digits(sysfs_root: &Path, dev_root: &Path) -> Vec<DigitDevice> {
     out
 }
 
+/// A video capture device found in sysfs, whatever it is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Camera {
+    /// Device node, e.g. `/dev/video0`.
+    pub node: PathBuf,
+    /// Kernel name, e.g. `video0`.
+    pub name: String,
+    /// The V4L2 card name (`name` in sysfs).
+    pub card: String,
+    /// USB vendor and product ids (empty for a device not on USB).
+    pub vendor_id: String,
+    /// USB product id.
+    pub product_id: String,
+    /// USB product string.
+    pub product: String,
+    /// USB manufacturer string.
+    pub manufacturer: String,
+    /// USB serial, empty if it has none.
+    pub serial: String,
+}
+
+/// Every video4linux capture node (`index` 0) under `sysfs_root`, with
+/// its USB attributes where it is a USB device, sorted by node name: what
+/// `telextilesd sensors` lists, so that a sensor the daemon does not
+/// recognise can still be seen and named.
+pub fn find_cameras(sysfs_root: &Path, dev_root: &Path) -> Vec<Camera> {
+    let Ok(rd) = fs::read_dir(sysfs_root.join("class/video4linux")) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for entry in rd.flatten() {
+        let dir = entry.path();
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if attr(&dir, "index").is_some_and(|i| i != "0") {
+            continue;
+        }
+        let usb = fs::canonicalize(dir.join("device"))
+            .ok()
+            .and_then(|iface| iface.parent().map(Path::to_path_buf));
+        let usb_attr = |k: &str| usb.as_deref().and_then(|u| attr(u, k)).unwrap_or_default();
+        out.push(Camera {
+            node: dev_root.join(&name),
+            card: attr(&dir, "name").unwrap_or_default(),
+            vendor_id: usb_attr("idVendor"),
+            product_id: usb_attr("idProduct"),
+            product: usb_attr("product"),
+            manufacturer: usb_attr("manufacturer"),
+            serial: usb_attr("serial"),
+            name,
+        });
+    }
+    out.sort_by_key(|c| natural_key(&c.name));
+    out
+}
+
 fn natural_key(name: &str) -> (String, u64) {
     let digits = name.trim_start_matches(|c: char| !c.is_ascii_digit());
     let prefix = &name[..name.len() - digits.len()];
