@@ -766,3 +766,89 @@ fn a_pytouch_dataset_replays_with_the_references_given_for_its_sensors() {
         Ok(_) => panic!("a rate was taken for press directories"),
     }
 }
+
+/// A DIGIT's LED control as the tests need it: it keeps what is written
+/// (or, `ignores`, keeps its first value, as a control that silently fails
+/// does), and can fail on write or read.
+struct FakeLeds {
+    value: i64,
+    ignores: bool,
+    write_fails: bool,
+    read_fails: bool,
+    writes: u32,
+}
+
+impl FakeLeds {
+    fn new() -> FakeLeds {
+        FakeLeds {
+            value: 0,
+            ignores: false,
+            write_fails: false,
+            read_fails: false,
+            writes: 0,
+        }
+    }
+}
+
+impl telextiles_sensing::source::digit::LedControl for FakeLeds {
+    fn write(&mut self, value: i64) -> std::io::Result<()> {
+        self.writes += 1;
+        if self.write_fails {
+            return Err(std::io::Error::other("EIO"));
+        }
+        if !self.ignores {
+            self.value = value;
+        }
+        Ok(())
+    }
+    fn read(&mut self) -> std::io::Result<i64> {
+        if self.read_fails {
+            return Err(std::io::Error::other("EINVAL"));
+        }
+        Ok(self.value)
+    }
+}
+
+#[test]
+fn led_settings_are_read_back_and_a_setting_that_did_not_take_is_an_error() {
+    use telextiles_sensing::source::digit::set_led_checked;
+    let led = LedIntensity { r: 15, g: 4, b: 0 };
+    // Taken: read back equal.
+    let mut ok = FakeLeds::new();
+    set_led_checked(&mut ok, led, 200).unwrap();
+    assert_eq!(ok.value, (15 << 8) | (4 << 4));
+    // Old firmware: one level, 17 times the brightest colour.
+    let mut old = FakeLeds::new();
+    set_led_checked(&mut old, led, 100).unwrap();
+    assert_eq!(old.value, 255);
+    // Silently ignored: an error naming what was written and what reads back.
+    let mut deaf = FakeLeds {
+        value: 7,
+        ignores: true,
+        ..FakeLeds::new()
+    };
+    let e = set_led_checked(&mut deaf, led, 200).unwrap_err();
+    assert!(
+        e.contains("did not take") && e.contains("wrote 3904") && e.contains("reads back 7"),
+        "{e}"
+    );
+    // A control that cannot be written or read back says which.
+    let mut broken = FakeLeds {
+        write_fails: true,
+        ..FakeLeds::new()
+    };
+    assert!(set_led_checked(&mut broken, led, 200)
+        .unwrap_err()
+        .contains("cannot set the LEDs"));
+    let mut blind = FakeLeds {
+        read_fails: true,
+        ..FakeLeds::new()
+    };
+    assert!(set_led_checked(&mut blind, led, 200)
+        .unwrap_err()
+        .contains("cannot read the control back"));
+    // A level out of range is refused before anything is written.
+    let mut untouched = FakeLeds::new();
+    assert!(set_led_checked(&mut untouched, LedIntensity { r: 16, g: 0, b: 0 }, 200).is_err());
+    assert_eq!(untouched.writes, 0);
+}

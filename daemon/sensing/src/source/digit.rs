@@ -74,6 +74,59 @@ pub fn led_control_value(led: LedIntensity, revision: u32) -> Result<i64, String
     Ok(((led.r as i64) << 8) | ((led.g as i64) << 4) | led.b as i64)
 }
 
+/// The DIGIT's LED control (V4L2's zoom control): the device, or a fake
+/// in tests.
+pub trait LedControl {
+    /// Write the control.
+    fn write(&mut self, value: i64) -> std::io::Result<()>;
+    /// Read the control back.
+    fn read(&mut self) -> std::io::Result<i64>;
+}
+
+/// Set the LEDs to `led` and read the control back: a value that did not
+/// take — the DIGIT libraries' users report LED settings failing silently
+/// — is an error naming what was written and what reads back, never a
+/// quiet success.
+pub fn set_led_checked(
+    ctl: &mut dyn LedControl,
+    led: LedIntensity,
+    revision: u32,
+) -> Result<(), String> {
+    let value = led_control_value(led, revision)?;
+    ctl.write(value)
+        .map_err(|e| format!("cannot set the LEDs: {e}"))?;
+    let got = ctl
+        .read()
+        .map_err(|e| format!("set the LEDs but cannot read the control back: {e}"))?;
+    if got != value {
+        return Err(format!(
+            "the LEDs did not take: wrote {value} (r={} g={} b={}) to the LED control, it reads back {got}; the sensor's firmware (revision {revision}) may not support setting them",
+            led.r, led.g, led.b
+        ));
+    }
+    Ok(())
+}
+
+/// The LED control of an open V4L2 device.
+struct V4lLeds<'a>(&'a Device);
+
+impl LedControl for V4lLeds<'_> {
+    fn write(&mut self, value: i64) -> std::io::Result<()> {
+        self.0.set_control(Control {
+            id: V4L2_CID_ZOOM_ABSOLUTE,
+            value: Value::Integer(value),
+        })
+    }
+    fn read(&mut self) -> std::io::Result<i64> {
+        match self.0.control(V4L2_CID_ZOOM_ABSOLUTE)?.value {
+            Value::Integer(v) => Ok(v),
+            other => Err(std::io::Error::other(format!(
+                "the LED control holds {other:?}, not an integer"
+            ))),
+        }
+    }
+}
+
 /// Options for opening a DIGIT.
 #[derive(Clone, Debug)]
 pub struct DigitOptions {
@@ -160,15 +213,11 @@ impl DigitSource {
         device
             .set_params(&params)
             .map_err(|e| unavailable("cannot set frame rate on", &info, e))?;
-        let value = led_control_value(opts.led, info.revision).map_err(SourceError::Fatal)?;
-        if let Err(e) = device.set_control(Control {
-            id: V4L2_CID_ZOOM_ABSOLUTE,
-            value: Value::Integer(value),
-        }) {
-            tracing::warn!(
-                "cannot set DIGIT LED intensity on {}: {e}",
-                info.node.display()
-            );
+        // A bad level is the caller's error; a device that will not take
+        // it is reported and the stream goes on.
+        led_control_value(opts.led, info.revision).map_err(SourceError::Fatal)?;
+        if let Err(e) = set_led_checked(&mut V4lLeds(&device), opts.led, info.revision) {
+            tracing::warn!("DIGIT {} on {}: {e}", info.serial, info.node.display());
         }
         let mut stream = Stream::with_buffers(&device, Type::VideoCapture, 4)
             .map_err(|e| unavailable("cannot map buffers of", &info, e))?;
@@ -193,15 +242,17 @@ impl DigitSource {
         })
     }
 
-    /// Change the LED intensity while streaming.
+    /// Change the LED intensity while streaming, read back (a setting
+    /// that did not take is an error, [`set_led_checked`]).
     pub fn set_led(&self, led: LedIntensity) -> Result<(), SourceError> {
-        let value = led_control_value(led, self.info.revision).map_err(SourceError::Fatal)?;
-        self.device
-            .set_control(Control {
-                id: V4L2_CID_ZOOM_ABSOLUTE,
-                value: Value::Integer(value),
-            })
-            .map_err(|e| unavailable("cannot set LEDs on", &self.info, e))
+        led_control_value(led, self.info.revision).map_err(SourceError::Fatal)?;
+        set_led_checked(&mut V4lLeds(&self.device), led, self.info.revision).map_err(|e| {
+            SourceError::Unavailable(format!(
+                "DIGIT {} on {}: {e}",
+                self.info.serial,
+                self.info.node.display()
+            ))
+        })
     }
 
     /// The device found in sysfs.
