@@ -852,3 +852,56 @@ fn led_settings_are_read_back_and_a_setting_that_did_not_take_is_an_error() {
     assert!(set_led_checked(&mut untouched, LedIntensity { r: 16, g: 0, b: 0 }, 200).is_err());
     assert_eq!(untouched.writes, 0);
 }
+
+/// A camera that streams at `fps` frames per second of its own clock while
+/// its mode promises `asked`, watched as the DIGIT source watches itself.
+struct SlowCamera {
+    watch: telextiles_sensing::source::fps::FpsWatch,
+    fps: f64,
+    k: u64,
+    notice: Option<String>,
+}
+
+impl FrameSource for SlowCamera {
+    fn next_frame(&mut self, out: &mut Frame) -> Result<(), SourceError> {
+        let t = (self.k as f64 * 1e6 / self.fps) as u64;
+        out.set_time(t, self.k);
+        self.k += 1;
+        if let Some(m) = self.watch.push(t) {
+            self.notice = Some(m);
+        }
+        Ok(())
+    }
+    fn describe(&self) -> String {
+        "slow camera".into()
+    }
+    fn take_notice(&mut self) -> Option<String> {
+        self.notice.take()
+    }
+}
+
+#[test]
+fn a_camera_below_its_rate_is_reported_through_the_resilient_source_once() {
+    let mut src = Resilient::new(|| {
+        Ok(Box::new(SlowCamera {
+            watch: telextiles_sensing::source::fps::FpsWatch::new(25.0),
+            fps: 16.0,
+            k: 0,
+            notice: None,
+        }) as Box<dyn FrameSource>)
+    });
+    let mut f = Frame::blank();
+    let mut notices = Vec::new();
+    for _ in 0..16 * 10 {
+        src.next_frame(&mut f).unwrap();
+        notices.extend(src.take_notice());
+    }
+    assert_eq!(notices.len(), 1, "{notices:?}");
+    assert!(
+        notices[0].contains("16.0 fps of the 25 asked"),
+        "{}",
+        notices[0]
+    );
+    // Its frames keep their own times: nothing resampled.
+    assert_eq!(f.timestamp_us(), (159.0 * 1e6 / 16.0) as u64);
+}

@@ -267,6 +267,14 @@ pub(crate) fn sensing_thread(
             continue;
         }
         let arrived_us = now_us();
+        if let Some(notice) = source.take_notice() {
+            // Something the owner should know about the stream (a camera
+            // below its mode's rate): on the control socket too.
+            let _ = state.events.send(Event::Error {
+                source: "sensor".into(),
+                message: notice,
+            });
+        }
         let new_recording = source.new_recording();
         if let Some(rec) = &new_recording {
             // Another recording: the front end starts afresh with its own

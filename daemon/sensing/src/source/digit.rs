@@ -167,6 +167,9 @@ pub struct DigitSource {
     scratch: Vec<u8>,
     seq: u64,
     epoch: Instant,
+    /// Whether the camera keeps its mode's rate.
+    fps: super::fps::FpsWatch,
+    notice: Option<String>,
 }
 
 fn unavailable(what: &str, dev: &DigitDevice, e: std::io::Error) -> SourceError {
@@ -239,6 +242,8 @@ impl DigitSource {
             scratch: Vec::new(),
             seq: 0,
             epoch: Instant::now(),
+            fps: super::fps::FpsWatch::new(fps as f32),
+            notice: None,
         })
     }
 
@@ -310,6 +315,15 @@ impl FrameSource for DigitSource {
             self.epoch.elapsed().as_micros() as u64
         };
         out.set_time(t, self.seq);
+        if let Some(m) = self.fps.push(t) {
+            let m = format!(
+                "DIGIT {} on {}: {m}",
+                self.info.serial,
+                self.info.node.display()
+            );
+            tracing::warn!("{m}");
+            self.notice = Some(m);
+        }
         self.seq += 1;
         Ok(())
     }
@@ -318,6 +332,9 @@ impl FrameSource for DigitSource {
         format!("DIGIT {} on {}", self.info.serial, self.info.node.display())
     }
 
+    fn take_notice(&mut self) -> Option<String> {
+        self.notice.take()
+    }
     fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
         DigitSource::set_led(self, LedIntensity { r, g, b })
     }

@@ -8,6 +8,7 @@ use crate::frame::{Frame, FrameError};
 
 #[cfg(target_os = "linux")]
 pub mod digit;
+pub mod fps;
 pub mod recorded;
 #[cfg(feature = "sim")]
 pub mod sim;
@@ -73,6 +74,12 @@ pub trait FrameSource: Send {
     fn new_recording(&mut self) -> Option<NewRecording> {
         None
     }
+    /// Asked after each frame delivered: something the owner should know
+    /// about the stream (a camera delivering fewer frames per second than
+    /// its mode, [`fps::FpsWatch`]), once (taken: asked again, None).
+    fn take_notice(&mut self) -> Option<String> {
+        None
+    }
 }
 
 impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
@@ -87,6 +94,9 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
     }
     fn new_recording(&mut self) -> Option<NewRecording> {
         (**self).new_recording()
+    }
+    fn take_notice(&mut self) -> Option<String> {
+        (**self).take_notice()
     }
 }
 
@@ -292,6 +302,10 @@ impl FrameSource for Resilient {
             Some(s) => s.describe(),
             None => "(not open)".into(),
         }
+    }
+
+    fn take_notice(&mut self) -> Option<String> {
+        self.current.as_mut().and_then(|s| s.take_notice())
     }
 
     fn set_leds(&mut self, r: u8, g: u8, b: u8) -> Result<(), SourceError> {
