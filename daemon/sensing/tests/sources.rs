@@ -827,7 +827,9 @@ fn led_settings_are_read_back_and_a_setting_that_did_not_take_is_an_error() {
         ignores: true,
         ..FakeLeds::new()
     };
-    let e = set_led_checked(&mut deaf, led, 200).unwrap_err();
+    let e = set_led_checked(&mut deaf, led, 200)
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("did not take") && e.contains("wrote 3904") && e.contains("reads back 7"),
         "{e}"
@@ -839,6 +841,7 @@ fn led_settings_are_read_back_and_a_setting_that_did_not_take_is_an_error() {
     };
     assert!(set_led_checked(&mut broken, led, 200)
         .unwrap_err()
+        .to_string()
         .contains("cannot set the LEDs"));
     let mut blind = FakeLeds {
         read_fails: true,
@@ -846,6 +849,7 @@ fn led_settings_are_read_back_and_a_setting_that_did_not_take_is_an_error() {
     };
     assert!(set_led_checked(&mut blind, led, 200)
         .unwrap_err()
+        .to_string()
         .contains("cannot read the control back"));
     // A level out of range is refused before anything is written.
     let mut untouched = FakeLeds::new();

@@ -83,6 +83,17 @@ pub trait LedControl {
     fn read(&mut self) -> std::io::Result<i64>;
 }
 
+/// Why the LEDs were not set.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum LedError {
+    /// A level out of range: nothing was written.
+    #[error("{0}")]
+    Level(String),
+    /// The sensor would not take it, or could not be read back.
+    #[error("{0}")]
+    Device(String),
+}
+
 /// Set the LEDs to `led` and read the control back: a value that did not
 /// take — the DIGIT libraries' users report LED settings failing silently
 /// — is an error naming what was written and what reads back, never a
@@ -91,18 +102,20 @@ pub fn set_led_checked(
     ctl: &mut dyn LedControl,
     led: LedIntensity,
     revision: u32,
-) -> Result<(), String> {
-    let value = led_control_value(led, revision)?;
+) -> Result<(), LedError> {
+    let value = led_control_value(led, revision).map_err(LedError::Level)?;
     ctl.write(value)
-        .map_err(|e| format!("cannot set the LEDs: {e}"))?;
-    let got = ctl
-        .read()
-        .map_err(|e| format!("set the LEDs but cannot read the control back: {e}"))?;
+        .map_err(|e| LedError::Device(format!("cannot set the LEDs: {e}")))?;
+    let got = ctl.read().map_err(|e| {
+        LedError::Device(format!(
+            "set the LEDs but cannot read the control back: {e}"
+        ))
+    })?;
     if got != value {
-        return Err(format!(
+        return Err(LedError::Device(format!(
             "the LEDs did not take: wrote {value} (r={} g={} b={}) to the LED control, it reads back {got}; the sensor's firmware (revision {revision}) may not support setting them",
             led.r, led.g, led.b
-        ));
+        )));
     }
     Ok(())
 }
@@ -218,9 +231,12 @@ impl DigitSource {
             .map_err(|e| unavailable("cannot set frame rate on", &info, e))?;
         // A bad level is the caller's error; a device that will not take
         // it is reported and the stream goes on.
-        led_control_value(opts.led, info.revision).map_err(SourceError::Fatal)?;
-        if let Err(e) = set_led_checked(&mut V4lLeds(&device), opts.led, info.revision) {
-            tracing::warn!("DIGIT {} on {}: {e}", info.serial, info.node.display());
+        match set_led_checked(&mut V4lLeds(&device), opts.led, info.revision) {
+            Ok(()) => {}
+            Err(LedError::Level(e)) => return Err(SourceError::Fatal(e)),
+            Err(LedError::Device(e)) => {
+                tracing::warn!("DIGIT {} on {}: {e}", info.serial, info.node.display())
+            }
         }
         let mut stream = Stream::with_buffers(&device, Type::VideoCapture, 4)
             .map_err(|e| unavailable("cannot map buffers of", &info, e))?;
@@ -250,13 +266,13 @@ impl DigitSource {
     /// Change the LED intensity while streaming, read back (a setting
     /// that did not take is an error, [`set_led_checked`]).
     pub fn set_led(&self, led: LedIntensity) -> Result<(), SourceError> {
-        led_control_value(led, self.info.revision).map_err(SourceError::Fatal)?;
-        set_led_checked(&mut V4lLeds(&self.device), led, self.info.revision).map_err(|e| {
-            SourceError::Unavailable(format!(
+        set_led_checked(&mut V4lLeds(&self.device), led, self.info.revision).map_err(|e| match e {
+            LedError::Level(e) => SourceError::Fatal(e),
+            LedError::Device(e) => SourceError::Unavailable(format!(
                 "DIGIT {} on {}: {e}",
                 self.info.serial,
                 self.info.node.display()
-            ))
+            )),
         })
     }
 
