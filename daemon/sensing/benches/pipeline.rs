@@ -43,6 +43,14 @@ fn to_sensor(frame: &image::RgbImage) -> Vec<u8> {
     out
 }
 
+/// One captured YUYV 320x240 buffer decoded into the frame, as the DIGIT
+/// source does.
+fn decode_into(frame: &mut Frame, buf: &[u8], scratch: &mut Vec<u8>) {
+    frame
+        .write(|img| decode_buffer(buf, PixelFormat::Yuyv, 320, 240, scratch, img))
+        .unwrap();
+}
+
 fn main() {
     let model = std::env::var_os("TELEXTILES_BENCH_MODEL")
         .map(PathBuf::from)
@@ -124,18 +132,7 @@ fn main() {
     let mut stats = StageStats::with_capacity(frames_n);
     // Warm-up.
     for i in 0..60 {
-        frame
-            .write(|img| {
-                decode_buffer(
-                    &yuyv[i % yuyv.len()],
-                    PixelFormat::Yuyv,
-                    320,
-                    240,
-                    &mut scratch,
-                    img,
-                )
-            })
-            .unwrap();
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
         frame.set_time(i as u64 * 16_667, 0);
         pipeline
             .process(&frame, &mut StageTimes::default())
@@ -146,18 +143,7 @@ fn main() {
     let cpu0 = cpu_seconds();
     for i in 0..frames_n {
         let t0 = Instant::now();
-        frame
-            .write(|img| {
-                decode_buffer(
-                    &yuyv[i % yuyv.len()],
-                    PixelFormat::Yuyv,
-                    320,
-                    240,
-                    &mut scratch,
-                    img,
-                )
-            })
-            .unwrap();
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
         let mut times = StageTimes {
             decode_ns: t0.elapsed().as_nanos() as u64,
             ..Default::default()
@@ -191,18 +177,7 @@ fn main() {
         } else if now - due > Duration::from_micros(16_667) {
             late += 1;
         }
-        frame
-            .write(|img| {
-                decode_buffer(
-                    &yuyv[i % yuyv.len()],
-                    PixelFormat::Yuyv,
-                    320,
-                    240,
-                    &mut scratch,
-                    img,
-                )
-            })
-            .unwrap();
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
         // Frame time goes on from the loop above: a jump would be a gap in
         // the stream, which ends the press, and the hold frames would then
         // be taken for the new no-contact reference (nothing encoded).
