@@ -3,7 +3,7 @@
 
 - no Rust file holds more than 1,200 lines outside its tests (the lines
   before a trailing `#[cfg(test)] mod tests`; files under tests/, benches/
-  and fuzz/ are tests);
+  and fuzz/, and a module's own `tests.rs`, are tests);
 - no import cycle between the files of one crate of the daemon or the lab
   (a file's edges: the `crate::a::b` paths and `use crate::{..}` groups of
   its non-test code, resolved to the longest module path that is a file;
@@ -31,7 +31,8 @@ def non_test(src):
 def rust_files():
     out = subprocess.run(["git", "ls-files", "*.rs"], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout.split()
-    return [f for f in out if not re.search(r"(^|/)(tests|benches|fuzz)/", f)]
+    return [f for f in out
+            if not re.search(r"(^|/)(tests|benches|fuzz)/", f) and not f.endswith("/tests.rs")]
 
 
 def long_files():
@@ -64,7 +65,8 @@ def module_path(src_dir, f):
 
 
 def cycles(src_dir):
-    files = [os.path.join(d, f) for d, _, fs in os.walk(src_dir) for f in fs if f.endswith(".rs")]
+    files = [os.path.join(d, f) for d, _, fs in os.walk(src_dir) for f in fs
+             if f.endswith(".rs") and f != "tests.rs"]
     mods = {module_path(src_dir, f): f for f in files}
     edges = defaultdict(set)
     for m, f in mods.items():
