@@ -185,7 +185,6 @@ mod tests {
     #[test]
     fn cameras_are_identified_by_ids_or_names_else_generic() {
         assert_eq!(identify("2833", "0209", "", "").name, "digit");
-        assert_eq!(identify("2833", "0209", "", "").name, "digit");
         assert_eq!(identify("ffff", "0001", "DIGIT", "").name, "digit");
         assert_eq!(
             identify("1234", "5678", "", "GelSight Mini R0B 2BG8-LLT0: Ge").name,
