@@ -191,6 +191,8 @@ pub(crate) fn run_idle(
         params: None,
         // The whole clip is untouched.
         reference_frames: None,
+        sensor_profile: None,
+        mm_per_px: None,
     };
     writer
         .finish(&meta)

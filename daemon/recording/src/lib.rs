@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod profile;
 pub mod recording;
+pub mod resample;
 
 /// Frames per second of a DIGIT press.
 pub const FPS: f32 = 60.0;
@@ -89,9 +90,33 @@ pub struct PressMeta {
     /// the recording's first quiet frames instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_frames: Option<u32>,
+    /// The sensor profile it was captured with ([`profile::PROFILES`]:
+    /// `digit`, `gelsight-mini`, `uvc`). None: a DIGIT (recordings made
+    /// before profiles existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor_profile: Option<String>,
+    /// Millimetres per pixel of the frames as stored. None: the profile's
+    /// own scale at their size (a DIGIT's 240x320 frame: 0.08, the scale
+    /// every frame is mapped to, [`profile::FRAME_MM_PER_PX`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mm_per_px: Option<f32>,
 }
 
-/// One press: metadata and frames (240 wide x 320 tall RGB).
+impl PressMeta {
+    /// The profile it was captured with ([`PressMeta::sensor_profile`];
+    /// a DIGIT when none is recorded).
+    pub fn profile(&self) -> Result<&'static profile::SensorProfile, String> {
+        match &self.sensor_profile {
+            None => Ok(&profile::DIGIT),
+            Some(n) => profile::by_name(n),
+        }
+    }
+}
+
+/// One press: metadata and frames. Read back, its frames are 240 wide x
+/// 320 tall RGB at the frame's scale, whatever the sensor; to be written,
+/// they may also be a camera's own images of the size and scale its
+/// metadata gives (a simulated press in another sensor's geometry).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Press {
     pub meta: PressMeta,

@@ -7,6 +7,10 @@
 //! <dir>/000000.png     frame 0, RGB 8-bit, 240 wide x 320 tall
 //! <dir>/000001.png     ...
 //! ```
+//! The frames may also be a camera's own images (another size, landscape)
+//! when `sensor_profile` (and, for a camera its profile does not scale,
+//! `mm_per_px`) say what they are: read back, every frame is mapped to the
+//! 240x320 frame at its scale ([`crate::resample::FrameMap`]).
 //! Writes are atomic: everything goes to `<dir>.tmp-<pid>-<n>` first, which
 //! is renamed to `<dir>` when complete.
 //!
@@ -15,6 +19,8 @@
 //! <frame>.png` with no serial level): one sequence per class and sensor,
 //! frames in name order ([`find_recordings`]).
 
+use crate::profile::SensorProfile;
+use crate::resample::FrameMap;
 use crate::{Press, PressMeta, HEIGHT, WIDTH};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -93,7 +99,11 @@ pub fn write_press(dir: &Path, press: &Press) -> Result<(), RecordingError> {
             ),
         ));
     }
-    let mut w = PressWriter::create(dir)?;
+    let (fw, fh) = press
+        .frames
+        .first()
+        .map_or((WIDTH, HEIGHT), |f| (f.width(), f.height()));
+    let mut w = PressWriter::create_sized(dir, fw, fh)?;
     for f in &press.frames {
         w.push(f)?;
     }
@@ -110,11 +120,25 @@ pub struct PressWriter {
     tmp: PathBuf,
     names: Vec<String>,
     done: bool,
+    /// Size of every frame.
+    size: (u32, u32),
 }
 
 impl PressWriter {
-    /// Start writing the press `dir` (which must not exist yet).
+    /// Start writing the press `dir` (which must not exist yet) of
+    /// 240x320 frames.
     pub fn create(dir: &Path) -> Result<PressWriter, RecordingError> {
+        PressWriter::create_sized(dir, WIDTH, HEIGHT)
+    }
+
+    /// [`PressWriter::create`] for frames of another size: a camera's own
+    /// images, which the metadata's `sensor_profile` (and `mm_per_px`)
+    /// must say how to map (checked by [`PressWriter::finish`]).
+    pub fn create_sized(
+        dir: &Path,
+        width: u32,
+        height: u32,
+    ) -> Result<PressWriter, RecordingError> {
         if dir.exists() {
             return Err(invalid(dir, "already exists; refusing to overwrite"));
         }
@@ -139,6 +163,7 @@ impl PressWriter {
             tmp,
             names: Vec::new(),
             done: false,
+            size: (width, height),
         })
     }
 
@@ -152,14 +177,16 @@ impl PressWriter {
         self.names.is_empty()
     }
 
-    /// Write the next frame (240 wide x 320 tall).
+    /// Write the next frame (240 wide x 320 tall, or the size it was
+    /// created for).
     pub fn push(&mut self, f: &image::RgbImage) -> Result<(), RecordingError> {
         let i = self.names.len();
-        if f.width() != WIDTH || f.height() != HEIGHT {
+        let (w, h) = self.size;
+        if (f.width(), f.height()) != (w, h) {
             return Err(invalid(
                 &self.dir,
                 format!(
-                    "frame {i} is {}x{}, expected {WIDTH}x{HEIGHT}",
+                    "frame {i} is {}x{}, expected {w}x{h}",
                     f.width(),
                     f.height()
                 ),
@@ -186,11 +213,13 @@ impl PressWriter {
                 ),
             ));
         }
+        let (width, height) = self.size;
+        frame_map(meta, width, height).map_err(|e| invalid(&self.dir, e))?;
         let file = PressFile {
             format: FORMAT.into(),
             format_version: FORMAT_VERSION,
-            width: WIDTH,
-            height: HEIGHT,
+            width,
+            height,
             frames: std::mem::take(&mut self.names),
             meta: meta.clone(),
         };
@@ -272,15 +301,7 @@ fn read_file(dir: &Path) -> Result<PressFile, RecordingError> {
             ),
         ));
     }
-    if (file.width, file.height) != (WIDTH, HEIGHT) {
-        return Err(invalid(
-            &p,
-            format!(
-                "frame size {}x{}, expected {WIDTH}x{HEIGHT}",
-                file.width, file.height
-            ),
-        ));
-    }
+    frame_map(&file.meta, file.width, file.height).map_err(|e| invalid(&p, e))?;
     if file.frames.len() != file.meta.timestamps_us.len() {
         return Err(invalid(
             &p,
@@ -339,6 +360,50 @@ pub fn read_frame(path: &Path) -> Result<image::RgbImage, RecordingError> {
     checked_frame(path, img)
 }
 
+/// How a press's stored frames of `width` x `height` map to the frame: by
+/// its profile (a DIGIT when none is recorded) and its `mm_per_px`.
+pub fn frame_map(meta: &PressMeta, width: u32, height: u32) -> Result<FrameMap, String> {
+    let profile = meta.profile()?;
+    FrameMap::for_profile(profile, width, height, meta.mm_per_px)
+        .map_err(|e| format!("frames of {width}x{height} ({} profile): {e}", profile.name))
+}
+
+/// Decode one frame file of a press directory (a PNG of the size its
+/// press.json gives) and map it to the 240x320 frame with `map`.
+pub fn read_frame_as(path: &Path, map: &mut FrameMap) -> Result<image::RgbImage, RecordingError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
+        .map_err(|e| invalid(path, format!("corrupt PNG: {e}")))?;
+    let img = match img {
+        image::DynamicImage::ImageRgb8(i) => i,
+        other => {
+            return Err(invalid(
+                path,
+                format!("expected 8-bit RGB, found {:?}", other.color()),
+            ))
+        }
+    };
+    let (w, h) = map.size();
+    if (img.width(), img.height()) != (w, h) {
+        return Err(invalid(
+            path,
+            format!(
+                "frame is {}x{}, press.json says {w}x{h}",
+                img.width(),
+                img.height()
+            ),
+        ));
+    }
+    if (w, h) == (WIDTH, HEIGHT) && map.valid() == crate::resample::Rect::FULL && !map.turns() {
+        // Already the frame (what `record` writes): as it is, bit-exact.
+        return Ok(img);
+    }
+    let mut out = image::RgbImage::new(WIDTH, HEIGHT);
+    map.map(img.as_raw(), &mut out)
+        .map_err(|e| invalid(path, e))?;
+    Ok(out)
+}
+
 /// Whether a file name is a frame image others' tools save: `.png`,
 /// `.jpg` or `.jpeg`, any case.
 fn is_frame_image(path: &Path) -> bool {
@@ -356,12 +421,18 @@ fn is_frame_image(path: &Path) -> bool {
 /// 240x320 portrait frame (VGA, or the camera's landscape orientation),
 /// mapped as the live DIGIT source maps the camera's stream.
 pub fn read_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
-    read_image_sized(path).map(|(frame, _)| frame)
+    read_image_as(
+        path,
+        Sensor {
+            profile: &crate::profile::DIGIT,
+            mm_per_px: None,
+        },
+    )
 }
 
-/// [`read_image`], and the image's own width and height before it was
-/// mapped to the frame (what [`default_fps`] goes by).
-fn read_image_sized(path: &Path) -> Result<(image::RgbImage, (u32, u32)), RecordingError> {
+/// A frame image saved by another tool, as it is: PNG or JPEG (told
+/// apart by the content), 8-bit RGB.
+fn read_other_image(path: &Path) -> Result<image::RgbImage, RecordingError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let format = match image::guess_format(&bytes) {
         Ok(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg)) => f,
@@ -375,16 +446,45 @@ fn read_image_sized(path: &Path) -> Result<(image::RgbImage, (u32, u32)), Record
     };
     let img = image::load_from_memory_with_format(&bytes, format)
         .map_err(|e| invalid(path, format!("corrupt {format:?}: {e}")))?;
-    let size = (img.width(), img.height());
-    let img = match img {
-        image::DynamicImage::ImageRgb8(i) if (i.width(), i.height()) != (WIDTH, HEIGHT) => {
-            let mut out = image::RgbImage::new(WIDTH, HEIGHT);
-            to_frame(i.as_raw(), i.width(), i.height(), &mut out).map_err(|e| invalid(path, e))?;
-            image::DynamicImage::ImageRgb8(out)
-        }
-        other => other,
-    };
-    Ok((checked_frame(path, img)?, size))
+    match img {
+        image::DynamicImage::ImageRgb8(i) => Ok(i),
+        other => Err(invalid(
+            path,
+            format!("expected 8-bit RGB, found {:?}", other.color()),
+        )),
+    }
+}
+
+/// [`read_image`] for an image from `sensor`: mapped to the frame by its
+/// profile and scale.
+pub fn read_image_as(path: &Path, sensor: Sensor) -> Result<image::RgbImage, RecordingError> {
+    let img = read_other_image(path)?;
+    let mut map = sensor_map(sensor, img.width(), img.height()).map_err(|e| invalid(path, e))?;
+    let mut out = image::RgbImage::new(WIDTH, HEIGHT);
+    map.map(img.as_raw(), &mut out)
+        .map_err(|e| invalid(path, e))?;
+    Ok(out)
+}
+
+/// The map of `sensor`'s images of `width` x `height`: a DIGIT at its own
+/// scale takes only its own sizes ([`FrameMap::digit`]).
+pub fn sensor_map(sensor: Sensor, width: u32, height: u32) -> Result<FrameMap, String> {
+    if sensor.profile.name == crate::profile::DIGIT.name && sensor.mm_per_px.is_none() {
+        return FrameMap::digit(width, height);
+    }
+    FrameMap::for_profile(sensor.profile, width, height, sensor.mm_per_px)
+}
+
+/// The frame rate of `profile`'s images of `width` x `height` saved
+/// without timestamps: its first mode of that size (either orientation),
+/// else the DIGIT's rule ([`default_fps`]).
+pub fn sensor_fps(profile: &SensorProfile, width: u32, height: u32) -> f32 {
+    let (long, short) = (width.max(height), width.min(height));
+    profile
+        .modes
+        .iter()
+        .find(|m| (m.width.max(m.height), m.width.min(m.height)) == (long, short))
+        .map_or_else(|| default_fps(width, height), |m| m.fps)
 }
 
 /// The frame rate of a sequence saved without timestamps, by the size its
@@ -426,80 +526,19 @@ pub fn check_fps(fps: f32) -> Result<f32, String> {
 }
 
 /// Maps an RGB image from the DIGIT's camera, as it streams or as a tool
-/// saved it, to the 240x320 portrait frame, into `out`. The one mapping
-/// the live DIGIT source (`telextiles_sensing::source::yuv`) and the
-/// reader of others' frames ([`read_image`]) share:
-///
-/// - landscape, the camera's own orientation (320x240 QVGA, 640x480
-///   VGA): turned 90 degrees counter-clockwise, as digit-interface's
-///   `get_frame()` turns it (`cv2.transpose` then `cv2.flip(frame, 0)`):
-///   frame pixel (x, y) = camera pixel (W-1-y, x);
-/// - portrait, already turned (240x320, 480x640 from a VGA stream);
-/// - VGA either way is then averaged over 2x2 blocks (rounded), so the
-///   rest of the pipeline sees one geometry.
-///
-/// Any other size is an error naming the sizes that map.
+/// saved it, to the 240x320 portrait frame, into `out`: the DIGIT's
+/// [`FrameMap`](crate::resample::FrameMap) (landscape QVGA turned 90
+/// degrees counter-clockwise as digit-interface turns it, portrait taken as
+/// it is, VGA averaged over 2x2 blocks). Any other size is an error naming
+/// the sizes that map. Per-frame callers keep a `FrameMap`; this builds
+/// one per call.
 pub fn to_frame(
     rgb: &[u8],
     width: u32,
     height: u32,
     out: &mut image::RgbImage,
 ) -> Result<(), String> {
-    let (w, h) = (width as usize, height as usize);
-    if rgb.len() != w * h * 3 {
-        return Err(format!(
-            "RGB buffer holds {} bytes, {width}x{height} needs {}",
-            rgb.len(),
-            w * h * 3
-        ));
-    }
-    let (turn, scale) = match (width, height) {
-        (320, 240) => (true, 1),
-        (640, 480) => (true, 2),
-        (WIDTH, HEIGHT) => (false, 1),
-        (480, 640) => (false, 2),
-        _ => {
-            return Err(format!(
-                "cannot map a {width}x{height} image to the {WIDTH}x{HEIGHT} frame (it takes 240x320 or 480x640 portrait, or the camera's 320x240 or 640x480 landscape)"
-            ))
-        }
-    };
-    if (out.width(), out.height()) != (WIDTH, HEIGHT) {
-        *out = image::RgbImage::new(WIDTH, HEIGHT);
-    }
-    let ow = WIDTH as usize;
-    let dst = &mut **out;
-    // The source index of turned (full-resolution) pixel (X, Y).
-    let at = |x: usize, y: usize| {
-        if turn {
-            (x * w + (w - 1 - y)) * 3
-        } else {
-            (y * w + x) * 3
-        }
-    };
-    for oy in 0..HEIGHT as usize {
-        for ox in 0..ow {
-            let d = (oy * ow + ox) * 3;
-            if scale == 1 {
-                let s = at(ox, oy);
-                dst[d..d + 3].copy_from_slice(&rgb[s..s + 3]);
-            } else {
-                let mut acc = [0u32; 3];
-                for dy in 0..2 {
-                    for dx in 0..2 {
-                        let s = at(ox * 2 + dx, oy * 2 + dy);
-                        for c in 0..3 {
-                            acc[c] += rgb[s + c] as u32;
-                        }
-                    }
-                }
-                for c in 0..3 {
-                    dst[d + c] = ((acc[c] + 2) / 4) as u8;
-                }
-            }
-        }
-    }
-    Ok(())
+    crate::resample::FrameMap::digit(width, height)?.map(rgb, out)
 }
 
 fn checked_frame(path: &Path, img: image::DynamicImage) -> Result<image::RgbImage, RecordingError> {
@@ -534,10 +573,11 @@ fn checked_frame(path: &Path, img: image::DynamicImage) -> Result<image::RgbImag
 /// Read a press directory back (bit-exact).
 pub fn read_press(dir: &Path) -> Result<Press, RecordingError> {
     let file = read_file(dir)?;
+    let mut map = frame_map(&file.meta, file.width, file.height).map_err(|e| invalid(dir, e))?;
     let frames = file
         .frames
         .iter()
-        .map(|n| read_frame(&dir.join(n)))
+        .map(|n| read_frame_as(&dir.join(n), &mut map))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(Press {
         meta: file.meta,
@@ -719,11 +759,25 @@ pub enum Recording {
     /// serials in sorted order (its sensor unit), and the frame rate it
     /// was given ([`Recording::assume_fps`]; None: by its frames' size,
     /// [`default_fps`]).
+    ///
+    /// Its sensor: the profile (and scale) it was given
+    /// ([`Recording::assume_sensor`]; None: a DIGIT).
     Pytouch {
         entry: PytouchEntry,
         unit: u32,
         fps: Option<f32>,
+        sensor: Option<Sensor>,
     },
+}
+
+/// A sensor profile, and the millimetres per pixel of its images when its
+/// owner gives them (else the profile's own).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sensor {
+    /// The profile.
+    pub profile: &'static SensorProfile,
+    /// Millimetres per pixel of its images, if given.
+    pub mm_per_px: Option<f32>,
 }
 
 impl Recording {
@@ -755,6 +809,39 @@ impl Recording {
         }
     }
 
+    /// Say which sensor made it: a PyTouch sequence's images are mapped
+    /// to the frame by `sensor`'s profile and scale, and its frame rate
+    /// (unless given) is the profile's mode for its size. A press
+    /// directory's press.json names its own sensor (a DIGIT when it names
+    /// none): another is refused, naming both.
+    pub fn assume_sensor(&mut self, sensor: Sensor) -> Result<(), RecordingError> {
+        match self {
+            Recording::Press(p) => {
+                let meta = read_meta(p)?;
+                let own = meta.profile().map_err(|e| invalid(p, e))?;
+                if own.name != sensor.profile.name
+                    || sensor.mm_per_px.is_some_and(|s| Some(s) != meta.mm_per_px)
+                {
+                    return Err(invalid(
+                        p,
+                        format!(
+                            "its press.json says it was made by a {} ({}), not the {} given ({}); set sensor_profile (and mm_per_px) in its press.json, or give no sensor profile for recordings that name their own",
+                            own.label,
+                            meta.mm_per_px.map_or("at its own scale".into(), |s| format!("{s} mm per pixel")),
+                            sensor.profile.label,
+                            sensor.mm_per_px.map_or("at its own scale".into(), |s| format!("{s} mm per pixel")),
+                        ),
+                    ));
+                }
+                Ok(())
+            }
+            Recording::Pytouch { sensor: s, .. } => {
+                *s = Some(sensor);
+                Ok(())
+            }
+        }
+    }
+
     /// Load its frames. A PyTouch sequence has no no-contact reference and
     /// no timestamps: its frames are spaced at the rate it was given
     /// ([`Recording::assume_fps`]), else at the DIGIT's stream rate for
@@ -762,20 +849,38 @@ impl Recording {
     pub fn load(&self) -> Result<Press, RecordingError> {
         match self {
             Recording::Press(p) => read_press(p),
-            Recording::Pytouch { entry, unit, fps } => {
+            Recording::Pytouch {
+                entry,
+                unit,
+                fps,
+                sensor,
+            } => {
+                let sensor = sensor.unwrap_or(Sensor {
+                    profile: &crate::profile::DIGIT,
+                    mm_per_px: None,
+                });
                 let mut size = None;
+                let mut map: Option<FrameMap> = None;
                 let frames = entry
                     .files
                     .iter()
                     .map(|f| {
-                        let (frame, s) = read_image_sized(f)?;
+                        let img = read_other_image(f)?;
+                        let s = (img.width(), img.height());
                         size.get_or_insert(s);
-                        Ok(frame)
+                        if map.as_ref().is_none_or(|m| m.size() != s) {
+                            map = Some(sensor_map(sensor, s.0, s.1).map_err(|e| invalid(f, e))?);
+                        }
+                        let mut out = image::RgbImage::new(WIDTH, HEIGHT);
+                        if let Some(m) = map.as_mut() {
+                            m.map(img.as_raw(), &mut out).map_err(|e| invalid(f, e))?;
+                        }
+                        Ok(out)
                     })
                     .collect::<Result<Vec<_>, RecordingError>>()?;
                 let fps = fps.unwrap_or_else(|| {
                     let (w, h) = size.unwrap_or((WIDTH, HEIGHT));
-                    default_fps(w, h)
+                    sensor_fps(sensor.profile, w, h)
                 });
                 let n = frames.len() as u64;
                 Ok(Press {
@@ -793,6 +898,9 @@ impl Recording {
                         sensor_serial: (!entry.serial.is_empty()).then(|| entry.serial.clone()),
                         params: None,
                         reference_frames: None,
+                        sensor_profile: (sensor.profile.name != crate::profile::DIGIT.name)
+                            .then(|| sensor.profile.name.to_string()),
+                        mm_per_px: sensor.mm_per_px,
                     },
                     frames,
                 })
@@ -842,6 +950,7 @@ fn recordings_of(entries: Vec<PytouchEntry>) -> Vec<Recording> {
                 entry,
                 unit,
                 fps: None,
+                sensor: None,
             }
         })
         .collect()
@@ -863,6 +972,20 @@ pub fn assume_fps(recordings: &mut [Recording], fps: Option<f32>) -> Result<(), 
     if let Some(fps) = fps {
         for r in recordings {
             r.assume_fps(fps)?;
+        }
+    }
+    Ok(())
+}
+
+/// [`Recording::assume_sensor`] for each of `recordings`, when a sensor
+/// is given.
+pub fn assume_sensor(
+    recordings: &mut [Recording],
+    sensor: Option<Sensor>,
+) -> Result<(), RecordingError> {
+    if let Some(sensor) = sensor {
+        for r in recordings {
+            r.assume_sensor(sensor)?;
         }
     }
     Ok(())

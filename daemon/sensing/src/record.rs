@@ -665,6 +665,8 @@ impl Recorder {
             sensor_serial: label.sensor_serial.clone(),
             params: None,
             reference_frames: Some(take.reference as u32),
+            sensor_profile: None,
+            mm_per_px: None,
         };
         let summary = PressSummary {
             frames: n,

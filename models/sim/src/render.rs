@@ -469,6 +469,8 @@ impl Simulator {
             // Frames before the first contact show the untouched sensor.
             reference_frames: (setup.params.contact_frame > 0)
                 .then_some(setup.params.contact_frame),
+            sensor_profile: None,
+            mm_per_px: None,
         }
     }
 
