@@ -99,10 +99,17 @@ pub struct Args {
     /// since contact, one line per policy, to this SVG file.
     #[arg(long, value_name = "FILE")]
     pub felt_svg: Option<PathBuf>,
+    /// Classify presses of another sensor profile than the index's (to
+    /// measure how far an index carries over to another sensor); refused
+    /// without it.
+    #[arg(long, conflicts_with = "sim")]
+    pub mix_sensors: bool,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
     #[command(flatten)]
     pub decision: crate::config::DecisionArgs,
+    #[command(flatten)]
+    pub sensor_opts: crate::config::SensorArgs,
 }
 
 /// The row of a recording `classify` could not decide (no press
@@ -393,7 +400,8 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
     if let Some(id) = &args.sim {
         return classify_simulated(out, &args, id, enc, &index, pace);
     }
-    let mut references = References::from_args(&args.references)?;
+    let sensor = args.sensor_opts.sensor()?;
+    let mut references = References::from_args_as(&args.references, sensor)?;
     // The sensors' no-contact frames kept beside the index, for recordings
     // that carry none and begin in contact.
     let beside = args
@@ -409,6 +417,17 @@ pub fn run_to(args: Args, out: &mut dyn Write) -> Result<()> {
         recordings.extend(telextiles_recording::recording::find_recordings_at(
             p, args.fps,
         )?);
+    }
+    telextiles_recording::recording::assume_sensor(&mut recordings, sensor)?;
+    if !args.mix_sensors {
+        for (profile, first) in telextiles_recording::recording::profiles(&recordings)? {
+            index.check_sensor(profile).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: {e} (or --mix-sensors to classify them anyway)",
+                    first.display()
+                )
+            })?;
+        }
     }
     // One pipeline, reset for every recording with the recording's own
     // reference (else the one given for its sensor): nothing carries over

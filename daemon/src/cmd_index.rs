@@ -76,8 +76,14 @@ pub struct CheckArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
+    /// Check presses of several sensor profiles together (as `index build
+    /// --mix-sensors`).
+    #[arg(long)]
+    pub mix_sensors: bool,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
+    #[command(flatten)]
+    pub sensor_opts: crate::config::SensorArgs,
 }
 
 /// `telextilesd index build`
@@ -195,8 +201,16 @@ pub struct BuildArgs {
     /// Output file.
     #[arg(long, short, default_value = "models/index.tlxi")]
     pub out: PathBuf,
+    /// Build one index from presses of several sensor profiles (a DIGIT's
+    /// and a GelSight Mini's, say): refused without it, as a fabric looks
+    /// different through another sensor. The index then takes frames of
+    /// any of them.
+    #[arg(long, requires = "presses")]
+    pub mix_sensors: bool,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
+    #[command(flatten)]
+    pub sensor_opts: crate::config::SensorArgs,
 }
 
 /// `telextilesd index inspect`
@@ -234,7 +248,11 @@ fn open_encoder(model: &Path, threads: usize) -> Result<Encoder> {
 /// `index check`: the self-check of `index build --presses` for each model,
 /// on the same presses, and the model to use by the paired rule.
 fn check(a: CheckArgs) -> Result<()> {
-    let mut references = References::from_args(&a.references)?;
+    let sensors = Sensors {
+        given: a.sensor_opts.sensor()?,
+        mix: a.mix_sensors,
+    };
+    let mut references = References::from_args_as(&a.references, sensors.given)?;
     references.add_beside(&a.presses)?;
     let asked_features = features_asked(a.features, None);
     let computed = features_computed(asked_features);
@@ -251,6 +269,7 @@ fn check(a: CheckArgs) -> Result<()> {
         &a.presses,
         &references,
         a.fps,
+        sensors,
         a.stride,
         "index check",
     )?;
@@ -535,6 +554,44 @@ struct Embedded {
     /// of the gel (the first front end's detector, shared by all), with
     /// their coverage, in the order read.
     partial: Vec<(PathBuf, f32)>,
+    /// The sensor profile of the recordings, as an index records it
+    /// ([`telextiles_index::Index::sensor`]).
+    sensor: Option<String>,
+}
+
+/// Where the recordings' frames come from and whether several sensor
+/// profiles may be mixed.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sensors {
+    /// Given for recordings that do not say (PyTouch sequences).
+    given: Option<telextiles_recording::recording::Sensor>,
+    /// Several profiles may be mixed (`--mix-sensors`).
+    mix: bool,
+}
+
+/// The sensor an index of `recordings` records: None for a DIGIT's, the
+/// profile's name, or `mixed:<a>+<b>` when told to mix them; presses of
+/// several profiles unmixed are refused, naming each with a recording.
+fn sensor_of(
+    recordings: &[telextiles_recording::recording::Recording],
+    mix: bool,
+) -> Result<Option<String>> {
+    let profiles = telextiles_recording::recording::profiles(recordings)?;
+    let names: Vec<&str> = profiles.keys().copied().collect();
+    match names.as_slice() {
+        [] => Ok(None),
+        [one] => Ok((*one != telextiles_recording::profile::DIGIT.name).then(|| one.to_string())),
+        _ if mix => Ok(Some(format!("mixed:{}", names.join("+")))),
+        _ => bail!(
+            "these presses come from {} sensor profiles: {}. A fabric looks different through another sensor's gel, light and camera, so an index takes one sensor's presses; give each sensor its own index, or say --mix-sensors to build one from all",
+            names.len(),
+            profiles
+                .iter()
+                .map(|(p, first)| format!("{p} (e.g. {})", first.display()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
 }
 
 /// Read every recording under `root` (the walk every command shares) and
@@ -545,16 +602,20 @@ fn embed_recordings(
     root: &Path,
     references: &References,
     fps: Option<f32>,
+    sensors: Sensors,
     stride: usize,
     what: &str,
 ) -> Result<Embedded> {
-    let recordings = telextiles_recording::recording::find_recordings_at(root, fps)?;
+    let mut recordings = telextiles_recording::recording::find_recordings_at(root, fps)?;
+    telextiles_recording::recording::assume_sensor(&mut recordings, sensors.given)?;
+    let sensor = sensor_of(&recordings, sensors.mix)?;
     let progress = Progress::new(what, recordings.len() as u64, "presses");
     let mut out = Embedded {
         by_textile: vec![BTreeMap::new(); fronts.len()],
         names: BTreeMap::new(),
         presses: 0,
         partial: Vec::new(),
+        sensor,
     };
     for rec in recordings {
         let d = rec.path();
@@ -645,12 +706,18 @@ fn build(a: BuildArgs) -> Result<()> {
     // Names of the user's own fabrics (`telextilesd record --name`).
     let mut names: BTreeMap<String, String> = BTreeMap::new();
     let presses;
+    // The sensor profile of the presses (None: a DIGIT, the simulator's).
+    let mut sensor = None;
     // The owner's presses that touched only part of the gel.
     let mut partial = Vec::new();
     if let Some(root) = &a.presses {
         // The sensors' no-contact frames kept at the top of the
         // recordings, or beside the index being written.
-        let mut references = References::from_args(&a.references)?;
+        let sensors = Sensors {
+            given: a.sensor_opts.sensor()?,
+            mix: a.mix_sensors,
+        };
+        let mut references = References::from_args_as(&a.references, sensors.given)?;
         references.add_beside(root)?;
         if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
             references.add_beside(dir)?;
@@ -660,9 +727,11 @@ fn build(a: BuildArgs) -> Result<()> {
             root,
             &references,
             a.fps,
+            sensors,
             stride(&a),
             "index build",
         )?;
+        sensor = embedded.sensor;
         by_textile = embedded.by_textile.remove(0);
         names = embedded.names;
         presses = embedded.presses;
@@ -712,6 +781,7 @@ fn build(a: BuildArgs) -> Result<()> {
     let dim = info.dim + features.extra_dim();
     let mut builder = IndexBuilder::new(&info.sha256, &info.arch, dim, cat.version);
     builder.features = features;
+    builder.sensor = sensor;
     let slots = a.slots.unwrap_or_else(|| by_textile.len().min(16));
     builder.roller_n = slots;
     builder.method = a.method;

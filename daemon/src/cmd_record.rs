@@ -27,7 +27,6 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -45,46 +44,11 @@ use telextiles_sensing::source::{FrameSource, SourceError};
 #[cfg(feature = "sim")]
 use telextiles_sim::{PressSpec, Simulator};
 
+use telextiles_recording::profile::{SensorProfile, DIGIT};
+
+use crate::config::SensorSource;
 use crate::press_dir::*;
 use crate::record_idle::{idle_sim, run_idle, IdleOptions, IdleSource, MAX_IDLE_S};
-
-/// Where the frames come from.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum SensorArg {
-    /// A DIGIT (the first found, or this serial).
-    Digit(Option<String>),
-    /// The simulator.
-    Sim,
-    /// Re-record the presses found under a directory.
-    Replay(PathBuf),
-}
-
-impl FromStr for SensorArg {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "digit" => Ok(SensorArg::Digit(None)),
-            "sim" => Ok(SensorArg::Sim),
-            _ => {
-                if let Some(serial) = s.strip_prefix("digit:") {
-                    if serial.is_empty() {
-                        return Err("digit: needs a serial (digit:D20118), or say digit".into());
-                    }
-                    Ok(SensorArg::Digit(Some(serial.to_string())))
-                } else if let Some(dir) = s.strip_prefix("replay:") {
-                    if dir.is_empty() {
-                        return Err("replay: needs a directory (replay:recordings/T030)".into());
-                    }
-                    Ok(SensorArg::Replay(PathBuf::from(dir)))
-                } else {
-                    Err(format!(
-                        "unknown sensor {s:?}: say digit, digit:SERIAL, sim or replay:<dir>"
-                    ))
-                }
-            }
-        }
-    }
-}
 
 /// Options of `telextilesd record`.
 #[derive(clap::Args, Debug)]
@@ -106,10 +70,12 @@ pub struct Args {
     /// Directory of recordings (one sub-directory per textile).
     #[arg(long)]
     pub out: PathBuf,
-    /// digit, digit:SERIAL, sim (simulated presses of --textile, unattended)
-    /// or replay:<dir> (re-record the presses under <dir>).
+    /// digit, digit:SERIAL, camera[:SERIAL|/dev/videoN] (a sensor of
+    /// --sensor-profile, or found by its USB ids and name), sim (simulated
+    /// presses of --textile, unattended) or replay:<dir> (re-record the
+    /// presses under <dir>).
     #[arg(long, default_value = "digit")]
-    pub sensor: SensorArg,
+    pub sensor: SensorSource,
     /// With --sensor sim: seed of the first simulated press (default: its
     /// press number, so that a second run into the same directory records
     /// new presses); the next presses take the following seeds.
@@ -145,6 +111,8 @@ pub struct Args {
     pub json: bool,
     #[command(flatten)]
     pub contact: crate::config::ContactArgs,
+    #[command(flatten)]
+    pub sensor_opts: crate::config::SensorArgs,
 }
 
 /// A source and what its presses are labelled with.
@@ -155,6 +123,8 @@ struct Opened {
     jig: bool,
     source: &'static str,
     desc: String,
+    /// The sensor's profile (a replay's recordings say their own).
+    profile: &'static SensorProfile,
 }
 
 enum Frames {
@@ -174,20 +144,27 @@ enum Frames {
 const SIM_GAP_FRAMES: usize = 48;
 
 fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Result<Opened> {
-    if args.fps.is_some() && !matches!(args.sensor, SensorArg::Replay(_)) {
+    let replay = matches!(args.sensor, SensorSource::Replay { .. });
+    let sensor = args.sensor_opts.sensor()?;
+    if args.fps.is_some() && !replay {
         bail!("--fps is for --sensor replay:<dir> (recordings saved without timestamps); a live sensor's frames carry their own");
     }
-    if !args.references.is_empty() && !matches!(args.sensor, SensorArg::Replay(_)) {
+    if !args.references.is_empty() && !replay {
         bail!("--reference is for --sensor replay:<dir> (recordings that carry no no-contact frames); a live sensor's is captured before each press");
     }
     match &args.sensor {
-        SensorArg::Sim => open_sim(textile, presses, first_seed),
-        SensorArg::Replay(dir) => {
+        SensorSource::Sim { textile: None } => open_sim(textile, presses, first_seed),
+        SensorSource::Sim { textile: Some(t) } => bail!(
+            "--sensor sim records the textile --textile names; say --sensor sim --textile {t}"
+        ),
+        SensorSource::Replay { dir } => {
             // The walk every command shares: press directories, else a
             // PyTouch-style dataset.
-            let recordings = telextiles_recording::recording::find_recordings_at(dir, args.fps)
+            let mut recordings = telextiles_recording::recording::find_recordings_at(dir, args.fps)
                 .with_context(|| format!("no recordings to replay under {}", dir.display()))?;
-            let references = telextiles_sensing::front::References::from_args(&args.references)?;
+            telextiles_recording::recording::assume_sensor(&mut recordings, sensor)?;
+            let references =
+                telextiles_sensing::front::References::from_args_as(&args.references, sensor)?;
             let desc = format!(
                 "replay of {} recordings under {}",
                 recordings.len(),
@@ -200,9 +177,10 @@ fn open(args: &Args, textile: &str, presses: Option<u32>, first_seed: u64) -> Re
                 jig: false,
                 source: "replay",
                 desc,
+                profile: &DIGIT,
             })
         }
-        SensorArg::Digit(serial) => open_digit(serial.clone()),
+        SensorSource::Digit { .. } | SensorSource::Camera { .. } => open_camera(args),
     }
 }
 
@@ -231,6 +209,7 @@ fn open_sim(textile: &str, presses: Option<u32>, first_seed: u64) -> Result<Open
         jig: true,
         source: "sim",
         desc: format!("simulated DIGIT pressing {textile}"),
+        profile: &DIGIT,
     })
 }
 
@@ -240,33 +219,42 @@ fn open_sim(_textile: &str, _presses: Option<u32>, _first_seed: u64) -> Result<O
 }
 
 #[cfg(target_os = "linux")]
-fn open_digit(serial: Option<String>) -> Result<Opened> {
-    use telextiles_sensing::source::digit::{DigitOptions, DigitSource};
-    let opts = DigitOptions {
-        serial,
-        ..Default::default()
-    };
-    let src = DigitSource::open(&opts).map_err(|e| {
+fn open_camera(args: &Args) -> Result<Opened> {
+    use telextiles_sensing::source::camera::CameraSource;
+    let o = &args.sensor_opts;
+    let opts = crate::live::camera_options(
+        &args.sensor,
+        o.sensor_profile,
+        o.sensor_mm_per_px,
+        o.sensor_mode,
+    )?;
+    let src = CameraSource::open(&opts).map_err(|e| {
         anyhow::anyhow!(
-            "cannot open the DIGIT: {e}\n(plug the DIGIT in over USB, check `ls /dev/video*` and that you may read it (group video), or record without one: --sensor sim)"
+            "cannot open the {}: {e}\n(plug it in over USB, check `telextilesd sensors` and that you may read it (group video), or record without one: --sensor sim)",
+            opts.profile.label
         )
     })?;
-    let info = src.info();
-    let desc = format!("DIGIT {} on {}", info.serial, info.node.display());
-    let serial = Some(info.serial.clone());
+    let desc = src.describe();
+    let serial = Some(src.info().serial.clone()).filter(|s| !s.is_empty());
+    let profile = src.profile();
     Ok(Opened {
         frames: Frames::Live(Box::new(src), None),
         serial,
         sensor_unit: 0,
         jig: false,
-        source: "digit",
+        source: if profile.name == DIGIT.name {
+            "digit"
+        } else {
+            "camera"
+        },
         desc,
+        profile,
     })
 }
 
 #[cfg(not(target_os = "linux"))]
-fn open_digit(_serial: Option<String>) -> Result<Opened> {
-    bail!("the DIGIT is read over V4L2, which only Linux has; use --sensor sim or replay:<dir>")
+fn open_camera(_args: &Args) -> Result<Opened> {
+    bail!("cameras are read over V4L2, which only Linux has; use --sensor sim or replay:<dir>")
 }
 
 /// The guide on the terminal: a bar (presses recorded, ETA, what to do now)
@@ -491,12 +479,12 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
     if args.presses == Some(0) {
         bail!("--presses must be at least 1");
     }
-    let replay = matches!(args.sensor, SensorArg::Replay(_));
+    let replay = matches!(args.sensor, SensorSource::Replay { .. });
     let Some(textile) = args.textile.clone() else {
         if !replay {
             bail!(
                 "--textile is needed with --sensor {}: its presses are labelled with it (only --sensor replay:<dir> can leave it out, to save each recording's presses under the recording's own textile)",
-                sensor_name(&args.sensor)
+                args.sensor
             );
         }
         if args.name.is_some() {
@@ -508,19 +496,10 @@ pub fn run_to(args: Args, out: &mut dyn Write, stop: &AtomicBool) -> Result<()> 
     if !replay && args.presses.is_none() {
         bail!(
             "--presses is needed with --sensor {}: how many presses to record",
-            sensor_name(&args.sensor)
+            args.sensor
         );
     }
     record_one(&args, &textile, args.presses, out, stop)
-}
-
-fn sensor_name(s: &SensorArg) -> String {
-    match s {
-        SensorArg::Digit(None) => "digit".into(),
-        SensorArg::Digit(Some(serial)) => format!("digit:{serial}"),
-        SensorArg::Sim => "sim".into(),
-        SensorArg::Replay(d) => format!("replay:{}", d.display()),
-    }
 }
 
 /// `record` of one textile: `<out>/<textile>/` prepared, its source opened,
@@ -613,6 +592,7 @@ fn run_each_own_textile(args: &Args, out: &mut dyn Write, stop: &AtomicBool) -> 
             jig: false,
             source: "replay",
             desc: format!("{n} of its recordings"),
+            profile: &DIGIT,
         };
         let job = Job {
             textile: &textile,
@@ -712,6 +692,7 @@ fn record_textile(
         sensor: opened.sensor_unit,
         person: 0,
         jig: opened.jig,
+        sensor_profile: telextiles_recording::profile_tag(opened.profile),
     };
     let asked = match limit {
         Some(n) if !part_of_all => format!("{n} press{}", if n == 1 { "" } else { "es" }),
@@ -853,6 +834,10 @@ fn record_textile(
                         sensor: meta.sensor,
                         person: meta.person,
                         jig: meta.jig,
+                        sensor_profile: meta
+                            .profile()
+                            .ok()
+                            .and_then(telextiles_recording::profile_tag),
                         ..label.clone()
                     },
                 );
@@ -948,20 +933,24 @@ fn record_idle(args: &Args, seconds: f64, out: &mut dyn Write, stop: &AtomicBool
         }
     }
     let src = match &args.sensor {
-        SensorArg::Replay(_) => bail!(
+        SensorSource::Replay { .. } => bail!(
             "--idle records a live sensor (--sensor digit[:SERIAL], or sim): footage of a resting sensor, not presses to replay"
         ),
-        SensorArg::Sim => idle_sim(args.sim_seed, seconds)?,
-        SensorArg::Digit(serial) => {
-            let opened = open_digit(serial.clone())?;
+        SensorSource::Sim { textile: None } => idle_sim(args.sim_seed, seconds)?,
+        SensorSource::Sim { textile: Some(_) } => {
+            bail!("--idle records the sensor untouched: say --sensor sim, no textile")
+        }
+        SensorSource::Digit { .. } | SensorSource::Camera { .. } => {
+            let opened = open_camera(args)?;
             let Frames::Live(src, _) = opened.frames else {
-                bail!("a DIGIT is a live source");
+                bail!("a camera is a live source");
             };
             IdleSource {
                 frames: src,
                 serial: opened.serial.unwrap_or_default(),
-                source: "digit",
+                source: opened.source,
                 desc: opened.desc,
+                profile: opened.profile,
             }
         }
     };
@@ -979,20 +968,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn sensor_argument_parses() {
-        assert_eq!("digit".parse(), Ok(SensorArg::Digit(None)));
-        assert_eq!(
-            "digit:D20118".parse(),
-            Ok(SensorArg::Digit(Some("D20118".into())))
-        );
-        assert_eq!("sim".parse(), Ok(SensorArg::Sim));
-        assert_eq!(
-            "replay:rec/T030".parse(),
-            Ok(SensorArg::Replay(PathBuf::from("rec/T030")))
-        );
-        assert!("digit:".parse::<SensorArg>().is_err());
-        assert!("replay:".parse::<SensorArg>().is_err());
-        assert!("webcam".parse::<SensorArg>().is_err());
+    fn a_simulated_press_records_the_textile_given_once() {
+        let d = tempfile::tempdir().expect("tempdir");
+        let mut args = idle_args(d.path());
+        args.idle = None;
+        args.sensor = "sim:T001".parse().expect("a source");
+        let e = open(&args, "T001", Some(1), 1)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("--sensor sim --textile T001"), "{e}");
     }
 
     /// `record --idle` arguments into `out`.
@@ -1002,7 +987,7 @@ mod tests {
             name: None,
             presses: None,
             out: out.to_path_buf(),
-            sensor: SensorArg::Sim,
+            sensor: SensorSource::Sim { textile: None },
             sim_seed: None,
             hold: 1.5,
             fps: None,
@@ -1010,6 +995,7 @@ mod tests {
             idle: Some(10.0),
             json: false,
             contact: Default::default(),
+            sensor_opts: Default::default(),
         }
     }
 
@@ -1028,7 +1014,9 @@ mod tests {
         assert!(run(&|a| a.idle = Some(f64::NAN)).contains("0 < SECONDS"));
         assert!(run(&|a| a.textile = Some("T001".into())).contains("leave out --textile"));
         assert!(run(&|a| a.presses = Some(3)).contains("leave out --textile"));
-        assert!(run(&|a| a.sensor = SensorArg::Replay("x".into())).contains("live sensor"));
+        assert!(
+            run(&|a| a.sensor = SensorSource::Replay { dir: "x".into() }).contains("live sensor")
+        );
         assert!(run(&|a| {
             a.idle = None;
             a.textile = Some("T001".into());

@@ -69,6 +69,47 @@ struct PressArgs {
     /// Frame rate (catalogue 2 only, 25..60; default: drawn per press).
     #[arg(long)]
     fps: Option<f32>,
+    #[command(flatten)]
+    camera: CameraArgs,
+}
+
+/// Another sensor's geometry for the simulated presses.
+#[derive(clap::Args, Debug, Clone, Default)]
+struct CameraArgs {
+    /// Write the presses as this sensor profile's camera streams them
+    /// (digit, gelsight-mini): its pixel size, landscape, at its mode's
+    /// frame rate; the optics stay the simulated DIGIT's (docs/sensors.md)
+    #[arg(long, value_name = "PROFILE", value_parser = telextiles_recording::profile::by_name)]
+    sensor_profile: Option<&'static telextiles_recording::profile::SensorProfile>,
+    /// The camera's mode, WIDTHxHEIGHT@FPS [default: the profile's first]
+    #[arg(long, value_name = "MODE", requires = "sensor_profile")]
+    sensor_mode: Option<telextiles_recording::profile::Mode>,
+}
+
+impl CameraArgs {
+    fn camera(
+        &self,
+    ) -> Result<
+        Option<(
+            &'static telextiles_recording::profile::SensorProfile,
+            telextiles_recording::profile::Mode,
+        )>,
+    > {
+        let Some(p) = self.sensor_profile else {
+            return Ok(None);
+        };
+        let mode = match self.sensor_mode.or(p.modes.first().copied()) {
+            Some(m) => m,
+            None => bail!("the {} profile lists no mode: give --sensor-mode", p.label),
+        };
+        if p.field_mm.is_none() {
+            bail!(
+                "the {} profile has no field of view for the simulator to render at",
+                p.label
+            );
+        }
+        Ok(Some((p, mode)))
+    }
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -161,6 +202,8 @@ struct DatasetArgs {
     /// Stop after this many presses.
     #[arg(long)]
     limit: Option<usize>,
+    #[command(flatten)]
+    camera: CameraArgs,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -195,7 +238,10 @@ fn press(a: PressArgs) -> Result<()> {
         noise: !a.no_noise,
         ..PressSpec::new(textile, a.seed)
     };
-    let press = sim.render_press(&spec)?;
+    let mut press = sim.render_press(&spec)?;
+    if let Some((profile, mode)) = a.camera.camera()? {
+        press = telextiles_sim::camera::as_camera(&press, profile, mode)?;
+    }
     recording::write_press(&out, &press)?;
     let p = press.meta.params.as_ref();
     writeln!(
@@ -249,7 +295,7 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
         return Ok(());
     }
     let out = d.out.context("--out is required unless --stream")?;
-    let n = dataset::write(&sim, specs, &out, |n, s| {
+    let n = dataset::write_as(&sim, specs, &out, d.camera.camera()?, |n, s| {
         if n % 50 == 0 || n == total {
             eprintln!("{n}/{total} presses ({})", s.textile);
         }

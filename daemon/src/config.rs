@@ -23,6 +23,7 @@ use std::fmt;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+use telextiles_recording::profile::{Mode, SensorProfile};
 
 /// Prefix of every environment variable.
 pub const ENV_PREFIX: &str = "TELEXTILESD_";
@@ -38,6 +39,9 @@ pub const KEYS: &[&str] = &[
     "system",
     "group",
     "sensor",
+    "sensor_profile",
+    "sensor_mm_per_px",
+    "sensor_mode",
     "reference",
     "replay_fps",
     "contact_enter",
@@ -143,6 +147,42 @@ pub struct ContactArgs {
     pub contact_tile: Option<u32>,
 }
 
+/// The sensor options of the commands that read frames (`record`, `index
+/// build`, `index check`, `classify`), as the daemon's `sensor_profile`,
+/// `sensor_mm_per_px` and `sensor_mode` (docs/sensors.md).
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct SensorArgs {
+    /// Sensor profile of the frames: digit, gelsight-mini or uvc, as the
+    /// daemon's `sensor_profile` [default: recordings say their own, a
+    /// camera is found by its USB ids and name, else digit]
+    #[arg(long, value_name = "PROFILE", value_parser = parse_profile)]
+    pub sensor_profile: Option<&'static SensorProfile>,
+    /// Millimetres per pixel of the sensor's images (a uvc camera needs
+    /// it), as the daemon's `sensor_mm_per_px`
+    #[arg(long, value_name = "MM", value_parser = parse_mm_per_px)]
+    pub sensor_mm_per_px: Option<f32>,
+    /// Camera mode to ask for, WIDTHxHEIGHT@FPS (e.g. 640x480@30), as the
+    /// daemon's `sensor_mode`
+    #[arg(long, value_name = "MODE")]
+    pub sensor_mode: Option<Mode>,
+}
+
+impl SensorArgs {
+    /// The sensor given (None: recordings say their own, else a DIGIT),
+    /// checked as the daemon checks its keys.
+    pub fn sensor(&self) -> anyhow::Result<Option<telextiles_recording::recording::Sensor>> {
+        check_sensor(self.sensor_profile, self.sensor_mm_per_px).map_err(|e| {
+            anyhow::anyhow!(e.replace("sensor_", "--sensor-").replace("_per_", "-per-"))
+        })?;
+        Ok(self
+            .sensor_profile
+            .map(|profile| telextiles_recording::recording::Sensor {
+                profile,
+                mm_per_px: self.sensor_mm_per_px,
+            }))
+    }
+}
+
 impl ContactArgs {
     /// The contact detector asked for (the shipped one by default).
     pub fn contact(&self) -> anyhow::Result<telextiles_sensing::contact::ContactConfig> {
@@ -166,6 +206,10 @@ pub const DEFAULT_MAP_BIND: &str = "127.0.0.1:47880";
 pub enum SensorSource {
     /// A DIGIT sensor over V4L2; `serial` picks one (e.g. `D20001`), else the first found.
     Digit { serial: Option<String> },
+    /// A camera of the configured sensor profile over V4L2 (`sensor_profile`;
+    /// a GelSight Mini, a generic UVC camera); `select` picks one by serial,
+    /// device node or kernel name, else the first found.
+    Camera { select: Option<String> },
     /// The built-in simulator, pressing `textile` (e.g. `T012`) or cycling through the catalogue.
     Sim { textile: Option<String> },
     /// Recorded presses from a directory.
@@ -187,12 +231,15 @@ impl FromStr for SensorSource {
             "sim" => Ok(SensorSource::Sim {
                 textile: nonempty(rest),
             }),
+            "camera" => Ok(SensorSource::Camera {
+                select: nonempty(rest),
+            }),
             "replay" => match nonempty(rest) {
                 Some(d) => Ok(SensorSource::Replay { dir: d.into() }),
                 None => Err("`replay` needs a directory: replay:<dir>".into()),
             },
             _ => Err(format!(
-                "unknown sensor source `{s}`; expected digit[:serial], sim[:textile] or replay:<dir>"
+                "unknown sensor source `{s}`; expected digit[:serial], camera[:serial|/dev/videoN], sim[:textile] or replay:<dir>"
             )),
         }
     }
@@ -203,6 +250,8 @@ impl fmt::Display for SensorSource {
         match self {
             SensorSource::Digit { serial: None } => f.write_str("digit"),
             SensorSource::Digit { serial: Some(s) } => write!(f, "digit:{s}"),
+            SensorSource::Camera { select: None } => f.write_str("camera"),
+            SensorSource::Camera { select: Some(s) } => write!(f, "camera:{s}"),
             SensorSource::Sim { textile: None } => f.write_str("sim"),
             SensorSource::Sim { textile: Some(t) } => write!(f, "sim:{t}"),
             SensorSource::Replay { dir } => write!(f, "replay:{}", dir.display()),
@@ -278,9 +327,18 @@ pub struct ConfigArgs {
     /// Group allowed on the system-wide socket [env: TELEXTILESD_GROUP] [default: telextiles]
     #[arg(long)]
     pub group: Option<String>,
-    /// Frame source: digit[:serial] | sim[:textile] | replay:<dir> [env: TELEXTILESD_SENSOR] [default: digit]
+    /// Frame source: digit[:serial] | camera[:serial|/dev/videoN] | sim[:textile] | replay:<dir> [env: TELEXTILESD_SENSOR] [default: digit]
     #[arg(long, value_name = "SOURCE")]
     pub sensor: Option<SensorSource>,
+    /// Sensor profile of the frames (docs/sensors.md): digit, gelsight-mini or uvc [env: TELEXTILESD_SENSOR_PROFILE] [default: a camera's is found from its USB ids and name, recordings say their own, else digit]
+    #[arg(long, value_name = "PROFILE", value_parser = parse_profile)]
+    pub sensor_profile: Option<&'static SensorProfile>,
+    /// Millimetres per pixel of the sensor's images in the mode it streams (a uvc camera needs it; others know theirs) [env: TELEXTILESD_SENSOR_MM_PER_PX]
+    #[arg(long, value_name = "MM", value_parser = parse_mm_per_px)]
+    pub sensor_mm_per_px: Option<f32>,
+    /// Camera mode to ask for, WIDTHxHEIGHT@FPS, e.g. 640x480@30 [env: TELEXTILESD_SENSOR_MODE] [default: the profile's first the camera offers]
+    #[arg(long, value_name = "MODE")]
+    pub sensor_mode: Option<Mode>,
     /// No-contact frame for replayed recordings that carry none (PyTouch data cut to contact): PNG for every sensor, SERIAL=PNG for one; repeat it (comma-separate in the env) [env: TELEXTILESD_REFERENCE]
     #[arg(long, value_name = "[SERIAL=]PNG")]
     pub reference: Option<Vec<String>>,
@@ -352,6 +410,9 @@ struct FileConfig {
     system: Option<bool>,
     group: Option<String>,
     sensor: Option<String>,
+    sensor_profile: Option<String>,
+    sensor_mm_per_px: Option<f32>,
+    sensor_mode: Option<String>,
     reference: Option<Vec<String>>,
     replay_fps: Option<f32>,
     contact_enter: Option<f32>,
@@ -386,6 +447,12 @@ pub struct Config {
     pub system: bool,
     pub group: String,
     pub sensor: SensorSource,
+    /// The sensor profile given (None: found or recorded, else a DIGIT).
+    pub sensor_profile: Option<&'static SensorProfile>,
+    /// Millimetres per pixel of its images, if given.
+    pub sensor_mm_per_px: Option<f32>,
+    /// The camera mode asked for, if any.
+    pub sensor_mode: Option<Mode>,
     /// `[SERIAL=]PNG` no-contact frames for `sensor = replay:<dir>`
     /// (`telextiles_sensing::front::References::from_args`); paths from
     /// the file are already joined to the file's directory.
@@ -560,6 +627,28 @@ impl Config {
                 },
             )?
             .unwrap_or(SensorSource::Digit { serial: None });
+        let sensor_profile = l.checked(
+            "sensor_profile",
+            args.sensor_profile,
+            parse_profile,
+            file.sensor_profile,
+            |s| parse_profile(&s),
+        )?;
+        let sensor_mm_per_px = l.checked(
+            "sensor_mm_per_px",
+            args.sensor_mm_per_px,
+            parse_mm_per_px,
+            file.sensor_mm_per_px,
+            check_mm_per_px,
+        )?;
+        let sensor_mode = l.checked(
+            "sensor_mode",
+            args.sensor_mode,
+            parse_from_str,
+            file.sensor_mode,
+            |s| s.parse(),
+        )?;
+        check_sensor(sensor_profile, sensor_mm_per_px).map_err(ConfigError::Invalid)?;
         let reference = l
             .checked(
                 "reference",
@@ -693,6 +782,9 @@ impl Config {
             system,
             group,
             sensor,
+            sensor_profile,
+            sensor_mm_per_px,
+            sensor_mode,
             reference,
             replay_fps,
             contact_enter,
@@ -767,10 +859,20 @@ impl Config {
         };
         let p = |p: &Path| q(&p.display().to_string());
         // Not set: left out (by the frames' size).
-        let replay_fps = self
+        let mut replay_fps = self
             .replay_fps
             .map(|f| format!("replay_fps = {f:?}\n"))
             .unwrap_or_default();
+        // Sensor settings not given: left out (found or recorded).
+        if let Some(p) = self.sensor_profile {
+            replay_fps = format!("sensor_profile = {}\n{replay_fps}", q(p.name));
+        }
+        if let Some(mm) = self.sensor_mm_per_px {
+            replay_fps = format!("sensor_mm_per_px = {mm:?}\n{replay_fps}");
+        }
+        if let Some(m) = self.sensor_mode {
+            replay_fps = format!("sensor_mode = {}\n{replay_fps}", q(&m.to_string()));
+        }
         format!(
             "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
@@ -801,6 +903,55 @@ impl Config {
             q(&self.map_bind.to_string()),
             q(&self.log),
         )
+    }
+}
+
+fn parse_profile(s: &str) -> Result<&'static SensorProfile, String> {
+    telextiles_recording::profile::by_name(s.trim())
+}
+
+fn parse_mm_per_px(s: &str) -> Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of millimetres per pixel (e.g. 0.03)"))?;
+    check_mm_per_px(v)
+}
+
+fn check_mm_per_px(v: f32) -> Result<f32, String> {
+    // A tactile sensor's pixel: from a micrometre to a millimetre.
+    if !(v.is_finite() && (0.001..=1.0).contains(&v)) {
+        return Err(format!(
+            "{v} mm per pixel is out of range (0.001 to 1: a tactile sensor's pixel)"
+        ));
+    }
+    Ok(v)
+}
+
+/// A scale needs the profile it belongs to; a generic camera needs its
+/// scale.
+fn check_sensor(profile: Option<&SensorProfile>, mm: Option<f32>) -> Result<(), String> {
+    match (profile, mm) {
+        (None, Some(_)) => Err(
+            "sensor_mm_per_px is given without sensor_profile: say which sensor it is the scale of"
+                .into(),
+        ),
+        (Some(p), None) if p.field_mm.is_none() => Err(format!(
+            "sensor_profile {} needs sensor_mm_per_px: the millimetres per pixel of its images (docs/sensors.md says how to measure them)",
+            p.name
+        )),
+        _ => Ok(()),
+    }
+}
+
+impl Config {
+    /// The sensor the configuration names (None: not given).
+    pub fn sensor_given(&self) -> Option<telextiles_recording::recording::Sensor> {
+        self.sensor_profile
+            .map(|profile| telextiles_recording::recording::Sensor {
+                profile,
+                mm_per_px: self.sensor_mm_per_px,
+            })
     }
 }
 

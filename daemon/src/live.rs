@@ -31,6 +31,7 @@ mod receive;
 pub(crate) mod recording;
 mod roller;
 mod sensing;
+pub(crate) use sensing::camera_options;
 mod supervise;
 
 use supervise::{supervise, EndGuard};
@@ -134,6 +135,8 @@ struct State {
     roller: Option<RollerDriver>,
     roller_desc: String,
     sensor_desc: String,
+    /// The sensor's profile (recordings are saved with it).
+    sensor_profile: &'static telextiles_recording::profile::SensorProfile,
     sensor_tx: std_mpsc::Sender<SensorCmd>,
     /// The simulated DIGIT, when the sensor is one.
     sim: Option<sensing::Simulated>,
@@ -238,7 +241,12 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
 
     // Sensing thread.
     let (sensor_tx, sensor_rx) = std_mpsc::channel();
-    let (source, sim, sensor_desc) = sensing::open_source(&cfg, &opts, &index)?;
+    let sensing::OpenedSource {
+        source,
+        sim,
+        desc: sensor_desc,
+        profile: sensor_profile,
+    } = sensing::open_source(&cfg, &opts, &index)?;
     let (shutdown, mut shutdown_rx) = watch::channel(false);
     let state = Arc::new(State {
         name: cfg.name.clone(),
@@ -251,6 +259,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         roller,
         roller_desc,
         sensor_desc,
+        sensor_profile,
         sensor_tx,
         sim,
         events: events.clone(),

@@ -47,6 +47,7 @@ pub(crate) fn idle_sim(sim_seed: Option<u64>, seconds: f64) -> Result<IdleSource
         frames: Box::new(src),
         serial: "SIM0000".to_string(),
         source: "sim",
+        profile: &telextiles_recording::profile::DIGIT,
     })
 }
 
@@ -90,6 +91,8 @@ pub(crate) struct IdleSource {
     pub(crate) serial: String,
     pub(crate) source: &'static str,
     pub(crate) desc: String,
+    /// The sensor's profile (the footage is saved with it).
+    pub(crate) profile: &'static telextiles_recording::profile::SensorProfile,
 }
 
 /// Record `seconds` of `src` into `<out>/idle/NNNN/` with the idle check.
@@ -105,6 +108,7 @@ pub(crate) fn run_idle(
         serial,
         source,
         desc,
+        profile,
     } = src;
     let contact = args.contact.clone();
     let dir = args.out.join("idle");
@@ -191,8 +195,10 @@ pub(crate) fn run_idle(
         params: None,
         // The whole clip is untouched.
         reference_frames: None,
-        sensor_profile: None,
-        mm_per_px: None,
+        // Saved as frames: at the frame's scale, whatever the sensor.
+        sensor_profile: telextiles_recording::profile_tag(profile),
+        mm_per_px: (profile.name != telextiles_recording::profile::DIGIT.name)
+            .then_some(telextiles_recording::profile::FRAME_MM_PER_PX),
     };
     writer
         .finish(&meta)
@@ -350,6 +356,7 @@ mod tests {
             serial: "D00001".into(),
             source: "digit",
             desc: "a test DIGIT".into(),
+            profile: &telextiles_recording::profile::DIGIT,
         }
     }
 

@@ -114,6 +114,68 @@ fn a_pytouch_dataset_cut_to_contact_replays_with_the_references_given_for_its_se
     );
 }
 
+/// A live pair of GelSight Mini owners (docs/sensors.md): both daemons
+/// hold an index built from GelSight-Mini-shaped presses (320x240
+/// landscape at 25 fps, as the camera streams them) and A replays such
+/// recordings, with no conversion by hand; B decides each as its fabric,
+/// in order. The same for a DIGIT streaming VGA at 30 fps.
+#[test]
+fn a_live_pair_of_other_sensors_decides_their_presses() {
+    use telextiles_recording::profile::{DIGIT, GELSIGHT_MINI};
+    let sim = telextiles_sim::Simulator::new().unwrap();
+    let textiles = ["T030", "T061", "T090"];
+    for (profile, mode) in [
+        (&GELSIGHT_MINI, GELSIGHT_MINI.modes[0]),
+        (&DIGIT, DIGIT.modes[2]),
+    ] {
+        let work = tempfile::tempdir().unwrap();
+        for (k, t) in textiles.iter().enumerate() {
+            for seed in [1u64, 2, 40 + k as u64] {
+                let press = sim
+                    .render_press(&telextiles_sim::PressSpec::new(*t, seed))
+                    .unwrap();
+                let cam = telextiles_sim::camera::as_camera(&press, profile, mode).unwrap();
+                // Seeds 1 and 2 build the index; the third is replayed.
+                let dir = if seed < 40 {
+                    work.path().join("index").join(t).join(seed.to_string())
+                } else {
+                    work.path().join("replay").join(format!("{k}-{t}"))
+                };
+                telextiles_sim::recording::write_press(&dir, &cam).unwrap();
+            }
+        }
+        let index = work.path().join("index.tlxi");
+        let out = std::process::Command::new(harness::BIN)
+            .args(["index", "build", "--model", harness::MODEL, "--presses"])
+            .arg(work.path().join("index"))
+            .arg("-o")
+            .arg(&index)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let replay = format!("replay:{}", work.path().join("replay").display());
+        let flags = vec!["--index".to_string(), index.display().to_string()];
+        let setup = Setup {
+            sensors: (replay.clone(), replay),
+            flags: (flags.clone(), flags),
+            ..Setup::default()
+        };
+        replays_in_order(
+            &setup,
+            &textiles,
+            &[],
+            &format!(
+                "{} {mode} recordings, decided by B against their own index",
+                profile.label
+            ),
+        );
+    }
+}
+
 /// A live pair whose index holds texture features beside the encoder's
 /// embedding (`index build --features lbp-gabor`, as an owner builds one):
 /// both daemons compute them because the index says so, the latents carry

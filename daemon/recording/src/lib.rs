@@ -102,6 +102,12 @@ pub struct PressMeta {
     pub mm_per_px: Option<f32>,
 }
 
+/// How press.json names the sensor of `profile`: not at all for a DIGIT
+/// (as every recording made before profiles), else by its profile's name.
+pub fn profile_tag(profile: &profile::SensorProfile) -> Option<String> {
+    (profile.name != profile::DIGIT.name).then(|| profile.name.to_string())
+}
+
 impl PressMeta {
     /// The profile it was captured with ([`PressMeta::sensor_profile`];
     /// a DIGIT when none is recorded).

@@ -18,6 +18,33 @@ pub struct Mode {
     pub fps: f32,
 }
 
+impl std::str::FromStr for Mode {
+    type Err = String;
+    /// `640x480@30`: width x height (the camera's orientation) @ frames
+    /// per second.
+    fn from_str(s: &str) -> Result<Mode, String> {
+        let bad = || format!("{s:?} is not a mode: give WIDTHxHEIGHT@FPS, e.g. 640x480@30");
+        let (size, fps) = s.trim().split_once('@').ok_or_else(bad)?;
+        let (w, h) = size.split_once(['x', 'X']).ok_or_else(bad)?;
+        let width: u32 = w.trim().parse().map_err(|_| bad())?;
+        let height: u32 = h.trim().parse().map_err(|_| bad())?;
+        let fps: f32 = fps.trim().parse().map_err(|_| bad())?;
+        if width == 0 || height == 0 || width > 8192 || height > 8192 {
+            return Err(format!("{s:?}: a size of 1 to 8192 pixels each way"));
+        }
+        if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+            return Err(format!("{s:?}: a frame rate above 0 and at most 1000"));
+        }
+        Ok(Mode { width, height, fps })
+    }
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}@{}", self.width, self.height, self.fps)
+    }
+}
+
 /// An optical tactile sensor (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorProfile {
@@ -198,6 +225,17 @@ mod tests {
         assert!(by_name("gelsight")
             .unwrap_err()
             .contains("digit, gelsight-mini, uvc"));
+    }
+
+    #[test]
+    fn modes_are_written_and_read_as_width_x_height_at_fps() {
+        let m: Mode = "640x480@30".parse().unwrap();
+        assert_eq!(m, DIGIT.modes[2]);
+        assert_eq!(m.to_string(), "640x480@30");
+        assert_eq!(m.to_string().parse::<Mode>().unwrap(), m);
+        for bad in ["640x480", "640*480@30", "0x480@30", "640x480@0", "axb@c"] {
+            assert!(bad.parse::<Mode>().is_err(), "{bad}");
+        }
     }
 
     #[test]

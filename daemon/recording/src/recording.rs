@@ -809,6 +809,17 @@ impl Recording {
         }
     }
 
+    /// The profile of the sensor that made it: its press.json's (a DIGIT
+    /// when it names none), or the one a PyTouch sequence was given.
+    pub fn profile(&self) -> Result<&'static SensorProfile, RecordingError> {
+        match self {
+            Recording::Press(p) => read_meta(p)?.profile().map_err(|e| invalid(p, e)),
+            Recording::Pytouch { sensor, .. } => {
+                Ok(sensor.map_or(&crate::profile::DIGIT, |s| s.profile))
+            }
+        }
+    }
+
     /// Say which sensor made it: a PyTouch sequence's images are mapped
     /// to the frame by `sensor`'s profile and scale, and its frame rate
     /// (unless given) is the profile's mode for its size. A press
@@ -898,8 +909,7 @@ impl Recording {
                         sensor_serial: (!entry.serial.is_empty()).then(|| entry.serial.clone()),
                         params: None,
                         reference_frames: None,
-                        sensor_profile: (sensor.profile.name != crate::profile::DIGIT.name)
-                            .then(|| sensor.profile.name.to_string()),
+                        sensor_profile: crate::profile_tag(sensor.profile),
                         mm_per_px: sensor.mm_per_px,
                     },
                     frames,
@@ -989,4 +999,16 @@ pub fn assume_sensor(
         }
     }
     Ok(())
+}
+
+/// The profiles of `recordings`' sensors ([`Recording::profile`]), by
+/// name, each with the first recording of it.
+pub fn profiles(
+    recordings: &[Recording],
+) -> Result<std::collections::BTreeMap<&'static str, PathBuf>, RecordingError> {
+    let mut out = std::collections::BTreeMap::new();
+    for r in recordings {
+        out.entry(r.profile()?.name).or_insert_with(|| r.path());
+    }
+    Ok(out)
 }

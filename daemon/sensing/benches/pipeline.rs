@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use rand::{Rng, SeedableRng};
+use telextiles_recording::resample::FrameMap;
 use telextiles_sensing::contact::ContactConfig;
 use telextiles_sensing::decide::FlatIndex;
 use telextiles_sensing::encoder::{Encoder, EncoderOptions};
@@ -45,9 +46,9 @@ fn to_sensor(frame: &image::RgbImage) -> Vec<u8> {
 
 /// One captured YUYV 320x240 buffer decoded into the frame, as the DIGIT
 /// source does.
-fn decode_into(frame: &mut Frame, buf: &[u8], scratch: &mut Vec<u8>) {
+fn decode_into(frame: &mut Frame, buf: &[u8], map: &mut FrameMap, scratch: &mut Vec<u8>) {
     frame
-        .write(|img| decode_buffer(buf, PixelFormat::Yuyv, 320, 240, scratch, img))
+        .write(|img| decode_buffer(buf, PixelFormat::Yuyv, map, scratch, img))
         .unwrap();
 }
 
@@ -129,10 +130,11 @@ fn main() {
 
     let mut frame = Frame::blank();
     let mut scratch = Vec::new();
+    let mut map = FrameMap::digit(320, 240).expect("the DIGIT's QVGA");
     let mut stats = StageStats::with_capacity(frames_n);
     // Warm-up.
     for i in 0..60 {
-        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut map, &mut scratch);
         frame.set_time(i as u64 * 16_667, 0);
         pipeline
             .process(&frame, &mut StageTimes::default())
@@ -143,7 +145,7 @@ fn main() {
     let cpu0 = cpu_seconds();
     for i in 0..frames_n {
         let t0 = Instant::now();
-        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut map, &mut scratch);
         let mut times = StageTimes {
             decode_ns: t0.elapsed().as_nanos() as u64,
             ..Default::default()
@@ -177,7 +179,7 @@ fn main() {
         } else if now - due > Duration::from_micros(16_667) {
             late += 1;
         }
-        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut scratch);
+        decode_into(&mut frame, &yuyv[i % yuyv.len()], &mut map, &mut scratch);
         // Frame time goes on from the loop above: a jump would be a gap in
         // the stream, which ends the press, and the hold frames would then
         // be taken for the new no-contact reference (nothing encoded).

@@ -6,7 +6,8 @@
 //! The model is checked completely at [`Encoder::open`]: `telextiles.*`
 //! metadata present and sane, input `frames` f32 `[N,3,S,S]` with S equal to
 //! `telextiles.input_size`, output `embedding` f32 `[N,D]` with D equal to
-//! `telextiles.embedding_dim`, and one dry run on a blank frame producing D
+//! `telextiles.embedding_dim`, `telextiles.mm_per_px` (when given) the
+//! frame's scale, and one dry run on a blank frame producing D
 //! finite values. Anything else is a clear error before the first frame.
 //!
 //! `telextiles.background = subtract`: the model takes the frame minus the
@@ -256,6 +257,28 @@ impl Encoder {
         let arch = get("telextiles.arch")?;
         let train_data_hash = get("telextiles.train_data_hash")?;
         let background = get("telextiles.background")?;
+        // The scale it reads frames at (optional; 0.08 mm per pixel, the
+        // frame every sensor is mapped to, when absent).
+        if let Some(v) = meta.custom("telextiles.mm_per_px") {
+            let scale = telextiles_recording::profile::FRAME_MM_PER_PX;
+            match v.trim().parse::<f32>() {
+                Ok(mm) if (mm - scale).abs() <= 1e-4 => {}
+                Ok(mm) => {
+                    return Err(contract(
+                        path,
+                        format!(
+                            "telextiles.mm_per_px = {mm}: the model reads frames at {mm} mm per pixel, and this daemon maps every sensor's images to {scale} (docs/sensors.md)"
+                        ),
+                    ))
+                }
+                Err(_) => {
+                    return Err(contract(
+                        path,
+                        format!("metadata telextiles.mm_per_px = {v:?} is not a number"),
+                    ))
+                }
+            }
+        }
         let subtract = match background.as_str() {
             "none" => false,
             "subtract" => true,

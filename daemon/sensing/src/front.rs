@@ -307,6 +307,8 @@ pub const NO_CONTACT: &str = "no-contact";
 pub struct References {
     any: Option<Vec<f32>>,
     by_serial: std::collections::BTreeMap<String, Vec<f32>>,
+    /// The sensor the images are from (None: a DIGIT).
+    sensor: Option<telextiles_recording::recording::Sensor>,
 }
 
 /// How a `[SERIAL=]PNG` value splits into serial and image path: a value
@@ -358,7 +360,20 @@ impl References {
     /// frame of the sensor (240x320 portrait), taken with nothing touching
     /// the gel.
     pub fn from_args<S: AsRef<str>>(args: &[S]) -> Result<References, ReferenceError> {
-        let mut out = References::default();
+        References::from_args_as(args, None)
+    }
+
+    /// [`References::from_args`] for frames of `sensor` (None: a DIGIT),
+    /// each image mapped to the frame by its profile and scale, as are
+    /// the no-contact frames [`References::add_beside`] adds later.
+    pub fn from_args_as<S: AsRef<str>>(
+        args: &[S],
+        sensor: Option<telextiles_recording::recording::Sensor>,
+    ) -> Result<References, ReferenceError> {
+        let mut out = References {
+            sensor,
+            ..References::default()
+        };
         for arg in args {
             let arg = arg.as_ref();
             let bad = |reason: String| ReferenceError::Bad {
@@ -369,7 +384,8 @@ impl References {
                 split_reference_arg(arg, |whole| std::path::Path::new(whole).exists())
                     .ok_or_else(|| bad("expected [SERIAL=]PNG".into()))?;
             let serial = serial.map(str::to_string);
-            let image = telextiles_recording::recording::read_image(std::path::Path::new(path))
+            let image = out
+                .read(std::path::Path::new(path))
                 .map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
             let twice = |what: String| ReferenceError::Twice {
@@ -430,8 +446,7 @@ impl References {
             if !wanted {
                 continue;
             }
-            let image = telextiles_recording::recording::read_image(&path)
-                .map_err(|e| bad(e.to_string()))?;
+            let image = self.read(&path).map_err(|e| bad(e.to_string()))?;
             let px = pixels_of(&image);
             match serial {
                 Some(s) => {
@@ -442,6 +457,17 @@ impl References {
             taken.push(path);
         }
         Ok(taken)
+    }
+
+    /// A no-contact image of the sensor, mapped to the frame.
+    fn read(
+        &self,
+        path: &std::path::Path,
+    ) -> Result<image::RgbImage, telextiles_recording::recording::RecordingError> {
+        match self.sensor {
+            Some(s) => telextiles_recording::recording::read_image_as(path, s),
+            None => telextiles_recording::recording::read_image(path),
+        }
     }
 
     /// Whether no reference was given.

@@ -103,6 +103,9 @@ pub struct RecordLabel {
     pub person: u32,
     /// Pressed with a jig.
     pub jig: bool,
+    /// The sensor's profile (None: a DIGIT): the frames, mapped to the
+    /// frame's scale, are saved with it.
+    pub sensor_profile: Option<String>,
 }
 
 impl RecordLabel {
@@ -115,6 +118,7 @@ impl RecordLabel {
             sensor: 0,
             person: 0,
             jig: false,
+            sensor_profile: None,
         }
     }
 }
@@ -665,8 +669,12 @@ impl Recorder {
             sensor_serial: label.sensor_serial.clone(),
             params: None,
             reference_frames: Some(take.reference as u32),
-            sensor_profile: None,
-            mm_per_px: None,
+            // Saved as frames: at the frame's scale, whatever the sensor.
+            mm_per_px: label
+                .sensor_profile
+                .as_ref()
+                .map(|_| telextiles_recording::profile::FRAME_MM_PER_PX),
+            sensor_profile: label.sensor_profile.clone(),
         };
         let summary = PressSummary {
             frames: n,

@@ -141,6 +141,52 @@ fn models_breaking_the_contract_are_refused_at_start_up() {
     assert!(m.contains("\"frames\"") && m.contains("images"), "{m}");
 }
 
+/// `model` with one more metadata entry (ONNX `ModelProto` field 14,
+/// `metadata_props`: appending a field to a protobuf message adds it).
+fn with_metadata(model: &[u8], key: &str, value: &str) -> Vec<u8> {
+    fn varint(mut n: usize, out: &mut Vec<u8>) {
+        while n >= 0x80 {
+            out.push((n as u8 & 0x7f) | 0x80);
+            n >>= 7;
+        }
+        out.push(n as u8);
+    }
+    let mut entry = Vec::new();
+    for (tag, s) in [(0x0a, key), (0x12, value)] {
+        entry.push(tag);
+        varint(s.len(), &mut entry);
+        entry.extend_from_slice(s.as_bytes());
+    }
+    let mut out = model.to_vec();
+    out.push(0x72);
+    varint(entry.len(), &mut out);
+    out.extend_from_slice(&entry);
+    out
+}
+
+#[test]
+fn a_model_for_another_frame_scale_is_refused_by_name() {
+    let fixture = std::fs::read(common::fixture("fixture_encoder.onnx")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let at = |value: &str| {
+        let p = dir.path().join(format!("m{value}.onnx"));
+        std::fs::write(&p, with_metadata(&fixture, "telextiles.mm_per_px", value)).unwrap();
+        Encoder::open(&p, &EncoderOptions::default())
+    };
+    // The frame's own scale is what every sensor is mapped to.
+    assert!(at("0.08").is_ok());
+    match at("0.04") {
+        Err(EncoderError::Contract { msg, .. }) => {
+            assert!(
+                msg.contains("0.04 mm per pixel") && msg.contains("0.08"),
+                "{msg}"
+            )
+        }
+        other => panic!("expected a contract error, got {:?}", other.err()),
+    }
+    assert!(matches!(at("fine"), Err(EncoderError::Contract { .. })));
+}
+
 #[test]
 fn missing_or_corrupt_model_files_are_clear_errors() {
     let dir = tempfile::tempdir().unwrap();

@@ -9,13 +9,15 @@ use std::time::Duration;
 
 use image::{Rgb, RgbImage};
 use proptest::prelude::*;
+use telextiles_recording::profile::{Mode, DIGIT, GELSIGHT_MINI, UVC};
+use telextiles_recording::resample::FrameMap;
 use telextiles_sensing::frame::{Frame, FrameError, FRAME_H, FRAME_W};
 use telextiles_sensing::source::digit::{led_control_value, LedIntensity};
 use telextiles_sensing::source::recorded::{Pace, RecordedSource};
-use telextiles_sensing::source::sysfs::{find_digit, find_digits};
+use telextiles_sensing::source::sysfs::{find_camera, find_digit, find_digits};
 use telextiles_sensing::source::yuv::{
     decode_buffer, decode_mjpg, decode_yuyv, encode_yuyv, negotiate, rotate_to_frame,
-    OfferedFormat, PixelFormat, StreamMode,
+    OfferedFormat, PixelFormat,
 };
 use telextiles_sensing::source::{Backoff, FrameSource, Resilient, SourceError};
 
@@ -37,7 +39,12 @@ fn fake_camera(root: &Path, usb: &str, nodes: &[(&str, &str)], attrs: &[(&str, &
         let class = root.join("class/video4linux").join(node);
         std::fs::create_dir_all(&class).unwrap();
         write(&class.join("index"), index);
-        write(&class.join("name"), "DIGIT: DIGIT");
+        // The V4L2 card name, as uvcvideo makes it from the product string.
+        let product = attrs
+            .iter()
+            .find(|(k, _)| *k == "product")
+            .map_or("UVC Camera", |a| a.1);
+        write(&class.join("name"), &format!("{product}: {product}"));
         symlink(&iface, class.join("device")).unwrap();
     }
 }
@@ -91,7 +98,7 @@ fn sysfs_walk_finds_digits_by_usb_id_and_serial() {
         "capture nodes only, webcam skipped"
     );
     assert_eq!(all[0].node, Path::new("/dev/video0"));
-    assert_eq!(all[0].model, "DIGIT");
+    assert_eq!(all[0].product, "DIGIT");
     assert_eq!(all[0].manufacturer, "Facebook");
     assert_eq!(all[0].revision, 200);
     let d = find_digit(t.path(), dev, Some("D00045")).unwrap();
@@ -106,6 +113,80 @@ fn sysfs_walk_finds_digits_by_usb_id_and_serial() {
         }
         other => panic!("expected Unavailable, got {other:?}"),
     }
+}
+
+#[test]
+fn each_profile_finds_its_sensor_by_ids_names_serial_or_node() {
+    let t = fake_sysfs();
+    let dev = Path::new("/dev");
+    fake_camera(
+        t.path(),
+        "1-4",
+        &[("video20", "0")],
+        &[
+            ("idVendor", "2bd9"),
+            ("idProduct", "0001"),
+            ("product", "GelSight Mini R0B 28J3-CWXU"),
+            ("serial", "28J3CWXU"),
+        ],
+    );
+    let gs = find_camera(t.path(), dev, &GELSIGHT_MINI, None).unwrap();
+    assert_eq!(gs.node, Path::new("/dev/video20"));
+    // Selected by serial, node or kernel name.
+    let d = find_camera(t.path(), dev, &DIGIT, Some("/dev/video10")).unwrap();
+    assert_eq!(d.serial, "D00045");
+    assert_eq!(
+        find_camera(t.path(), dev, &DIGIT, Some("video10"))
+            .unwrap()
+            .serial,
+        "D00045"
+    );
+    // A generic camera is any camera; a node names one whatever it is.
+    assert_eq!(
+        find_camera(t.path(), dev, &UVC, None).unwrap().name,
+        "video0"
+    );
+    let w = find_camera(t.path(), dev, &GELSIGHT_MINI, Some("/dev/video2")).unwrap();
+    assert_eq!(w.product, "Webcam C270");
+    // Absent: what it looked for and what is there.
+    let empty = tempfile::tempdir().unwrap();
+    match find_camera(empty.path(), dev, &GELSIGHT_MINI, None) {
+        Err(SourceError::Unavailable(m)) => assert!(
+            m.contains("no GelSight Mini found")
+                && m.contains("named \"GelSight Mini\"")
+                && m.contains("telextilesd sensors"),
+            "{m}"
+        ),
+        other => panic!("expected Unavailable, got {other:?}"),
+    }
+    match find_camera(t.path(), dev, &GELSIGHT_MINI, Some("XYZ")) {
+        Err(SourceError::Unavailable(m)) => assert!(m.contains("28J3CWXU (/dev/video20)"), "{m}"),
+        other => panic!("expected Unavailable, got {other:?}"),
+    }
+}
+
+#[test]
+fn a_camera_is_identified_by_its_profile_or_told_how_to_describe_it() {
+    let t = fake_sysfs();
+    let cams = telextiles_sensing::source::sysfs::find_cameras(t.path(), Path::new("/dev"));
+    use telextiles_sensing::source::sysfs::identify_camera;
+    // The first camera a built-in profile knows (the DIGIT on video0).
+    let (p, c) = identify_camera(&cams, None).unwrap();
+    assert_eq!((p.name, c.name.as_str()), ("digit", "video0"));
+    // The webcam, named: none of the built-in sensors.
+    let e = identify_camera(&cams, Some("/dev/video2")).unwrap_err();
+    assert!(
+        e.contains("Webcam C270") && e.contains("sensor_profile = \"uvc\""),
+        "{e}"
+    );
+    let e = identify_camera(&cams, Some("/dev/video99")).unwrap_err();
+    assert!(
+        e.contains("no camera /dev/video99") && e.contains("/dev/video10"),
+        "{e}"
+    );
+    assert!(identify_camera(&[], None)
+        .unwrap_err()
+        .contains("plugged in"));
 }
 
 #[test]
@@ -142,6 +223,10 @@ fn offer(f: &[u8; 4], w: u32, h: u32, fps: &[u32]) -> OfferedFormat {
     }
 }
 
+fn mode(s: &str) -> Mode {
+    s.parse().unwrap()
+}
+
 #[test]
 fn negotiation_prefers_yuyv_qvga60_and_falls_back() {
     let digit = [
@@ -149,26 +234,76 @@ fn negotiation_prefers_yuyv_qvga60_and_falls_back() {
         offer(b"YUYV", 640, 480, &[30, 15]),
         offer(b"MJPG", 320, 240, &[60, 30]),
     ];
-    let n = negotiate(&digit, StreamMode::Qvga60).unwrap();
-    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, StreamMode::Qvga60));
-    let n = negotiate(&digit, StreamMode::Vga30).unwrap();
-    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, StreamMode::Vga30));
+    let n = negotiate(&digit, &DIGIT, None).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, mode("320x240@60")));
+    assert_eq!(n.note, None);
+    let n = negotiate(&digit, &DIGIT, Some(mode("640x480@30"))).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, mode("640x480@30")));
+    assert_eq!(n.note, None);
     let mjpg_only = [offer(b"MJPG", 320, 240, &[60, 30])];
     assert_eq!(
-        negotiate(&mjpg_only, StreamMode::Qvga60).unwrap().format,
+        negotiate(&mjpg_only, &DIGIT, None).unwrap().format,
         PixelFormat::Mjpg
     );
     let qvga30 = [offer(b"YUYV", 320, 240, &[30])];
     assert_eq!(
-        negotiate(&qvga30, StreamMode::Qvga60).unwrap().mode,
-        StreamMode::Qvga30
+        negotiate(&qvga30, &DIGIT, None).unwrap().mode,
+        mode("320x240@30")
     );
     let webcam = [
         offer(b"YUYV", 1280, 720, &[10]),
         offer(b"H264", 320, 240, &[60]),
     ];
-    let e = negotiate(&webcam, StreamMode::Qvga60).unwrap_err();
+    let e = negotiate(&webcam, &DIGIT, None).unwrap_err();
     assert!(e.contains("1280x720") && e.contains("H264"), "{e}");
+}
+
+#[test]
+fn a_mode_the_camera_refuses_is_said_with_what_streams_instead() {
+    // A DIGIT whose firmware streams no VGA: asked for VGA, it streams
+    // QVGA and the owner is told why.
+    let qvga_only = [offer(b"YUYV", 320, 240, &[60, 30])];
+    let n = negotiate(&qvga_only, &DIGIT, Some(mode("640x480@30"))).unwrap();
+    assert_eq!(n.mode, mode("320x240@60"));
+    let note = n.note.expect("a note");
+    assert!(
+        note.contains("DIGIT does not offer 640x480 @ 30 fps")
+            && note.contains("YUYV 320x240 @ [60, 30] fps")
+            && note.contains("streaming 320x240 @ 60 fps instead"),
+        "{note}"
+    );
+}
+
+#[test]
+fn each_profile_negotiates_its_own_modes() {
+    // A GelSight Mini offering its 25 fps modes among others.
+    let gs = [
+        offer(b"MJPG", 3280, 2464, &[15]),
+        offer(b"YUYV", 640, 480, &[25, 15]),
+        offer(b"YUYV", 320, 240, &[25]),
+    ];
+    let n = negotiate(&gs, &GELSIGHT_MINI, None).unwrap();
+    assert_eq!(n.mode, mode("320x240@25"));
+    let n = negotiate(&gs, &GELSIGHT_MINI, Some(mode("640x480@25"))).unwrap();
+    assert_eq!((n.mode, n.note), (mode("640x480@25"), None));
+    // Its own modes missing: an error naming them and what is offered.
+    let e = negotiate(&[offer(b"YUYV", 1280, 720, &[30])], &GELSIGHT_MINI, None).unwrap_err();
+    assert!(
+        e.contains("GelSight Mini modes (320x240 @ 25 fps, 640x480 @ 25 fps")
+            && e.contains("1280x720"),
+        "{e}"
+    );
+    // A generic camera: the mode asked for, else the first it offers in a
+    // format we decode, at its fastest.
+    let cam = [
+        offer(b"H264", 1920, 1080, &[30]),
+        offer(b"MJPG", 1280, 720, &[30, 60]),
+        offer(b"YUYV", 640, 480, &[30]),
+    ];
+    let n = negotiate(&cam, &UVC, None).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Mjpg, mode("1280x720@60")));
+    let n = negotiate(&cam, &UVC, Some(mode("640x480@30"))).unwrap();
+    assert_eq!((n.format, n.mode), (PixelFormat::Yuyv, mode("640x480@30")));
 }
 
 /// A landscape sensor image with a gradient and a red square at sensor
@@ -197,7 +332,8 @@ fn yuyv_decodes_and_rotates_like_digit_interface() {
     assert_eq!(yuyv.len(), 320 * 240 * 2);
     let mut scratch = Vec::new();
     let mut out = RgbImage::new(FRAME_W, FRAME_H);
-    decode_buffer(&yuyv, PixelFormat::Yuyv, 320, 240, &mut scratch, &mut out).unwrap();
+    let mut map = FrameMap::digit(320, 240).unwrap();
+    decode_buffer(&yuyv, PixelFormat::Yuyv, &mut map, &mut scratch, &mut out).unwrap();
     assert_eq!((out.width(), out.height()), (240, 320));
     // digit-interface: cv2.transpose then cv2.flip(0): out(x, y) = in(319 - y, x).
     for (x, y) in [(0u32, 0u32), (239, 319), (15, 14), (100, 200), (5, 300)] {
@@ -252,7 +388,8 @@ fn mjpg_decodes_and_rejects_garbage_and_wrong_sizes() {
         .unwrap();
     let mut scratch = Vec::new();
     let mut out = RgbImage::new(FRAME_W, FRAME_H);
-    decode_buffer(&jpeg, PixelFormat::Mjpg, 320, 240, &mut scratch, &mut out).unwrap();
+    let mut map = FrameMap::digit(320, 240).unwrap();
+    decode_buffer(&jpeg, PixelFormat::Mjpg, &mut map, &mut scratch, &mut out).unwrap();
     assert!(close(
         &out.get_pixel(100, 200).0,
         &src.get_pixel(119, 100).0,
@@ -282,7 +419,9 @@ proptest! {
         let mut scratch = Vec::new();
         let mut out = RgbImage::new(FRAME_W, FRAME_H);
         let f = if mjpg { PixelFormat::Mjpg } else { PixelFormat::Yuyv };
-        let _ = decode_buffer(&bytes, f, w, h, &mut scratch, &mut out);
+        if let Ok(mut map) = FrameMap::new(w, h, true, 0.05) {
+            let _ = decode_buffer(&bytes, f, &mut map, &mut scratch, &mut out);
+        }
         let mut jpegish = vec![0xff, 0xd8, 0xff, 0xe0];
         jpegish.extend_from_slice(&bytes);
         let _ = decode_mjpg(&jpegish, 320, 240, &mut scratch);

@@ -73,6 +73,8 @@ fn args(model: PathBuf, index: PathBuf) -> Args {
         felt_svg: None,
         contact: Default::default(),
         decision: Default::default(),
+        mix_sensors: false,
+        sensor_opts: Default::default(),
     }
 }
 
@@ -865,4 +867,47 @@ fn classify_decides_with_the_daemons_commit_margin_and_encode_run() {
         soon.iter().zip(&late).all(|(s, l)| s <= l) && soon.iter().zip(&late).any(|(s, l)| s < l),
         "margin 0: {soon:?}, margin 2: {late:?}"
     );
+}
+
+/// A GelSight-Mini-shaped recording (320x240 landscape at 25 fps, as the
+/// camera streams) is read through its profile; against an index of a
+/// DIGIT's presses it is refused by name, unless mixing is asked for.
+#[test]
+fn a_recording_of_another_sensor_is_mapped_and_refused_against_a_digits_index() {
+    let dir = tempfile::tempdir().unwrap();
+    let index = index_file(dir.path());
+    let sim = Simulator::new().unwrap();
+    let press = sim.render_press(&PressSpec::new("T030", 2)).unwrap();
+    let gs = &telextiles_recording::profile::GELSIGHT_MINI;
+    let cam = telextiles_sim::camera::as_camera(&press, gs, gs.modes[0]).unwrap();
+    let rec = dir.path().join("gs/T030");
+    telextiles_recording::recording::write_press(&rec, &cam).unwrap();
+    let e = run_to(
+        Args {
+            press: vec![rec.clone()],
+            ..args(fixture_model(), index.clone())
+        },
+        &mut Vec::new(),
+    )
+    .unwrap_err();
+    let e = format!("{e:#}");
+    assert!(
+        e.contains("built from presses of a digit sensor")
+            && e.contains("gelsight-mini")
+            && e.contains("--mix-sensors"),
+        "{e}"
+    );
+    let mut out = Vec::new();
+    run_to(
+        Args {
+            press: vec![rec],
+            mix_sensors: true,
+            ..args(fixture_model(), index)
+        },
+        &mut out,
+    )
+    .unwrap();
+    let lines = json_lines(&out);
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    assert!(lines[0]["textile"].is_string(), "{}", lines[0]);
 }

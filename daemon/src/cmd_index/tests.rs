@@ -52,6 +52,7 @@ fn partial_presses_are_named_with_their_coverage() {
         dir.path(),
         &References::none(),
         None,
+        Sensors::default(),
         4,
         "test",
     )
@@ -519,4 +520,64 @@ fn coverage_report_covers_every_method_and_beats_random() {
     // Without unseen presses their columns say so.
     let r2 = coverage_report(&index, &[], 8, 0);
     assert!(r2.lines().nth(2).unwrap().trim_end().ends_with('-'), "{r2}");
+}
+
+#[test]
+fn presses_of_two_sensor_profiles_make_an_index_only_when_mixed_on_purpose() {
+    let dir = tempfile::tempdir().unwrap();
+    let frame = telextiles_sensing::frame::Frame::blank().into_image();
+    let meta = |profile: Option<&str>| telextiles_recording::PressMeta {
+        textile: "T001".into(),
+        person: 0,
+        sensor: 0,
+        jig: false,
+        fps: 25.0,
+        timestamps_us: vec![0],
+        seed: None,
+        source: "test".into(),
+        sensor_serial: None,
+        params: None,
+        reference_frames: None,
+        mm_per_px: profile.map(|_| 0.08),
+        sensor_profile: profile.map(str::to_string),
+    };
+    let write = |name: &str, profile: Option<&str>| {
+        telextiles_recording::recording::write_press(
+            &dir.path().join(name),
+            &telextiles_recording::Press {
+                meta: meta(profile),
+                frames: vec![frame.clone()],
+            },
+        )
+        .unwrap();
+    };
+    write("T001/0001", Some("gelsight-mini"));
+    let found =
+        |root: &std::path::Path| telextiles_recording::recording::find_recordings(root).unwrap();
+    // One sensor: the index says which (a DIGIT's says nothing).
+    assert_eq!(
+        sensor_of(&found(dir.path()), false).unwrap().as_deref(),
+        Some("gelsight-mini")
+    );
+    write("T002/0001", None);
+    assert_eq!(
+        sensor_of(&found(&dir.path().join("T002")), false).unwrap(),
+        None
+    );
+    // Two: refused, naming each with a press, unless mixed.
+    let e = sensor_of(&found(dir.path()), false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("2 sensor profiles")
+            && e.contains("digit (e.g.")
+            && e.contains("T002/0001")
+            && e.contains("gelsight-mini (e.g.")
+            && e.contains("--mix-sensors"),
+        "{e}"
+    );
+    assert_eq!(
+        sensor_of(&found(dir.path()), true).unwrap().as_deref(),
+        Some("mixed:digit+gelsight-mini")
+    );
 }

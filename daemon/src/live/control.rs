@@ -237,7 +237,7 @@ impl Handler for Daemon {
                 Command::RecordStart(a) => {
                     use super::recording::{label_from_description, LiveRecording, RecordCtl};
                     let (source, serial) = label_from_description(&s.sensor_desc);
-                    let (rec, reply) = LiveRecording::start(&a, source, serial)
+                    let (rec, reply) = LiveRecording::start(&a, source, serial, s.sensor_profile)
                         .map_err(|e| CtlError::failed(format!("{e:#}")))?;
                     s.sensor_tx
                         .send(SensorCmd::Record(RecordCtl::Start(Box::new(rec))))

@@ -101,6 +101,7 @@ impl LiveRecording {
         args: &telextiles_control::RecordStartArgs,
         source: &str,
         serial: Option<String>,
+        profile: &telextiles_recording::profile::SensorProfile,
     ) -> Result<(LiveRecording, serde_json::Value)> {
         check_id(&args.textile)?;
         if args.presses == 0 {
@@ -127,6 +128,7 @@ impl LiveRecording {
             sensor: 0,
             person: 0,
             jig: false,
+            sensor_profile: telextiles_recording::profile_tag(profile),
         };
         let reply = serde_json::json!({
             "textile": args.textile,
@@ -360,8 +362,13 @@ mod tests {
             presses: 2,
             out: d.path().to_str().expect("utf-8").into(),
         };
-        let (mut live, reply) =
-            LiveRecording::start(&args, "sim", Some("SIM0000".into())).expect("start");
+        let (mut live, reply) = LiveRecording::start(
+            &args,
+            "sim",
+            Some("SIM0000".into()),
+            &telextiles_recording::profile::DIGIT,
+        )
+        .expect("start");
         assert_eq!(reply["first"], "0002");
         assert_eq!(reply["presses"], 2);
         let mut src = sim_frames("T030");
@@ -432,7 +439,9 @@ mod tests {
             presses: 3,
             out: d.path().to_str().expect("utf-8").into(),
         };
-        let (mut live, _) = LiveRecording::start(&args, "digit", None).expect("start");
+        let (mut live, _) =
+            LiveRecording::start(&args, "digit", None, &telextiles_recording::profile::DIGIT)
+                .expect("start");
         let mut src = sim_frames("T030");
         let mut det = ContactDetector::new(ContactConfig::default());
         let mut frame = Frame::blank();

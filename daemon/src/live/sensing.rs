@@ -23,6 +23,9 @@ use telextiles_session::{EarlierFrame, SenderCore, Sensed, TxAction};
 
 use super::{Counters, SessionOptions, State};
 use crate::config::{Config, SensorSource};
+use telextiles_recording::profile::{Mode, SensorProfile, DIGIT};
+#[cfg(target_os = "linux")]
+use telextiles_sensing::source::camera::CameraOptions;
 
 /// Commands for the sensing thread.
 #[derive(Debug)]
@@ -45,9 +48,14 @@ pub(crate) enum SensorCmd {
     Stop,
 }
 
-/// The frame source, the simulator's handle (when simulated) and a
-/// description for people.
-pub(crate) type OpenedSource = (Box<dyn FrameSource>, Option<Simulated>, String);
+/// The frame source, the simulator's handle (when simulated), a
+/// description for people and the sensor's profile.
+pub(crate) struct OpenedSource {
+    pub(crate) source: Box<dyn FrameSource>,
+    pub(crate) sim: Option<Simulated>,
+    pub(crate) desc: String,
+    pub(crate) profile: &'static SensorProfile,
+}
 
 /// The simulated DIGIT: its steering handle and its simulator.
 #[cfg(feature = "sim")]
@@ -74,7 +82,10 @@ pub(crate) fn given_references(cfg: &Config) -> Result<References> {
             cfg.sensor
         );
     }
-    Ok(References::from_args(&cfg.reference)?)
+    Ok(References::from_args_as(
+        &cfg.reference,
+        cfg.sensor_given(),
+    )?)
 }
 
 /// The configured `replay_fps`, checked against the sensor: it is for
@@ -113,8 +124,12 @@ fn sim_source(
             format!("simulated DIGIT, lifted until `telextilesd ctl sensor sim <textile>`{why}"),
         ),
     };
-    let src: Box<dyn FrameSource> = Box::new(src);
-    Ok((src, Some(Simulated { handle, simulator }), desc))
+    Ok(OpenedSource {
+        source: Box::new(src),
+        sim: Some(Simulated { handle, simulator }),
+        desc,
+        profile: &DIGIT,
+    })
 }
 
 #[cfg(not(feature = "sim"))]
@@ -127,10 +142,68 @@ fn sim_source(
     Err(crate::sim_off(&format!("the simulated DIGIT{why}")))
 }
 
+/// What to open for a camera source: a DIGIT (`digit[:serial]`), or a
+/// camera of the configured profile (`camera[:select]`; with no
+/// `sensor_profile`, the profile found from the camera's USB ids and
+/// name), in the configured mode and scale.
+pub(crate) fn camera_options(
+    source: &SensorSource,
+    profile: Option<&'static SensorProfile>,
+    mm_per_px: Option<f32>,
+    mode: Option<Mode>,
+) -> Result<CameraOptions> {
+    let (profile, select) = match source {
+        SensorSource::Digit { serial } => {
+            if let Some(p) = profile.filter(|p| p.name != DIGIT.name) {
+                anyhow::bail!(
+                    "sensor = digit reads a DIGIT, but sensor_profile is {}: say sensor = camera (or camera:/dev/videoN) for another sensor",
+                    p.name
+                );
+            }
+            (&DIGIT, serial.clone())
+        }
+        SensorSource::Camera { select } => match profile {
+            Some(p) => (p, select.clone()),
+            None => {
+                let defaults = CameraOptions::default();
+                let cameras = telextiles_sensing::source::sysfs::find_cameras(
+                    &defaults.sysfs_root,
+                    &defaults.dev_root,
+                );
+                let (p, cam) =
+                    telextiles_sensing::source::sysfs::identify_camera(&cameras, select.as_deref())
+                        .map_err(anyhow::Error::msg)?;
+                (p, Some(cam.node.display().to_string()))
+            }
+        },
+        other => anyhow::bail!("{other} is not a camera"),
+    };
+    Ok(CameraOptions {
+        profile,
+        select,
+        mode,
+        mm_per_px,
+        ..Default::default()
+    })
+}
+
 /// Opens the configured frame source. A simulated DIGIT presses fabrics
 /// of the index's simulator catalogue (so that its textile ids mean the
-/// fabrics the index was built from).
+/// fabrics the index was built from). Frames of a sensor the index was
+/// not built for are refused ([`telextiles_index::Index::check_sensor`]).
 pub(crate) fn open_source(
+    cfg: &Config,
+    opts: &SessionOptions,
+    index: &telextiles_index::Index,
+) -> Result<OpenedSource> {
+    let opened = open_frames(cfg, opts, index)?;
+    index
+        .check_sensor(opened.profile.name)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", opened.desc))?;
+    Ok(opened)
+}
+
+fn open_frames(
     cfg: &Config,
     opts: &SessionOptions,
     index: &telextiles_index::Index,
@@ -143,41 +216,92 @@ pub(crate) fn open_source(
         SensorSource::Replay { dir } => {
             let src = RecordingsSource::open(dir, Pace::RealTime, references)?
                 .assume_fps(cfg.replay_fps)?
+                .assume_sensor(cfg.sensor_given())?
                 .looping(true);
-            let desc = src.describe();
-            Ok((Box::new(src), None, desc))
-        }
-        SensorSource::Digit { serial } => {
-            let opts = telextiles_sensing::source::digit::DigitOptions {
-                serial: serial.clone(),
-                ..Default::default()
+            let profiles = telextiles_recording::recording::profiles(src.recordings())?;
+            let mut names = profiles.keys();
+            let profile = match (names.next(), names.next()) {
+                (Some(p), None) => {
+                    telextiles_recording::profile::by_name(p).map_err(anyhow::Error::msg)?
+                }
+                (None, _) => &DIGIT,
+                (Some(_), Some(_)) => {
+                    // Each is checked against the index by name.
+                    for (p, first) in &profiles {
+                        index
+                            .check_sensor(p)
+                            .map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
+                    }
+                    &DIGIT
+                }
             };
-            match telextiles_sensing::source::digit::DigitSource::open(&opts) {
-                Ok(src) => {
-                    let desc = format!(
-                        "DIGIT {} on {}",
-                        src.info().serial,
-                        src.info().node.display()
-                    );
-                    // The first open succeeded; later opens (after an unplug)
-                    // retry with backoff.
-                    let mut first = Some(src);
-                    let src = telextiles_sensing::source::Resilient::new(move || {
-                        if let Some(s) = first.take() {
-                            return Ok(Box::new(s) as Box<dyn FrameSource>);
-                        }
-                        telextiles_sensing::source::digit::DigitSource::open(&opts)
-                            .map(|s| Box::new(s) as Box<dyn FrameSource>)
-                    });
-                    Ok((Box::new(src), None, desc))
-                }
-                Err(e) if serial.is_none() => {
-                    eprintln!("{e}; using the simulated DIGIT");
-                    sim_source(session, index, None, " (no DIGIT found)")
-                }
-                Err(e) => Err(e.into()),
+            let desc = src.describe();
+            Ok(OpenedSource {
+                source: Box::new(src),
+                sim: None,
+                desc,
+                profile,
+            })
+        }
+        SensorSource::Digit { .. } | SensorSource::Camera { .. } => {
+            #[cfg(target_os = "linux")]
+            {
+                open_camera(cfg, session, index)
+            }
+            #[cfg(not(target_os = "linux"))]
+            {
+                anyhow::bail!("cameras are read over V4L2, which only Linux has; use sensor = sim or replay:<dir>")
             }
         }
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn open_camera(
+    cfg: &Config,
+    session: &SessionOptions,
+    index: &telextiles_index::Index,
+) -> Result<OpenedSource> {
+    use telextiles_sensing::source::camera::CameraSource;
+    let opts = camera_options(
+        &cfg.sensor,
+        cfg.sensor_profile,
+        cfg.sensor_mm_per_px,
+        cfg.sensor_mode,
+    );
+    let opts = match (opts, &cfg.sensor) {
+        (Ok(o), _) => o,
+        (Err(e), SensorSource::Camera { select: None }) => {
+            eprintln!("{e}; using the simulated DIGIT");
+            return sim_source(session, index, None, " (no camera found)");
+        }
+        (Err(e), _) => return Err(e),
+    };
+    let profile = opts.profile;
+    match CameraSource::open(&opts) {
+        Ok(src) => {
+            let desc = src.describe();
+            // The first open succeeded; later opens (after an unplug)
+            // retry with backoff.
+            let mut first = Some(src);
+            let src = telextiles_sensing::source::Resilient::new(move || {
+                if let Some(s) = first.take() {
+                    return Ok(Box::new(s) as Box<dyn FrameSource>);
+                }
+                CameraSource::open(&opts).map(|s| Box::new(s) as Box<dyn FrameSource>)
+            });
+            Ok(OpenedSource {
+                source: Box::new(src),
+                sim: None,
+                desc,
+                profile,
+            })
+        }
+        Err(e) if matches!(cfg.sensor, SensorSource::Digit { serial: None }) => {
+            eprintln!("{e}; using the simulated DIGIT");
+            sim_source(session, index, None, " (no DIGIT found)")
+        }
+        Err(e) => Err(e.into()),
     }
 }
 

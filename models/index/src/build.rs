@@ -244,6 +244,9 @@ pub struct IndexBuilder {
     /// encoder's embedding alone by default): recorded in the index, so
     /// every daemon holding it makes its queries alike.
     pub features: crate::Features,
+    /// The sensor profile the records came from ([`crate::Index::sensor`];
+    /// None: a DIGIT).
+    pub sensor: Option<String>,
 }
 
 /// The quantile `telextilesd index build --presses` calibrates at by
@@ -301,6 +304,7 @@ impl IndexBuilder {
             metric: MetricFit::Cosine,
             unknown_quantile: None,
             features: crate::Features::Encoder,
+            sensor: None,
         }
     }
 
@@ -493,6 +497,7 @@ impl IndexBuilder {
             metric,
             unknown,
             features: self.features,
+            sensor: self.sensor,
         };
         for (e, p) in index.entries.iter_mut().zip(xy) {
             e.map_xy = [p[0], p[1]];

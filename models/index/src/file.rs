@@ -8,11 +8,14 @@
 //! followed by its optional metric and its optional calibrated
 //! unknown-textile distance; version 4's is the index followed by its
 //! optional metric, its optional unknown distance and its [`Features`]
-//! (an index of texture features beside the encoder's). Each index is
+//! (an index of texture features beside the encoder's); version 5's adds
+//! the sensor profile its presses came from after those (an index of
+//! another sensor than a DIGIT). Each index is
 //! written in the oldest version that holds it: without either as version 1, byte for byte as before
 //! version 2 existed (same fingerprint, readable by older builds); with a
 //! metric only as version 2; with a calibrated distance as version 3; with
-//! texture features as version 4. This build reads all four.
+//! texture features as version 4; of another sensor as version 5. This
+//! build reads all five.
 
 use crate::{Features, Index, Metric, UnknownDistance};
 use sha2::{Digest, Sha256};
@@ -24,7 +27,7 @@ pub const MAGIC: [u8; 4] = *b"TLXI";
 /// Newest format version (an index with a calibrated unknown-textile
 /// distance); older indexes are written in the oldest version that holds
 /// them (see the module docs).
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 const HEADER: usize = 4 + 4 + 8;
 const MAX_PAYLOAD: u64 = 256 << 20;
 
@@ -88,6 +91,13 @@ fn config() -> impl bincode::config::Config {
 }
 
 pub(crate) fn payload(index: &Index) -> Vec<u8> {
+    if let Some(sensor) = &index.sensor {
+        return bincode::serde::encode_to_vec(
+            (index, &index.metric, index.unknown, index.features, sensor),
+            config(),
+        )
+        .expect("an index always encodes");
+    }
     if index.features != Features::Encoder {
         return bincode::serde::encode_to_vec(
             (index, &index.metric, index.unknown, index.features),
@@ -104,6 +114,9 @@ pub(crate) fn payload(index: &Index) -> Vec<u8> {
 }
 
 fn version_of(index: &Index) -> u32 {
+    if index.sensor.is_some() {
+        return 5;
+    }
     if index.features != Features::Encoder {
         return 4;
     }
@@ -199,6 +212,22 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Index, IndexError> {
             let ((mut index, metric), used): ((Index, Metric), usize) =
                 bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
             index.metric = Some(metric);
+            (index, used)
+        }
+        5 => {
+            type V5 = (
+                Index,
+                Option<Metric>,
+                Option<UnknownDistance>,
+                Features,
+                String,
+            );
+            let ((mut index, metric, unknown, features, sensor), used): (V5, usize) =
+                bincode::serde::decode_from_slice(payload, config()).map_err(undecodable)?;
+            index.metric = metric;
+            index.unknown = unknown;
+            index.features = features;
+            index.sensor = Some(sensor);
             (index, used)
         }
         4 => {

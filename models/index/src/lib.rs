@@ -106,6 +106,33 @@ pub struct Index {
     /// encoded after the rest).
     #[serde(skip)]
     pub features: Features,
+    /// The sensor profile its presses came from (`gelsight-mini`, `uvc`),
+    /// or `mixed:<a>+<b>` when built from several on purpose; None: a
+    /// DIGIT (every index made before profiles, and the simulator's).
+    /// Presses of another profile are refused against it unless it is
+    /// mixed (file format version 5, encoded after the rest).
+    #[serde(skip)]
+    pub sensor: Option<String>,
+}
+
+/// The profile family an index holding `sensor` ([`Index::sensor`]) is
+/// of, for messages: `digit` when it names none.
+pub fn sensor_family(sensor: Option<&str>) -> &str {
+    sensor.unwrap_or("digit")
+}
+
+impl Index {
+    /// Refuse queries from a sensor of `profile` (by name) unless the
+    /// index's presses came from the same profile or it was built mixed.
+    pub fn check_sensor(&self, profile: &str) -> Result<(), String> {
+        let own = sensor_family(self.sensor.as_deref());
+        if own == profile || own.starts_with("mixed:") {
+            return Ok(());
+        }
+        Err(format!(
+            "the index was built from presses of a {own} sensor, and these frames come from a {profile}: a fabric looks different through another sensor's gel, light and camera; build an index from presses of this sensor (`telextilesd index build --presses`), or one from both with --mix-sensors"
+        ))
+    }
 }
 
 /// What an index's query vectors are made of, which every daemon holding
@@ -318,6 +345,13 @@ impl Index {
         let bad = |m: String| Err(IndexError::Invalid(m));
         if self.entries.is_empty() {
             return bad("the index has no textiles".into());
+        }
+        if let Some(s) = &self.sensor {
+            if s.is_empty() || s.len() > 64 || s == "digit" {
+                return bad(format!(
+                    "sensor {s:?} is not a sensor profile name (a DIGIT's index names none)"
+                ));
+            }
         }
         if self.dim <= self.features.extra_dim() {
             return bad(format!(

@@ -718,3 +718,66 @@ fn an_index_of_texture_features_is_format_version_4_and_says_so() {
     narrow.features = Features::EncoderLbp;
     refused_on_write_and_read(&narrow, dir.path(), "leaves nothing of the encoder's");
 }
+
+#[test]
+fn an_index_of_another_sensor_is_format_version_5_and_refuses_the_others() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let dim = 16;
+    let mut b = IndexBuilder::new("abc123", "test", dim, 0);
+    for t in 0..3 {
+        let presses: Vec<Vec<f32>> = (0..2)
+            .map(|_| {
+                (0..dim)
+                    .map(|k| f32::from(k == t) + rng.gen_range(-0.1..0.1))
+                    .collect()
+            })
+            .collect();
+        b.add(TextileRecord {
+            id: format!("F{t}"),
+            name: format!("fabric {t}"),
+            seen: true,
+            structure: String::new(),
+            attributes: vec![],
+            embeddings: presses.clone(),
+            exemplars: presses,
+            press_frames: vec![],
+        })
+        .unwrap();
+    }
+    b.roller_n = 3;
+    let digit = b.clone().build().unwrap();
+    b.sensor = Some("gelsight-mini".into());
+    let index = b.build().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("gs.tlxi");
+    index.write(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(u32::from_le_bytes(bytes[4..8].try_into().unwrap()), 5);
+    let back = Index::read(&path).unwrap();
+    assert_eq!(back, index);
+    assert_eq!(back.sensor.as_deref(), Some("gelsight-mini"));
+    // The sensor is part of what peers compare; a DIGIT's index is as before.
+    assert_ne!(digit.fingerprint(), index.fingerprint());
+    let dpath = dir.path().join("digit.tlxi");
+    digit.write(&dpath).unwrap();
+    let dbytes = std::fs::read(&dpath).unwrap();
+    assert_eq!(u32::from_le_bytes(dbytes[4..8].try_into().unwrap()), 1);
+    // Frames of another sensor are refused by name, unless it is mixed.
+    assert!(index.check_sensor("gelsight-mini").is_ok());
+    let e = index.check_sensor("digit").unwrap_err();
+    assert!(
+        e.contains("gelsight-mini sensor")
+            && e.contains("from a digit")
+            && e.contains("--mix-sensors"),
+        "{e}"
+    );
+    assert!(digit.check_sensor("digit").is_ok());
+    assert!(digit.check_sensor("uvc").is_err());
+    let mut mixed = index.clone();
+    mixed.sensor = Some("mixed:digit+gelsight-mini".into());
+    assert!(mixed.check_sensor("digit").is_ok());
+    // A sensor name that is not one is refused on write and on read.
+    let mut bad = index.clone();
+    bad.sensor = Some("digit".into());
+    refused_on_write_and_read(&bad, dir.path(), "not a sensor profile name");
+}

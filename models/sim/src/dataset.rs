@@ -136,6 +136,21 @@ pub fn write<I: IntoIterator<Item = PressSpec>>(
     sim: &Simulator,
     specs: I,
     root: &Path,
+    progress: impl FnMut(usize, &PressSpec),
+) -> Result<usize, DatasetError> {
+    write_as(sim, specs, root, None, progress)
+}
+
+/// [`write`], each press seen by `camera`'s profile in its mode
+/// ([`crate::camera::as_camera`]; None: the simulated DIGIT's frames).
+pub fn write_as<I: IntoIterator<Item = PressSpec>>(
+    sim: &Simulator,
+    specs: I,
+    root: &Path,
+    camera: Option<(
+        &telextiles_recording::profile::SensorProfile,
+        telextiles_recording::profile::Mode,
+    )>,
     mut progress: impl FnMut(usize, &PressSpec),
 ) -> Result<usize, DatasetError> {
     let mut n = 0;
@@ -144,7 +159,10 @@ pub fn write<I: IntoIterator<Item = PressSpec>>(
         if dir.join(recording::META_FILE).exists() {
             continue;
         }
-        let press = sim.render_press(&spec)?;
+        let mut press = sim.render_press(&spec)?;
+        if let Some((profile, mode)) = camera {
+            press = crate::camera::as_camera(&press, profile, mode)?;
+        }
         recording::write_press(&dir, &press)?;
         n += 1;
         progress(n, &spec);

@@ -12,6 +12,7 @@
 
 pub mod bolt;
 pub mod calib;
+pub mod camera;
 pub mod catalogue;
 pub mod dataset;
 pub mod fabric;

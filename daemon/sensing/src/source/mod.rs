@@ -7,6 +7,7 @@ use std::time::Duration;
 use crate::frame::{Frame, FrameError};
 
 #[cfg(target_os = "linux")]
+pub mod camera;
 pub mod digit;
 pub mod fps;
 pub mod recorded;

@@ -230,6 +230,20 @@ impl RecordingsSource {
         Ok(self)
     }
 
+    /// Say which sensor made recordings that do not name it (PyTouch
+    /// sequences: mapped to the frame and timed by its profile); a press
+    /// directory naming another is refused ([`SourceError::Fatal`]
+    /// naming both). None: recordings name their own, else a DIGIT.
+    pub fn assume_sensor(
+        mut self,
+        sensor: Option<telextiles_recording::recording::Sensor>,
+    ) -> Result<Self, SourceError> {
+        telextiles_recording::recording::assume_sensor(&mut self.recordings, sensor).map_err(
+            |e| SourceError::Fatal(format!("cannot replay {}: {e}", self.root.display())),
+        )?;
+        Ok(self)
+    }
+
     /// After the last recording, start again from the first.
     pub fn looping(mut self, on: bool) -> Self {
         self.looping = on;

@@ -1,6 +1,7 @@
-//! Pure parts of DIGIT capture: stream-format negotiation, decoding of YUYV
-//! and MJPG buffers, and the rotation to the portrait frames
-//! `digit-interface` returns.
+//! Pure parts of camera capture: stream-format negotiation by sensor
+//! profile, decoding of YUYV and MJPG buffers, and the mapping to the
+//! portrait frames `digit-interface` returns (any other sensor's through
+//! its [`FrameMap`]).
 //!
 //! Orientation: the DIGIT's image sensor streams landscape (320x240 QVGA).
 //! `digit-interface` `get_frame()` applies `cv2.transpose` then
@@ -11,6 +12,9 @@
 //! one geometry.
 
 use image::RgbImage;
+
+use telextiles_recording::profile::{Mode, SensorProfile};
+use telextiles_recording::resample::FrameMap;
 
 use crate::frame::{FrameError, FRAME_H, FRAME_W};
 
@@ -41,46 +45,6 @@ impl PixelFormat {
     }
 }
 
-/// The DIGIT's stream modes (`DigitHandler.STREAMS`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StreamMode {
-    /// 320x240 at 60 fps (the default).
-    Qvga60,
-    /// 320x240 at 30 fps.
-    Qvga30,
-    /// 640x480 at 30 fps.
-    Vga30,
-    /// 640x480 at 15 fps.
-    Vga15,
-}
-
-impl StreamMode {
-    /// Sensor-orientation width, height and frame rate.
-    pub fn geometry(self) -> (u32, u32, u32) {
-        match self {
-            StreamMode::Qvga60 => (320, 240, 60),
-            StreamMode::Qvga30 => (320, 240, 30),
-            StreamMode::Vga30 => (640, 480, 30),
-            StreamMode::Vga15 => (640, 480, 15),
-        }
-    }
-    /// Modes to try, the wanted one first, then the DIGIT defaults in order.
-    pub fn fallbacks(self) -> Vec<StreamMode> {
-        let mut v = vec![self];
-        for m in [
-            StreamMode::Qvga60,
-            StreamMode::Qvga30,
-            StreamMode::Vga30,
-            StreamMode::Vga15,
-        ] {
-            if m != self {
-                v.push(m);
-            }
-        }
-        v
-    }
-}
-
 /// One (format, size) the device offers, with its frame rates.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct OfferedFormat {
@@ -95,30 +59,89 @@ pub struct OfferedFormat {
 }
 
 /// What to ask the driver for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Negotiated {
     /// Pixel format.
     pub format: PixelFormat,
-    /// Mode (size and rate).
-    pub mode: StreamMode,
+    /// Size (the camera's orientation) and frame rate.
+    pub mode: Mode,
+    /// Set when the mode asked for is not the one chosen: what the owner
+    /// should be told (the camera does not offer it).
+    pub note: Option<String>,
 }
 
-/// Pick a format for `want`: the wanted mode if offered (YUYV preferred over
-/// MJPG: no decode cost, no compression artefacts), else the first fallback
-/// mode offered. Error if the device offers none of the DIGIT modes in a
-/// format we decode.
-pub fn negotiate(offered: &[OfferedFormat], want: StreamMode) -> Result<Negotiated, String> {
-    for mode in want.fallbacks() {
-        let (w, h, fps) = mode.geometry();
-        for format in [PixelFormat::Yuyv, PixelFormat::Mjpg] {
-            let ok = offered.iter().any(|o| {
-                o.fourcc == format.fourcc() && o.width == w && o.height == h && o.fps.contains(&fps)
-            });
-            if ok {
-                return Ok(Negotiated { format, mode });
+fn mode_text(m: &Mode) -> String {
+    format!("{}x{} @ {} fps", m.width, m.height, m.fps)
+}
+
+/// Pick a format for `profile`'s camera: the mode asked for (`want`) if
+/// the camera offers it, else the profile's modes in order, else (a
+/// generic profile, which lists none) the first mode offered; YUYV
+/// preferred over MJPG (no decode cost, no compression artefacts). A mode
+/// asked for and not offered is not an error, but the result's `note`
+/// says so and what was chosen instead (a DIGIT that refuses VGA). Error
+/// if the camera offers none of them in a format we decode.
+pub fn negotiate(
+    offered: &[OfferedFormat],
+    profile: &SensorProfile,
+    want: Option<Mode>,
+) -> Result<Negotiated, String> {
+    let mut candidates: Vec<Mode> = want
+        .into_iter()
+        .chain(profile.modes.iter().copied())
+        .collect();
+    if profile.modes.is_empty() {
+        for o in offered {
+            if PixelFormat::from_fourcc(o.fourcc).is_some() {
+                if let Some(&fps) = o.fps.iter().max() {
+                    candidates.push(Mode {
+                        width: o.width,
+                        height: o.height,
+                        fps: fps as f32,
+                    });
+                }
             }
         }
     }
+    for mode in &candidates {
+        let fps = mode.fps.round() as u32;
+        for format in [PixelFormat::Yuyv, PixelFormat::Mjpg] {
+            let ok = offered.iter().any(|o| {
+                o.fourcc == format.fourcc()
+                    && (o.width, o.height) == (mode.width, mode.height)
+                    && o.fps.contains(&fps)
+            });
+            if ok {
+                let note = want.filter(|w| w != mode).map(|w| {
+                    format!(
+                        "the {} does not offer {} (it offers {}); streaming {} instead",
+                        profile.label,
+                        mode_text(&w),
+                        offered_text(offered),
+                        mode_text(mode)
+                    )
+                });
+                return Ok(Negotiated {
+                    format,
+                    mode: *mode,
+                    note,
+                });
+            }
+        }
+    }
+    Err(format!(
+        "the camera offers none of the {} modes ({} in YUYV or MJPG); it offers: {}",
+        profile.label,
+        candidates
+            .iter()
+            .map(mode_text)
+            .collect::<Vec<_>>()
+            .join(", "),
+        offered_text(offered)
+    ))
+}
+
+fn offered_text(offered: &[OfferedFormat]) -> String {
     let list: Vec<String> = offered
         .iter()
         .map(|o| {
@@ -131,10 +154,11 @@ pub fn negotiate(offered: &[OfferedFormat], want: StreamMode) -> Result<Negotiat
             )
         })
         .collect();
-    Err(format!(
-        "the camera offers none of the DIGIT modes (320x240 @ 60/30, 640x480 @ 30/15 in YUYV or MJPG); it offers: {}",
-        if list.is_empty() { "nothing".to_string() } else { list.join("; ") }
-    ))
+    if list.is_empty() {
+        "nothing".to_string()
+    } else {
+        list.join("; ")
+    }
 }
 
 #[inline]
@@ -221,12 +245,12 @@ pub fn decode_mjpg(
     Ok(())
 }
 
-/// Rotate a sensor-orientation RGB buffer (`width` x `height`, landscape)
-/// into the 240x320 portrait frame: 90 degrees counter-clockwise
-/// (digit-interface's transpose + vertical flip). 320x240 maps 1:1; 640x480
-/// is rotated and averaged over 2x2 blocks. The mapping is
-/// [`telextiles_recording::recording::to_frame`], which the reader of others'
-/// saved frames shares; a stream must be landscape.
+/// Map a DIGIT's landscape RGB buffer (`width` x `height`) to the
+/// 240x320 portrait frame: 90 degrees counter-clockwise (digit-interface's
+/// transpose + vertical flip), VGA averaged over 2x2 blocks
+/// ([`FrameMap::digit`], which the reader of others' saved frames
+/// shares); a stream must be landscape. Per-frame callers keep a
+/// [`FrameMap`] and call [`decode_buffer`].
 pub fn rotate_to_frame(
     rgb: &[u8],
     width: u32,
@@ -238,23 +262,26 @@ pub fn rotate_to_frame(
             "cannot map a {width}x{height} sensor frame to {FRAME_W}x{FRAME_H}: the camera streams landscape"
         )));
     }
-    telextiles_recording::recording::to_frame(rgb, width, height, out).map_err(FrameError::Decode)
+    FrameMap::digit(width, height)
+        .and_then(|mut m| m.map(rgb, out))
+        .map_err(FrameError::Decode)
 }
 
-/// Decode a captured buffer and rotate it into `out`. `scratch` is reused.
+/// Decode a captured buffer of `map`'s size and map it into `out` (the
+/// frame at its scale). `scratch` is reused.
 pub fn decode_buffer(
     buf: &[u8],
     format: PixelFormat,
-    width: u32,
-    height: u32,
+    map: &mut FrameMap,
     scratch: &mut Vec<u8>,
     out: &mut RgbImage,
 ) -> Result<(), FrameError> {
+    let (width, height) = map.size();
     match format {
         PixelFormat::Yuyv => decode_yuyv(buf, width, height, scratch)?,
         PixelFormat::Mjpg => decode_mjpg(buf, width, height, scratch)?,
     }
-    rotate_to_frame(scratch, width, height, out)
+    map.map(scratch, out).map_err(FrameError::Decode)
 }
 
 /// Encode an RGB buffer as YUYV (BT.601 limited range); the inverse of
