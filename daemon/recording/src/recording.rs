@@ -1002,13 +1002,23 @@ pub fn assume_sensor(
 }
 
 /// The profiles of `recordings`' sensors ([`Recording::profile`]), by
-/// name, each with the first recording of it.
+/// name, each with the first recording of it. A recording whose metadata
+/// cannot be read (a profile it names unknown among them) is left to its
+/// reader: a replay skips it, naming it; `index build` refuses it when it
+/// loads it.
 pub fn profiles(
     recordings: &[Recording],
 ) -> Result<std::collections::BTreeMap<&'static str, PathBuf>, RecordingError> {
     let mut out = std::collections::BTreeMap::new();
     for r in recordings {
-        out.entry(r.profile()?.name).or_insert_with(|| r.path());
+        let profile = match r {
+            Recording::Press(p) => match read_meta(p) {
+                Ok(meta) => meta.profile().map_err(|e| invalid(p, e))?,
+                Err(_) => continue,
+            },
+            other => other.profile()?,
+        };
+        out.entry(profile.name).or_insert_with(|| r.path());
     }
     Ok(out)
 }

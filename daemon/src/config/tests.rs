@@ -317,12 +317,14 @@ fn every_key_is_a_file_key_a_flag_and_an_env_var() {
     for key in KEYS {
         let var = format!("{ENV_PREFIX}{}", key.to_uppercase());
         let val = sample_env(key);
-        let c = resolve(
-            &[],
-            &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r"), (&var, val)],
-        )
-        .unwrap();
-        let d = resolve(&[], &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")]).unwrap();
+        // A scale is the scale of a profile: given with one.
+        let mut base = vec![("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")];
+        if *key == "sensor_mm_per_px" {
+            base.push(("TELEXTILESD_SENSOR_PROFILE", "gelsight-mini"));
+        }
+        let with: Vec<(&str, &str)> = base.iter().copied().chain([(var.as_str(), val)]).collect();
+        let c = resolve(&[], &with).unwrap();
+        let d = resolve(&[], &base).unwrap();
         assert_ne!(c, d, "{var} had no effect");
     }
     // Round trip through to_toml.
@@ -334,6 +336,12 @@ fn every_key_is_a_file_key_a_flag_and_an_env_var() {
             "replay:/d",
             "--replay-fps",
             "29.97",
+            "--sensor-profile",
+            "uvc",
+            "--sensor-mm-per-px",
+            "0.03",
+            "--sensor-mode",
+            "1280x720@30",
         ],
         &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
     )
@@ -600,6 +608,9 @@ fn sample_toml(key: &str) -> &'static str {
         "motion" => "\"lead:30\"",
         "listen" | "map_bind" => "\"127.0.0.1:9\"",
         "sensor" => "\"sim\"",
+        "sensor_profile" => "\"gelsight-mini\"",
+        "sensor_mm_per_px" => "0.03",
+        "sensor_mode" => "\"640x480@30\"",
         "roller" => "\"sim\"",
         _ => "\"/x\"",
     }
@@ -621,9 +632,70 @@ fn sample_env(key: &str) -> &'static str {
         "motion" => "confident",
         "listen" | "map_bind" => "127.0.0.1:9",
         "sensor" => "sim",
+        "sensor_profile" => "gelsight-mini",
+        "sensor_mm_per_px" => "0.03",
+        "sensor_mode" => "640x480@30",
         "roller" => "sim",
         "group" => "wheel",
         "log" => "debug",
         _ => "/x",
     }
+}
+
+#[test]
+fn sensor_settings_are_checked_together() {
+    let env = [("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")];
+    let e = resolve(&["--sensor-mm-per-px", "0.03"], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("without sensor_profile"), "{e}");
+    let e = resolve(&["--sensor-profile", "uvc"], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("uvc needs sensor_mm_per_px"), "{e}");
+    let c = resolve(
+        &[
+            "--sensor",
+            "camera:/dev/video2",
+            "--sensor-profile",
+            "gelsight-mini",
+            "--sensor-mode",
+            "640x480@25",
+        ],
+        &env,
+    )
+    .unwrap();
+    assert_eq!(
+        c.sensor,
+        SensorSource::Camera {
+            select: Some("/dev/video2".into())
+        }
+    );
+    assert_eq!(c.sensor.to_string(), "camera:/dev/video2");
+    assert_eq!(c.sensor_given().unwrap().profile.name, "gelsight-mini");
+    assert_eq!(c.sensor_mode.unwrap().to_string(), "640x480@25");
+    // In the file, as the flags.
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("c.toml");
+    std::fs::write(&p, "sensor_profile = \"uvc\"\nsensor_mm_per_px = 0.02\n").unwrap();
+    let c = resolve(&["--config", p.to_str().unwrap()], &env).unwrap();
+    assert_eq!(c.sensor_given().unwrap().mm_per_px, Some(0.02));
+    std::fs::write(&p, "sensor_profile = \"gelsite\"\n").unwrap();
+    let e = resolve(&["--config", p.to_str().unwrap()], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("digit, gelsight-mini, uvc"), "{e}");
+    std::fs::write(&p, "sensor_profile = \"uvc\"\nsensor_mm_per_px = 5\n").unwrap();
+    let e = resolve(&["--config", p.to_str().unwrap()], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("out of range"), "{e}");
+    std::fs::write(&p, "sensor_mode = \"640x480\"\n").unwrap();
+    let e = resolve(&["--config", p.to_str().unwrap()], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("sensor_mode") && e.contains("WIDTHxHEIGHT@FPS"),
+        "{e}"
+    );
 }
