@@ -196,20 +196,7 @@ impl<'a> Embedder<'a> {
     }
 }
 
-/// The model input of one image (HWC u8, `side` x `side`) appended to
-/// `out` as CHW f32: the contract's normalisation, minus the normalised
-/// reference when there is one (`telextiles.background = subtract`).
-pub fn input_into(img: &[u8], reference: Option<&[u8]>, side: usize, out: &mut Vec<f32>) {
-    let base = out.len();
-    normalize_into(img, side, out);
-    if let Some(r) = reference {
-        let mut rn = Vec::with_capacity(3 * side * side);
-        normalize_into(r, side, &mut rn);
-        for (v, r) in out[base..].iter_mut().zip(&rn) {
-            *v -= r;
-        }
-    }
-}
+pub use telextiles_graphs::preprocess::input_into;
 
 /// One method's figures.
 #[derive(Clone, Debug, Serialize)]

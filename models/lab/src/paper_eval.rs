@@ -239,7 +239,7 @@ pub fn evaluate_with(
     });
     // (c) unseen textiles mapped to the nearest known one.
     let known = cat(train_idx.clone(), sel(&sets.heldout, &e_held, d, is_idx));
-    let n_train_classes = sets.train.classes.len() - sets.unseen_classes();
+    let n_train_classes = sets.train.classes.len() - unseen_classes(sets);
     let mut unseen_rows = Vec::new();
     let mut uclasses: Vec<u32> = sets.unseen.items.iter().map(|m| m.class).collect();
     uclasses.sort_unstable();
@@ -513,17 +513,16 @@ fn apply_metric(m: &telextiles_index::Metric, emb: &mut [f32], dim: usize) {
     }
 }
 
-impl Sets {
-    fn unseen_classes(&self) -> usize {
-        let mut c: Vec<u32> = self.unseen.items.iter().map(|m| m.class).collect();
-        c.sort_unstable();
-        c.dedup();
-        let min = c
-            .first()
-            .copied()
-            .unwrap_or(self.train.classes.len() as u32) as usize;
-        self.train.classes.len() - min
-    }
+/// The number of unseen classes of `sets` (those after the training ones).
+fn unseen_classes(sets: &Sets) -> usize {
+    let mut c: Vec<u32> = sets.unseen.items.iter().map(|m| m.class).collect();
+    c.sort_unstable();
+    c.dedup();
+    let min = c
+        .first()
+        .copied()
+        .unwrap_or(sets.train.classes.len() as u32) as usize;
+    sets.train.classes.len() - min
 }
 
 impl Report {

@@ -25,12 +25,12 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
-use crate::graph::{descriptor_model, descriptor_with_head, DescriptorSpec, MlpHead};
 use crate::model::l2_normalize;
 use crate::onnx::OrtEncoder;
 use crate::supcon::{
     augment_diff, make_plans, press_top1, render_press, supcon_loss, PressGroups, SupConConfig,
 };
+use telextiles_graphs::graph::{descriptor_model, descriptor_with_head, DescriptorSpec, MlpHead};
 
 /// The fixed front end a head is trained on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -41,10 +41,10 @@ pub enum Front {
     #[default]
     Fft,
     /// `wspec-c240-s120-bg`: the colour-whitened spectrum with angular
-    /// harmonics of the 240-px crop at 120 px ([`crate::wspec`]).
+    /// harmonics of the 240-px crop at 120 px ([`telextiles_graphs::wspec`]).
     WSpec,
     /// `wspec-cw-c240-s120-bg`: the same under a window centred on the
-    /// contact ([`crate::wspec::Window::Contact`]).
+    /// contact ([`telextiles_graphs::wspec::Window::Contact`]).
     #[serde(rename = "wspec-cw")]
     WSpecCw,
 }
@@ -201,7 +201,7 @@ impl SpectralConfig {
     pub fn spec(&self) -> DescriptorSpec {
         match self.front {
             Front::Fft => DescriptorSpec {
-                kind: crate::baselines::BaselineKind::Fft,
+                kind: telextiles_graphs::baselines::BaselineKind::Fft,
                 crop: self.data.crop,
                 input: self.data.crop,
                 subtract: true,
@@ -210,9 +210,9 @@ impl SpectralConfig {
             },
             Front::WSpec | Front::WSpecCw => DescriptorSpec {
                 kind: if self.front == Front::WSpec {
-                    crate::baselines::BaselineKind::WSpec
+                    telextiles_graphs::baselines::BaselineKind::WSpec
                 } else {
-                    crate::baselines::BaselineKind::WSpecCw
+                    telextiles_graphs::baselines::BaselineKind::WSpecCw
                 },
                 crop: 240,
                 input: 120,
@@ -448,7 +448,7 @@ fn embed_rows(head: &Head, scale: &[f32], rows: &[f32], dim: usize) -> Result<(V
         .into_data()
         .try_to_vec::<f32>()
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    crate::knn::normalize_rows(&mut v, out_dim);
+    telextiles_graphs::knn::normalize_rows(&mut v, out_dim);
     Ok((v, out_dim))
 }
 
@@ -533,7 +533,7 @@ pub fn train(
     // The descriptor alone on the validation split.
     let norm = |rows: &[f32]| {
         let mut v = rows.to_vec();
-        crate::knn::normalize_rows(&mut v, dim);
+        telextiles_graphs::knn::normalize_rows(&mut v, dim);
         v
     };
     let base = press_top1(
@@ -677,7 +677,7 @@ pub fn train(
     let spectra = front.embed(&x)?;
     let (want, od) = embed_rows(&head, &scale, &spectra, dim)?;
     let mut got = got;
-    crate::knn::normalize_rows(&mut got, od);
+    telextiles_graphs::knn::normalize_rows(&mut got, od);
     let diff = got
         .iter()
         .zip(&want)

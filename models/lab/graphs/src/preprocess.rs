@@ -78,10 +78,25 @@ pub fn preprocess_frame(frame: &RgbImage, crop: u32, size: u32) -> Result<Vec<f3
 }
 
 /// Reference pixels (f32, 0..255) as an image.
-pub(crate) fn reference_image(px: &[f32]) -> anyhow::Result<image::RgbImage> {
+pub fn reference_image(px: &[f32]) -> anyhow::Result<image::RgbImage> {
     telextiles_sensing::front::image_of(px)
         .ok_or_else(|| anyhow::anyhow!("reference of the wrong size"))
 }
+/// The model input of one image (HWC u8, `side` x `side`) appended to
+/// `out` as CHW f32: the contract's normalisation, minus the normalised
+/// reference when there is one (`telextiles.background = subtract`).
+pub fn input_into(img: &[u8], reference: Option<&[u8]>, side: usize, out: &mut Vec<f32>) {
+    let base = out.len();
+    normalize_into(img, side, out);
+    if let Some(r) = reference {
+        let mut rn = Vec::with_capacity(3 * side * side);
+        normalize_into(r, side, &mut rn);
+        for (v, r) in out[base..].iter_mut().zip(&rn) {
+            *v -= r;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -33,7 +33,7 @@ pub fn half_plane_bins(n: usize) -> Vec<(usize, usize)> {
         .filter(|&(cell, _)| cell / n <= n / 2)
         .collect()
 }
-use crate::onnx::{contract_props, INPUT_NAME, OUTPUT_NAME};
+use crate::ortrun::{contract_props, INPUT_NAME, OUTPUT_NAME};
 use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
 
 /// ITU-R BT.601 luma weights (the descriptors' grey).
@@ -833,7 +833,7 @@ fn build_descriptor(
 mod tests {
     use super::*;
     use crate::baselines::Baseline;
-    use crate::onnx::OrtEncoder;
+    use crate::ortrun::OrtEncoder;
     use crate::preprocess::normalize_into;
 
     fn l2(mut v: Vec<f32>) -> Vec<f32> {
@@ -996,7 +996,7 @@ mod tests {
         let imgs = images(n, 2);
         let (frame, reference) = (&imgs[0], &imgs[1]);
         let mut x = Vec::new();
-        crate::methods::input_into(frame, Some(reference), n, &mut x);
+        crate::preprocess::input_into(frame, Some(reference), n, &mut x);
         let got = l2(enc.embed(&x).unwrap());
         let want = Baseline {
             kind: BaselineKind::Fft,
@@ -1047,7 +1047,7 @@ mod tests {
         let mut front = OrtEncoder::from_bytes(&descriptor_model(&spec).unwrap(), 1).unwrap();
         let imgs = images(32, 2);
         let mut x = Vec::new();
-        crate::methods::input_into(&imgs[0], Some(&imgs[1]), 32, &mut x);
+        crate::preprocess::input_into(&imgs[0], Some(&imgs[1]), 32, &mut x);
         let got = enc.embed(&x).unwrap();
         let spectrum = front.embed(&x).unwrap();
         let hidden: Vec<f32> = (0..h)
@@ -1082,7 +1082,7 @@ mod tests {
         let d = spec.dim();
         // A frame equal to its reference: zeros, not NaN.
         let mut blank = Vec::new();
-        crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
+        crate::preprocess::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
         assert!(enc.embed(&blank).unwrap().iter().all(|v| *v == 0.0));
         // A linear head: y = W (x * scale) + b.
         let o = 6;
@@ -1145,7 +1145,7 @@ mod tests {
         let pairs = [(0, 1), (2, 0)];
         let mut x = Vec::new();
         for pair in pairs {
-            crate::methods::input_into(&imgs[pair.0], Some(&imgs[pair.1]), n, &mut x);
+            crate::preprocess::input_into(&imgs[pair.0], Some(&imgs[pair.1]), n, &mut x);
         }
         let got = enc.embed(&x).unwrap();
         let d = spec.dim();
@@ -1242,7 +1242,7 @@ mod tests {
         // A blank difference: zeros, as with the centred window.
         assert!(enc.embed(&x).unwrap().iter().all(|v| v.is_finite()));
         let mut blank = Vec::new();
-        crate::methods::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
+        crate::preprocess::input_into(&imgs[0], Some(&imgs[0]), n, &mut blank);
         assert!(enc.embed(&blank).unwrap().iter().all(|v| *v == 0.0));
     }
 

@@ -10,9 +10,9 @@
 //! `crop <= 169` a crop rotated by any angle stays inside the frame: no black
 //! corners.
 
-use crate::preprocess::{DIGIT_MEAN, DIGIT_STD, FRAME_W};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+use telextiles_graphs::preprocess::{DIGIT_MEAN, DIGIT_STD, FRAME_W};
 
 /// Augmentation strengths.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -184,8 +184,8 @@ fn gray(rgb: &[f32], n: usize, i: usize) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::preprocess::{centre_crop_resize, normalize_into};
     use rand::SeedableRng;
+    use telextiles_graphs::preprocess::{centre_crop_resize, normalize_into};
 
     fn canvas(side: usize) -> Vec<u8> {
         (0..side * side * 3)

@@ -10,7 +10,7 @@ use sha2::{Digest, Sha256};
 use std::io::{Read, Write};
 use std::path::Path;
 
-use crate::preprocess::{centre_crop_resize, FRAME_W};
+use telextiles_graphs::preprocess::{centre_crop_resize, FRAME_W};
 
 /// One press: who pressed which textile, how.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]

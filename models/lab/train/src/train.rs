@@ -23,9 +23,9 @@ use std::time::Instant;
 
 use crate::augment::{augment_into, AugConfig};
 use crate::data::{write_atomic, ImageKind, ImageSet};
-use crate::knn::{embedding_std, knn_score, normalize_rows, KnnScore};
 use crate::model::{l2_normalize, ArchConfig, Encoder, MocoNet};
-use crate::preprocess::normalize_into;
+use telextiles_graphs::knn::{embedding_std, knn_score, normalize_rows, KnnScore};
+use telextiles_graphs::preprocess::normalize_into;
 
 /// Hyper-parameters of a training run (saved with every checkpoint).
 #[derive(Clone, Debug, Serialize, Deserialize)]

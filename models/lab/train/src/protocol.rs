@@ -230,8 +230,9 @@ pub fn view_set(set: &ImageSet, crop: u32, input: u32) -> Result<ImageSet> {
     for i in 0..set.len() {
         let img = image::RgbImage::from_raw(side, side, set.image(i).to_vec())
             .context("cached image has the wrong size")?;
-        out.pixels
-            .extend_from_slice(crate::preprocess::centre_crop_resize(&img, crop, input)?.as_raw());
+        out.pixels.extend_from_slice(
+            telextiles_graphs::preprocess::centre_crop_resize(&img, crop, input)?.as_raw(),
+        );
     }
     Ok(out)
 }

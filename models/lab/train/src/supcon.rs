@@ -40,7 +40,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::model::{l2_normalize, ArchConfig, Encoder};
-use crate::preprocess::{DIGIT_MEAN, DIGIT_STD};
+use telextiles_graphs::preprocess::{DIGIT_MEAN, DIGIT_STD};
 use telextiles_sensing::preprocess::{PreprocessSpec, Preprocessor};
 
 /// Recipe and schedule of a run (saved next to the checkpoint).
@@ -485,7 +485,7 @@ pub fn augment_diff<R: Rng>(src: &[f32], side: usize, size: usize, rng: &mut R, 
     let mut noise: Vec<f32> = (0..n).map(|_| gauss(rng)).collect();
     let mut tmp = vec![0f32; n];
     blur3(&mut noise, &mut tmp, size);
-    for (ch, std) in crate::preprocess::DIGIT_STD.iter().enumerate() {
+    for (ch, std) in telextiles_graphs::preprocess::DIGIT_STD.iter().enumerate() {
         // Smoothing divides the std by about 2.7; channels share 70 % of it.
         let s = sigma_dn / 255.0 / std * 2.7;
         for i in 0..n {
@@ -584,7 +584,7 @@ pub fn embed(enc: &Encoder, set: &DiffSet, size: usize) -> Result<(Vec<f32>, usi
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?,
         );
     }
-    crate::knn::normalize_rows(&mut out, dim.max(1));
+    telextiles_graphs::knn::normalize_rows(&mut out, dim.max(1));
     Ok((out, dim))
 }
 
