@@ -3,7 +3,7 @@
 use crate::calib::{self, Calibration, BINS, HEIGHT as H, WIDTH as W};
 use crate::catalogue::{hash_str, mix64, Catalogue, Textile, CATALOGUE_VERSION};
 use crate::fabric::{self, HeightField, MM_PER_PX, PATCH};
-use crate::render2::sensor_model_v2;
+use crate::sensor2::sensor_model_v2;
 use crate::{Press, PressMeta, PressParams, PressSpec, SimError, FPS};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -148,7 +148,7 @@ pub(crate) struct Setup {
     /// Frame rate of the press.
     pub(crate) fps: f32,
     /// The catalogue-2 camera chain (None: catalogue 1's per-pixel noise).
-    pub(crate) v2: Option<crate::render2::Camera>,
+    pub(crate) v2: Option<crate::sensor2::Camera>,
 }
 
 /// No-contact footage from [`Simulator::idle_clip`].
@@ -218,7 +218,7 @@ impl Simulator {
                 (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
             })
             .collect();
-        let background_tvl = crate::render2::embedded_background_tvl()?;
+        let background_tvl = crate::sensor2::embedded_background_tvl()?;
         Ok(Simulator {
             catalogue: Catalogue::builtin(),
             calib,

@@ -21,6 +21,7 @@ pub mod gabor;
 pub use telextiles_recording::recording;
 mod render;
 mod render2;
+mod sensor2;
 pub mod sheet;
 pub mod stats;
 

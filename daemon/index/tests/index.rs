@@ -503,7 +503,7 @@ fn an_index_with_a_metric_is_format_version_2_and_one_without_stays_version_1() 
 
 #[test]
 fn the_shipped_version_1_index_still_reads_and_encodes_byte_for_byte() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../index.tlxi");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/index.tlxi");
     let bytes = std::fs::read(&path).unwrap();
     let index = Index::read(&path).unwrap();
     assert!(index.metric.is_none());
