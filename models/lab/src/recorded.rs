@@ -141,10 +141,17 @@ pub struct RecordingRef {
 /// found recursively (symbolic links followed, as the daemon's
 /// `classify` and `index build` read them), else the PyTouch layout
 /// (`telextiles_sim::recording::find_recordings_at`), those saved without
-/// timestamps spaced at `fps` when given.
-pub fn list_recordings(dir: &Path, fps: Option<f32>) -> Result<Vec<RecordingRef>> {
+/// timestamps spaced at `fps` when given, of `sensor` when given (else
+/// their own, or a DIGIT's: `Recording::assume_sensor`).
+pub fn list_recordings(
+    dir: &Path,
+    fps: Option<f32>,
+    sensor: Option<recording::Sensor>,
+) -> Result<Vec<RecordingRef>> {
     ensure!(dir.is_dir(), "{} is not a directory", dir.display());
-    recording::find_recordings_at(dir, fps)?
+    let mut found = recording::find_recordings_at(dir, fps)?;
+    recording::assume_sensor(&mut found, sensor)?;
+    found
         .into_iter()
         .map(|r| {
             let (textile, layout) = match &r {
@@ -490,6 +497,9 @@ pub struct StudyConfig {
     /// Frame rate of recordings saved without timestamps (`--fps`); None:
     /// the DIGIT's stream rate at their frames' size.
     pub fps: Option<f32>,
+    /// The sensor of recordings that do not name theirs
+    /// (`--sensor-profile`); None: their own, else a DIGIT.
+    pub sensor: Option<recording::Sensor>,
 }
 
 impl StudyConfig {
@@ -513,6 +523,7 @@ impl StudyConfig {
             unknown_quantiles: Vec::new(),
             references: References::none(),
             fps: None,
+            sensor: None,
         }
     }
 }
@@ -719,7 +730,7 @@ pub fn embed_all(
     cfg: &StudyConfig,
     methods: &[Method],
 ) -> Result<(Vec<RecordingRef>, Vec<Processed>)> {
-    let refs = list_recordings(&cfg.dir, cfg.fps)?;
+    let refs = list_recordings(&cfg.dir, cfg.fps, cfg.sensor)?;
     let progress = telextiles_progress::Progress::new(
         &format!(
             "embedding with {} method{}",

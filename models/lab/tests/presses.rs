@@ -345,12 +345,12 @@ fn presses_from_the_command_line() {
                 "--out",
                 "x",
             ],
-            "--reference/--fps are for --source presses:<dir>",
+            "--reference/--fps/--sensor-profile are for --source presses:<dir>",
         ),
         // So is a frame rate; and one out of range is refused.
         (
             vec!["bench", "--source", "sim", "--fps", "30", "--out", "x"],
-            "--fps are for --source presses:<dir>",
+            "--fps/--sensor-profile are for --source presses:<dir>",
         ),
         (
             vec![
@@ -402,15 +402,27 @@ fn presses_in_the_pytouch_layout() {
             }
         }
     }
-    let refs = recorded::list_recordings(&root, None).unwrap();
+    let refs = recorded::list_recordings(&root, None, None).unwrap();
     assert_eq!(refs.len(), 6);
     assert!(refs.iter().all(|r| r.layout == recorded::Layout::Pytouch));
     // No timestamps: 60 fps for these 240x320 frames, or the rate given
     // (`bench --fps`).
     assert_eq!(refs[0].load().unwrap().meta.fps, 60.0);
-    let at_30 = recorded::list_recordings(&root, Some(30.0)).unwrap();
+    let at_30 = recorded::list_recordings(&root, Some(30.0), None).unwrap();
     let m = at_30[0].load().unwrap().meta;
     assert_eq!((m.fps, m.timestamps_us[1]), (30.0, 33_333));
+    // Said to be another sensor's (`--sensor-profile`), the same images
+    // are mapped and named by its profile: a generic camera at 0.05 mm
+    // per pixel (the frames are 240x320 portrait, 12 x 16 mm).
+    let uvc = telextiles_sim::recording::Sensor {
+        profile: &telextiles_recording::profile::UVC,
+        mm_per_px: Some(0.05),
+    };
+    let as_uvc = recorded::list_recordings(&root, None, Some(uvc)).unwrap();
+    let p = as_uvc[0].load().unwrap();
+    assert_eq!(p.meta.sensor_profile.as_deref(), Some("uvc"));
+    assert_eq!((p.frames[0].width(), p.frames[0].height()), (240, 320));
+    assert_ne!(p.frames[20], refs[0].load().unwrap().frames[20]);
     let mut cfg = StudyConfig::new(&root, Split::IndexPresses(2));
     cfg.runs = 0;
     let methods: Vec<Method> = methods()

@@ -500,6 +500,15 @@ pub(crate) struct SplitArgs {
     /// 60 fps for 240x320 or 320x240, 30 for VGA].
     #[arg(long, value_parser = telextiles_sim::recording::parse_fps)]
     pub(crate) fps: Option<f32>,
+    /// Sensor profile of recordings that do not name theirs (PyTouch-style
+    /// datasets): digit, gelsight-mini or uvc, as the daemon's
+    /// `--sensor-profile` [default: recordings say their own, else digit]
+    #[arg(long, value_name = "PROFILE", value_parser = telextiles_recording_profile)]
+    pub(crate) sensor_profile: Option<&'static telextiles_recording::profile::SensorProfile>,
+    /// Millimetres per pixel of those recordings' images (a uvc camera
+    /// needs it), as the daemon's `--sensor-mm-per-px`
+    #[arg(long, value_name = "MM", requires = "sensor_profile")]
+    pub(crate) sensor_mm_per_px: Option<f32>,
     /// The contact detector's `enter_ms` (a run of two or more frames over
     /// its threshold that spans this long starts a press; 0: only its 3
     /// frames) [default: the daemon's, 30].
@@ -565,6 +574,7 @@ impl SplitArgs {
             || !self.unknown_quantiles.is_empty()
             || !self.references.is_empty()
             || self.fps.is_some()
+            || self.sensor_profile.is_some()
             || self.contact_enter_ms.is_some()
             || self.contact_exit_ms.is_some()
     }
@@ -573,7 +583,7 @@ impl SplitArgs {
     pub(crate) fn refuse_unless_presses(&self) -> Result<()> {
         ensure!(
             !self.given(),
-            "--index-presses/--split/--encode-run/--contact-enter-ms/--contact-exit-ms/--unknown-quantiles/--reference/--fps are for --source presses:<dir>"
+            "--index-presses/--split/--encode-run/--contact-enter-ms/--contact-exit-ms/--unknown-quantiles/--reference/--fps/--sensor-profile are for --source presses:<dir>"
         );
         Ok(())
     }
@@ -587,7 +597,14 @@ impl SplitArgs {
         cfg.encode_run = self.encode_run;
         cfg.metric = self.index_metric;
         cfg.unknown_quantiles = self.unknown_quantiles.clone();
-        cfg.references = telextiles_sensing::front::References::from_args(&self.references)?;
+        cfg.sensor = self
+            .sensor_profile
+            .map(|profile| telextiles_sim::recording::Sensor {
+                profile,
+                mm_per_px: self.sensor_mm_per_px,
+            });
+        cfg.references =
+            telextiles_sensing::front::References::from_args_as(&self.references, cfg.sensor)?;
         cfg.fps = self.fps;
         if let Some(ms) = self.contact_enter_ms {
             cfg.contact.enter_ms = ms;
@@ -702,4 +719,11 @@ pub(crate) struct BenchTrainArgs {
     pub(crate) batch: usize,
     #[arg(long, default_value_t = 5)]
     pub(crate) steps: usize,
+}
+
+/// A built-in sensor profile by name (`--sensor-profile`).
+fn telextiles_recording_profile(
+    s: &str,
+) -> Result<&'static telextiles_recording::profile::SensorProfile, String> {
+    telextiles_recording::profile::by_name(s)
 }
