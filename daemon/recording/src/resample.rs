@@ -579,12 +579,26 @@ fn mirror_fill(dst: &mut [u8], valid: Rect) {
         return;
     }
     let (ow, oh) = (WIDTH as usize, HEIGHT as usize);
-    let (a, b) = (valid.x as i64, (valid.x + valid.w) as i64);
+    let (a, b) = (valid.x as usize, (valid.x + valid.w) as usize);
+    // One reflection covers each margin when the field is at least as
+    // wide as it: a reversed run of pixels; else pixel by pixel.
+    let single = a <= valid.w as usize && ow - b <= valid.w as usize;
     for y in valid.y as usize..(valid.y + valid.h) as usize {
         let row = &mut dst[y * ow * 3..][..ow * 3];
-        for x in (0..a as usize).chain(b as usize..ow) {
-            let m = mirror(x as i64, a, b);
-            row.copy_within(m * 3..m * 3 + 3, x * 3);
+        if single {
+            let (left, rest) = row.split_at_mut(a * 3);
+            for (d, s) in left.chunks_exact_mut(3).rev().zip(rest.chunks_exact(3)) {
+                d.copy_from_slice(s);
+            }
+            let (rest, right) = row.split_at_mut(b * 3);
+            for (d, s) in right.chunks_exact_mut(3).zip(rest.chunks_exact(3).rev()) {
+                d.copy_from_slice(s);
+            }
+        } else {
+            for x in (0..a).chain(b..ow) {
+                let m = mirror(x as i64, a as i64, b as i64);
+                row.copy_within(m * 3..m * 3 + 3, x * 3);
+            }
         }
     }
     let (a, b) = (valid.y as i64, (valid.y + valid.h) as i64);

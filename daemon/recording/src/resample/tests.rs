@@ -185,3 +185,29 @@ fn a_portrait_image_maps_as_its_landscape_original_turned() {
         assert_eq!(a, b, "{w}x{h}");
     }
 }
+
+#[test]
+fn a_field_much_smaller_than_the_frame_is_mirrored_again_and_again() {
+    // 40 x 30 camera pixels at the frame's scale: 30 x 40 frame pixels,
+    // margins wider than the field itself.
+    let cam = smooth(40, 30);
+    let mut m = FrameMap::new(40, 30, true, FRAME_MM_PER_PX).unwrap();
+    let v = m.valid();
+    assert_eq!((v.w, v.h), (30, 40));
+    let mut out = RgbImage::new(240, 320);
+    m.map(cam.as_raw(), &mut out).unwrap();
+    // Reflected at each edge of the field, then at each edge of the
+    // reflection: period 2 x 30 columns.
+    let y = v.y + 7;
+    for x in 0..240u32 {
+        let inside =
+            v.x as i64 + mirror(x as i64, v.x as i64, (v.x + v.w) as i64) as i64 - v.x as i64;
+        assert_eq!(out.get_pixel(x, y), out.get_pixel(inside as u32, y), "{x}");
+    }
+    // Every pixel is one of the field's.
+    let field: std::collections::HashSet<[u8; 3]> = (v.y..v.y + v.h)
+        .flat_map(|y| (v.x..v.x + v.w).map(move |x| (x, y)))
+        .map(|(x, y)| out.get_pixel(x, y).0)
+        .collect();
+    assert!(out.pixels().all(|p| field.contains(&p.0)));
+}
