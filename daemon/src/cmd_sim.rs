@@ -102,12 +102,7 @@ impl CameraArgs {
             Some(m) => m,
             None => bail!("the {} profile lists no mode: give --sensor-mode", p.label),
         };
-        if p.field_mm.is_none() {
-            bail!(
-                "the {} profile has no field of view for the simulator to render at",
-                p.label
-            );
-        }
+        // A profile without a field of view is refused by `as_camera`.
         Ok(Some((p, mode)))
     }
 }

@@ -171,9 +171,12 @@ impl SensorArgs {
     /// The sensor given (None: recordings say their own, else a DIGIT),
     /// checked as the daemon checks its keys.
     pub fn sensor(&self) -> anyhow::Result<Option<telextiles_recording::recording::Sensor>> {
-        check_sensor(self.sensor_profile, self.sensor_mm_per_px).map_err(|e| {
-            anyhow::anyhow!(e.replace("sensor_", "--sensor-").replace("_per_", "-per-"))
-        })?;
+        check_sensor(
+            self.sensor_profile,
+            self.sensor_mm_per_px,
+            ("--sensor-profile", "--sensor-mm-per-px"),
+        )
+        .map_err(anyhow::Error::msg)?;
         Ok(self
             .sensor_profile
             .map(|profile| telextiles_recording::recording::Sensor {
@@ -648,7 +651,12 @@ impl Config {
             file.sensor_mode,
             |s| s.parse(),
         )?;
-        check_sensor(sensor_profile, sensor_mm_per_px).map_err(ConfigError::Invalid)?;
+        check_sensor(
+            sensor_profile,
+            sensor_mm_per_px,
+            ("sensor_profile", "sensor_mm_per_px"),
+        )
+        .map_err(ConfigError::Invalid)?;
         let reference = l
             .checked(
                 "reference",
@@ -929,15 +937,19 @@ fn check_mm_per_px(v: f32) -> Result<f32, String> {
 }
 
 /// A scale needs the profile it belongs to; a generic camera needs its
-/// scale.
-fn check_sensor(profile: Option<&SensorProfile>, mm: Option<f32>) -> Result<(), String> {
+/// scale. `names`: what the profile and the scale are called where they
+/// were given (the keys, or the flags).
+fn check_sensor(
+    profile: Option<&SensorProfile>,
+    mm: Option<f32>,
+    (profile_name, mm_name): (&str, &str),
+) -> Result<(), String> {
     match (profile, mm) {
-        (None, Some(_)) => Err(
-            "sensor_mm_per_px is given without sensor_profile: say which sensor it is the scale of"
-                .into(),
-        ),
+        (None, Some(_)) => Err(format!(
+            "{mm_name} is given without {profile_name}: say which sensor it is the scale of"
+        )),
         (Some(p), None) if p.field_mm.is_none() => Err(format!(
-            "sensor_profile {} needs sensor_mm_per_px: the millimetres per pixel of its images (docs/sensors.md says how to measure them)",
+            "{profile_name} {} needs {mm_name}: the millimetres per pixel of its images (docs/sensors.md says how to measure them)",
             p.name
         )),
         _ => Ok(()),

@@ -79,21 +79,12 @@ fn decided(out: &str) -> Vec<(String, String)> {
         .collect()
 }
 
-fn read_meta(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("press.json")).expect("press.json"))
-        .expect("json")
-}
-
-#[test]
-fn a_gelsight_mini_recording_goes_through_record_index_and_classify() {
-    let d = tempfile::tempdir().expect("tempdir");
-    let d = d.path();
-    let gs = GELSIGHT_MINI.modes[0];
-    assert_eq!((gs.width, gs.height, gs.fps), (320, 240, 25.0));
-    recordings(&d.join("raw/index"), &[1, 2], &GELSIGHT_MINI, gs);
-    recordings(&d.join("raw/query"), &[3], &GELSIGHT_MINI, gs);
-    // Re-recorded as a user converts someone's recordings: each press
-    // keeps its sensor, saved as frames at the frame's scale.
+/// Index (seeds 1, 2) and query (seed 3) recordings in `profile`'s
+/// geometry under `d/raw/`, re-recorded by `record --sensor replay:` into
+/// `d/rec/`.
+fn record_both(d: &Path, profile: &SensorProfile, mode: Mode) {
+    recordings(&d.join("raw/index"), &[1, 2], profile, mode);
+    recordings(&d.join("raw/query"), &[3], profile, mode);
     for part in ["index", "query"] {
         ok(
             d,
@@ -106,6 +97,22 @@ fn a_gelsight_mini_recording_goes_through_record_index_and_classify() {
             ],
         );
     }
+}
+
+fn read_meta(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("press.json")).expect("press.json"))
+        .expect("json")
+}
+
+#[test]
+fn a_gelsight_mini_recording_goes_through_record_index_and_classify() {
+    let d = tempfile::tempdir().expect("tempdir");
+    let d = d.path();
+    let gs = GELSIGHT_MINI.modes[0];
+    assert_eq!((gs.width, gs.height, gs.fps), (320, 240, 25.0));
+    // Re-recorded as a user converts someone's recordings: each press
+    // keeps its sensor, saved as frames at the frame's scale.
+    record_both(d, &GELSIGHT_MINI, gs);
     let m = read_meta(&d.join("rec/index/T030/0001"));
     assert_eq!(m["sensor_profile"], "gelsight-mini", "{m}");
     assert_eq!(
@@ -220,20 +227,7 @@ fn a_digit_vga_recording_goes_through_record_index_and_classify() {
     let d = d.path();
     let vga = DIGIT.modes[2];
     assert_eq!((vga.width, vga.height, vga.fps), (640, 480, 30.0));
-    recordings(&d.join("raw/index"), &[1, 2], &DIGIT, vga);
-    recordings(&d.join("raw/query"), &[3], &DIGIT, vga);
-    for part in ["index", "query"] {
-        ok(
-            d,
-            &[
-                "record",
-                "--sensor",
-                &format!("replay:raw/{part}"),
-                "--out",
-                &format!("rec/{part}"),
-            ],
-        );
-    }
+    record_both(d, &DIGIT, vga);
     let m = read_meta(&d.join("rec/query/T080/0001"));
     // A DIGIT's press, at 30 fps: nothing to say about its sensor.
     assert!(m.get("sensor_profile").is_none(), "{m}");

@@ -503,7 +503,7 @@ pub(crate) struct SplitArgs {
     /// Sensor profile of recordings that do not name theirs (PyTouch-style
     /// datasets): digit, gelsight-mini or uvc, as the daemon's
     /// `--sensor-profile` [default: recordings say their own, else digit]
-    #[arg(long, value_name = "PROFILE", value_parser = telextiles_recording_profile)]
+    #[arg(long, value_name = "PROFILE", value_parser = telextiles_recording::profile::by_name)]
     pub(crate) sensor_profile: Option<&'static telextiles_recording::profile::SensorProfile>,
     /// Millimetres per pixel of those recordings' images (a uvc camera
     /// needs it), as the daemon's `--sensor-mm-per-px`
@@ -719,11 +719,4 @@ pub(crate) struct BenchTrainArgs {
     pub(crate) batch: usize,
     #[arg(long, default_value_t = 5)]
     pub(crate) steps: usize,
-}
-
-/// A built-in sensor profile by name (`--sensor-profile`).
-fn telextiles_recording_profile(
-    s: &str,
-) -> Result<&'static telextiles_recording::profile::SensorProfile, String> {
-    telextiles_recording::profile::by_name(s)
 }
