@@ -61,7 +61,7 @@ fn modes(p: &SensorProfile) -> Vec<String> {
                 .mm_per_px(m.width)
                 .map(|s| format!(", {s:.4} mm/px"))
                 .unwrap_or_default();
-            format!("{}x{} @ {} fps{scale}", m.width, m.height, m.fps)
+            format!("{}{scale}", m.text())
         })
         .collect()
 }

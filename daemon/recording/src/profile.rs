@@ -39,6 +39,14 @@ impl std::str::FromStr for Mode {
     }
 }
 
+impl Mode {
+    /// For people: `640x480 @ 30 fps` (the configuration's form is
+    /// [`Mode`]'s `Display`, `640x480@30`).
+    pub fn text(&self) -> String {
+        format!("{}x{} @ {} fps", self.width, self.height, self.fps)
+    }
+}
+
 impl std::fmt::Display for Mode {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}x{}@{}", self.width, self.height, self.fps)

@@ -29,7 +29,7 @@
 //! per profile and mode: `cargo bench -p telextiles-recording --bench
 //! resample`.
 
-use crate::profile::{SensorProfile, FRAME_MM_PER_PX};
+use crate::profile::{Mode, SensorProfile, FRAME_MM_PER_PX};
 use crate::{HEIGHT, WIDTH};
 
 /// A rectangle of the frame, in pixels.
@@ -616,7 +616,7 @@ pub fn modes_text(profile: &SensorProfile) -> String {
     profile
         .modes
         .iter()
-        .map(|m| format!("{}x{} @ {} fps", m.width, m.height, m.fps))
+        .map(Mode::text)
         .collect::<Vec<_>>()
         .join(", ")
 }

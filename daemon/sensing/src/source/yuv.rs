@@ -70,10 +70,6 @@ pub struct Negotiated {
     pub note: Option<String>,
 }
 
-fn mode_text(m: &Mode) -> String {
-    format!("{}x{} @ {} fps", m.width, m.height, m.fps)
-}
-
 /// Pick a format for `profile`'s camera: the mode asked for (`want`) if
 /// the camera offers it, else the profile's modes in order, else (a
 /// generic profile, which lists none) the first mode offered; YUYV
@@ -116,9 +112,9 @@ pub fn negotiate(
                     format!(
                         "the {} does not offer {} (it offers {}); streaming {} instead",
                         profile.label,
-                        mode_text(&w),
+                        w.text(),
                         offered_text(offered),
-                        mode_text(mode)
+                        mode.text()
                     )
                 });
                 return Ok(Negotiated {
@@ -134,7 +130,7 @@ pub fn negotiate(
         profile.label,
         candidates
             .iter()
-            .map(mode_text)
+            .map(Mode::text)
             .collect::<Vec<_>>()
             .join(", "),
         offered_text(offered)
