@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, PrivatePkcs8KeyDer};
 
 use crate::device_id::DeviceId;
+use crate::key::PeerKey;
 use crate::store::{self, StoreError};
 
 /// File name of the identity inside the data directory.
@@ -23,6 +24,8 @@ pub struct Identity {
     key: PrivatePkcs8KeyDer<'static>,
     cert: CertificateDer<'static>,
     id: DeviceId,
+    /// The certificate's (and the private key's) public key.
+    public: PeerKey,
 }
 
 impl Clone for Identity {
@@ -31,6 +34,7 @@ impl Clone for Identity {
             key: self.key.clone_key(),
             cert: self.cert.clone(),
             id: self.id,
+            public: self.public,
         }
     }
 }
@@ -59,10 +63,13 @@ impl Identity {
         let cert = params
             .self_signed(&key)
             .map_err(|e| StoreError::Generate(e.to_string()))?;
+        let public =
+            PeerKey::from_cert(cert.der()).map_err(|e| StoreError::Generate(e.to_string()))?;
         let identity = Identity {
             key: PrivatePkcs8KeyDer::from(key.serialize_der()),
             cert: cert.der().clone(),
             id,
+            public,
         };
         debug_assert_eq!(DeviceId::from_cert(&identity.cert).ok(), Some(id));
         Ok(identity)
@@ -78,11 +85,18 @@ impl Identity {
         if cert_id != key_id {
             return Err("the certificate does not belong to the private key".into());
         }
-        Ok(Identity {
+        let public = PeerKey::from_cert(&cert)
+            .map_err(|_| "the key is not an Ed25519 key (the peer link signs with Ed25519)")?;
+        let identity = Identity {
             key: PrivatePkcs8KeyDer::from(key.serialize_der()),
             cert,
             id: cert_id,
-        })
+            public,
+        };
+        if identity.secret_seed().is_none() {
+            return Err("the private key is not an Ed25519 PKCS#8 key".into());
+        }
+        Ok(identity)
     }
 
     /// Parses the PEM text written by [`Identity::to_pem`].
@@ -171,6 +185,22 @@ impl Identity {
     /// This device's ID.
     pub fn device_id(&self) -> DeviceId {
         self.id
+    }
+
+    /// This device's public key: its address on the peer link.
+    pub fn peer_key(&self) -> PeerKey {
+        self.public
+    }
+
+    /// The 32-byte Ed25519 secret seed (RFC 8410 CurvePrivateKey), the
+    /// same key as the certificate's: the peer link's endpoint signs with
+    /// it. `None` only for a key that is not Ed25519 (never made here).
+    pub fn secret_seed(&self) -> Option<[u8; 32]> {
+        // PKCS#8 privateKey OCTET STRING (0x04 0x22) wrapping the
+        // CurvePrivateKey OCTET STRING (0x04 0x20) of 32 bytes.
+        let der = self.key.secret_pkcs8_der();
+        let at = der.windows(4).position(|w| w == [0x04, 0x22, 0x04, 0x20])?;
+        der.get(at + 4..at + 36)?.try_into().ok()
     }
 
     /// The self-signed certificate (DER).

@@ -1,5 +1,5 @@
 //! Pairing, sans-IO: one-time codes and the SPAKE2 state machine that
-//! authenticates the exchange of both devices' certificates.
+//! authenticates the exchange of both devices' public keys.
 //!
 //! * The device that shows the code makes a [`CodeOffer`] (8 digits, the last
 //!   one a Damm check digit, valid for [`DEFAULT_CODE_TTL`]); the caller
@@ -7,15 +7,15 @@
 //!   attempt per code.
 //! * The other user types it; [`PairingCode::from_str`] catches typos (check
 //!   digit) before any network traffic.
-//! * Both sides, once connected over TLS in pairing mode (each side has the
-//!   other's certificate from the handshake), run a [`PairingSession`]:
+//! * Both sides, once connected (each side has the other's public key from
+//!   the link's TLS handshake), run a [`PairingSession`]:
 //!   SPAKE2 (Ed25519 group) with both device IDs as the SPAKE2 identities,
 //!   then key confirmation: each side sends HMAC-SHA256 over a transcript
-//!   hash of both certificates and both SPAKE2 messages, with a key derived
+//!   hash of both keys' SubjectPublicKeyInfo and both SPAKE2 messages, with a key derived
 //!   from the PAKE key and its role. A wrong code, or a machine in the middle
-//!   (which would show each side a different certificate), makes both
+//!   (which would show each side a different key), makes both
 //!   confirmations fail: [`PairingError::WrongCode`] on both sides.
-//! * On success both get a [`Paired`]: the peer's certificate and ID to pin,
+//! * On success both get a [`Paired`]: the peer's key and ID to pin,
 //!   and a 6-digit [`VerificationCode`] derived from the PAKE key and the
 //!   transcript that users may compare.
 use core::fmt;
@@ -24,7 +24,6 @@ use std::time::{Duration, Instant};
 
 use hmac::{Hmac, Mac};
 use rand::{CryptoRng, RngCore};
-use rustls::pki_types::CertificateDer;
 use sha2::{Digest, Sha256};
 use spake2::{Ed25519Group, Identity as SpakeIdentity, Password, Spake2};
 
@@ -33,7 +32,8 @@ pub use telextiles_proto::pairing::{
     PAIRING_VERSION,
 };
 
-use crate::device_id::{CertParseError, DeviceId};
+use crate::device_id::DeviceId;
+use crate::key::PeerKey;
 
 type HmacSha256 = Hmac<Sha256>;
 
@@ -244,14 +244,14 @@ impl fmt::Debug for VerificationCode {
     }
 }
 
-/// The result of a successful pairing: pin `peer_cert` (e.g. with
+/// The result of a successful pairing: pin `peer_key` (e.g. with
 /// [`crate::PeerRecord::new`] and [`crate::TrustStore::insert`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Paired {
     /// The peer's device ID.
     pub peer_id: DeviceId,
-    /// The peer's certificate (as presented in the TLS handshake).
-    pub peer_cert: CertificateDer<'static>,
+    /// The peer's public key (as authenticated by the link's handshake).
+    pub peer_key: PeerKey,
     /// The string both users may compare.
     pub verification: VerificationCode,
 }
@@ -295,12 +295,9 @@ pub enum PairingError {
     /// `handle` was called after the session finished or failed.
     #[error("this pairing session is already over")]
     Over,
-    /// Both certificates are the same: a device cannot pair with itself.
+    /// Both keys are the same: a device cannot pair with itself.
     #[error("a device cannot pair with itself")]
     SelfPairing,
-    /// A certificate is unusable.
-    #[error(transparent)]
-    Cert(#[from] CertParseError),
 }
 
 impl PairingError {
@@ -316,7 +313,7 @@ impl PairingError {
                 PairingAbort::ProtocolViolation
             }
             PairingError::PeerAborted(_) | PairingError::Over => return None,
-            PairingError::SelfPairing | PairingError::Cert(_) => PairingAbort::ProtocolViolation,
+            PairingError::SelfPairing => PairingAbort::ProtocolViolation,
         };
         Some(PairingMessage::Abort(reason))
     }
@@ -336,8 +333,8 @@ enum State {
 /// from the peer, in order, with [`handle`](Self::handle).
 pub struct PairingSession {
     role: PairingRole,
-    own_cert: CertificateDer<'static>,
-    peer_cert: CertificateDer<'static>,
+    own_key: PeerKey,
+    peer_key: PeerKey,
     own_id: DeviceId,
     peer_id: DeviceId,
     own_pake: Vec<u8>,
@@ -383,19 +380,19 @@ fn hmac(key: &[u8], parts: &[&[u8]]) -> [u8; 32] {
 
 impl PairingSession {
     /// Starts pairing. `code` is the one from [`CodeOffer::take`] (showing
-    /// side) or typed by the user (entering side); `own_cert` is this
-    /// device's certificate and `peer_cert` the one the peer presented in
-    /// the TLS handshake. Returns the session and the `Start` message to send
+    /// side) or typed by the user (entering side); `own_key` is this
+    /// device's key and `peer_key` the one the peer authenticated with in
+    /// the link's TLS handshake. Returns the session and the `Start` message to send
     /// at once.
     pub fn start<R: RngCore + CryptoRng>(
         role: PairingRole,
         code: PairingCode,
-        own_cert: &CertificateDer<'_>,
-        peer_cert: &CertificateDer<'_>,
+        own_key: &PeerKey,
+        peer_key: &PeerKey,
         rng: &mut R,
     ) -> Result<(PairingSession, PairingMessage), PairingError> {
-        let own_id = DeviceId::from_cert(own_cert)?;
-        let peer_id = DeviceId::from_cert(peer_cert)?;
+        let own_id = own_key.device_id();
+        let peer_id = peer_key.device_id();
         if own_id == peer_id {
             return Err(PairingError::SelfPairing);
         }
@@ -421,8 +418,8 @@ impl PairingSession {
         Ok((
             PairingSession {
                 role,
-                own_cert: own_cert.clone().into_owned(),
-                peer_cert: peer_cert.clone().into_owned(),
+                own_key: *own_key,
+                peer_key: *peer_key,
                 own_id,
                 peer_id,
                 own_pake: msg,
@@ -437,7 +434,7 @@ impl PairingSession {
         self.role
     }
 
-    /// The peer's device ID (from its TLS certificate).
+    /// The peer's device ID (from its key).
     pub fn peer_id(&self) -> DeviceId {
         self.peer_id
     }
@@ -448,23 +445,23 @@ impl PairingSession {
     }
 
     fn transcript(&self, peer_pake: &[u8]) -> [u8; 32] {
-        let (cert_a, cert_b, pake_a, pake_b) = match self.role {
+        let (key_a, key_b, pake_a, pake_b) = match self.role {
             PairingRole::ShowsCode => (
-                &self.own_cert,
-                &self.peer_cert,
+                self.own_key.spki_der(),
+                self.peer_key.spki_der(),
                 &self.own_pake[..],
                 peer_pake,
             ),
             PairingRole::EntersCode => (
-                &self.peer_cert,
-                &self.own_cert,
+                self.peer_key.spki_der(),
+                self.own_key.spki_der(),
                 peer_pake,
                 &self.own_pake[..],
             ),
         };
         let mut h = Sha256::new();
         h.update(LABEL);
-        for part in [cert_a.as_ref(), cert_b.as_ref(), pake_a, pake_b] {
+        for part in [&key_a[..], &key_b[..], pake_a, pake_b] {
             h.update((part.len() as u64).to_be_bytes());
             h.update(part);
         }
@@ -532,7 +529,7 @@ impl PairingSession {
                 }
                 Ok(PairingStep::Paired(Paired {
                     peer_id: self.peer_id,
-                    peer_cert: self.peer_cert.clone(),
+                    peer_key: self.peer_key,
                     verification,
                 }))
             }

@@ -6,6 +6,7 @@ use std::path::Path;
 use serde_json::{json, Value};
 
 use crate::device_id::DeviceId;
+use crate::key::PeerKey;
 use crate::trust::{PeerRecord, TrustStore};
 
 /// `YYYY-MM-DD HH:MM:SS UTC` for seconds since the Unix epoch.
@@ -62,6 +63,7 @@ pub fn peer_text(p: &PeerRecord) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{}", p.name);
     let _ = writeln!(s, "  device ID  {}", p.device_id);
+    let _ = writeln!(s, "  key        {}", p.key);
     let _ = writeln!(s, "  paired     {}", format_utc(p.paired_at));
     let _ = writeln!(
         s,
@@ -102,9 +104,13 @@ pub fn peers_text(store: &TrustStore) -> String {
     s
 }
 
-/// This device's ID as text; mentions a newly created identity.
-pub fn identity_text(id: &DeviceId, file: &Path, created: bool) -> String {
+/// This device's ID and key as text; mentions a newly created identity.
+pub fn identity_text(id: &DeviceId, key: &PeerKey, file: &Path, created: bool) -> String {
     let mut s = format!("This device's ID: {id}\n");
+    let _ = writeln!(
+        s,
+        "This device's key: {key}\n(peers dial it with --connect {key}@HOST:PORT, or {key} alone through a relay)"
+    );
     if created {
         let _ = writeln!(s, "(a new identity was created in {})", file.display());
     }
@@ -112,9 +118,10 @@ pub fn identity_text(id: &DeviceId, file: &Path, created: bool) -> String {
 }
 
 /// This device's ID as JSON.
-pub fn identity_json(id: &DeviceId, file: &Path, created: bool) -> Value {
+pub fn identity_json(id: &DeviceId, key: &PeerKey, file: &Path, created: bool) -> Value {
     json!({
         "device_id": id.to_string(),
+        "key": key.to_string(),
         "identity_file": file.display().to_string(),
         "created": created,
     })

@@ -8,13 +8,16 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rustls::pki_types::CertificateDer;
 use serde::{Deserialize, Serialize};
 
-use crate::device_id::{CertParseError, DeviceId, DeviceIdError, GROUPS, GROUP_LEN};
+use crate::device_id::{DeviceId, DeviceIdError, GROUPS, GROUP_LEN};
+use crate::key::PeerKey;
 use crate::store::{self, StoreError};
 
 /// File name of the trust store inside the data directory.
 pub const TRUST_FILE: &str = "peers.json";
 /// Format number written in the file.
-pub const TRUST_FORMAT: u32 = 1;
+pub const TRUST_FORMAT: u32 = 2;
+/// The format before 2 (peers kept by certificate), still read.
+pub const TRUST_FORMAT_CERTS: u32 = 1;
 /// How many last-known addresses are remembered per peer.
 pub const MAX_ADDRESSES: usize = 8;
 /// Longest peer name kept (characters).
@@ -24,16 +27,17 @@ const CORRUPT_HINT: &str = "Restore it from a backup, or move it away and pair y
 
 /// One paired peer.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "RecordFile")]
 pub struct PeerRecord {
-    /// The peer's device ID (hash of the key in `cert`).
+    /// The peer's device ID (hash of `key`).
     pub device_id: DeviceId,
     /// A name for people (sanitised: no control characters, at most
     /// [`MAX_NAME_CHARS`]).
     pub name: String,
-    /// The peer's certificate as received during pairing (DER, base64 in the
-    /// file).
-    #[serde(with = "cert_base64")]
-    pub cert: CertificateDer<'static>,
+    /// The peer's public key as authenticated during pairing: what the
+    /// link dials. Stores of format 1 kept the peer's certificate instead;
+    /// its key is read from it (the next write stores the key).
+    pub key: PeerKey,
     /// When pairing completed, seconds since the Unix epoch.
     pub paired_at: u64,
     /// Addresses the peer was last reached at, newest first.
@@ -42,6 +46,48 @@ pub struct PeerRecord {
     /// When the peer was last connected, seconds since the Unix epoch.
     #[serde(default)]
     pub last_seen: Option<u64>,
+}
+
+/// A record as either format writes it: format 1 with the certificate,
+/// format 2 with the key.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RecordFile {
+    device_id: DeviceId,
+    name: String,
+    #[serde(default)]
+    key: Option<PeerKey>,
+    #[serde(default, with = "cert_base64")]
+    cert: Option<CertificateDer<'static>>,
+    paired_at: u64,
+    #[serde(default)]
+    last_addresses: Vec<SocketAddr>,
+    #[serde(default)]
+    last_seen: Option<u64>,
+}
+
+impl TryFrom<RecordFile> for PeerRecord {
+    type Error = String;
+
+    fn try_from(r: RecordFile) -> Result<PeerRecord, String> {
+        let key = match (r.key, r.cert) {
+            (Some(k), _) => k,
+            (None, Some(cert)) => {
+                PeerKey::from_cert(&cert).map_err(|e| format!("peer {}: {e}", r.device_id))?
+            }
+            (None, None) => {
+                return Err(format!("peer {}: neither key nor certificate", r.device_id))
+            }
+        };
+        Ok(PeerRecord {
+            device_id: r.device_id,
+            name: r.name,
+            key,
+            paired_at: r.paired_at,
+            last_addresses: r.last_addresses,
+            last_seen: r.last_seen,
+        })
+    }
 }
 
 /// Seconds since the Unix epoch (0 for times before it).
@@ -87,29 +133,24 @@ pub fn sanitize_name(name: &str) -> String {
 }
 
 impl PeerRecord {
-    /// A record for a freshly paired peer; the device ID is computed from the
-    /// certificate.
-    pub fn new(
-        cert: CertificateDer<'static>,
-        name: &str,
-        paired_at: SystemTime,
-    ) -> Result<PeerRecord, CertParseError> {
-        Ok(PeerRecord {
-            device_id: DeviceId::from_cert(&cert)?,
+    /// A record for a freshly paired peer; the device ID is computed from
+    /// the key.
+    pub fn new(key: PeerKey, name: &str, paired_at: SystemTime) -> PeerRecord {
+        PeerRecord {
+            device_id: key.device_id(),
             name: sanitize_name(name),
-            cert,
+            key,
             paired_at: unix_seconds(paired_at),
             last_addresses: Vec::new(),
             last_seen: None,
-        })
+        }
     }
 
     fn check(&self) -> Result<(), String> {
-        let actual =
-            DeviceId::from_cert(&self.cert).map_err(|e| format!("peer {}: {e}", self.device_id))?;
+        let actual = self.key.device_id();
         if actual != self.device_id {
             return Err(format!(
-                "peer {}: its certificate belongs to a different device ({actual})",
+                "peer {}: its key belongs to a different device ({actual})",
                 self.device_id
             ));
         }
@@ -119,19 +160,17 @@ impl PeerRecord {
 
 mod cert_base64 {
     use rustls::pki_types::CertificateDer;
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(c: &CertificateDer<'static>, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(&data_encoding::BASE64.encode(c.as_ref()))
-    }
+    use serde::{Deserialize, Deserializer};
 
     pub fn deserialize<'de, D: Deserializer<'de>>(
         d: D,
-    ) -> Result<CertificateDer<'static>, D::Error> {
-        let text = String::deserialize(d)?;
+    ) -> Result<Option<CertificateDer<'static>>, D::Error> {
+        let Some(text) = Option::<String>::deserialize(d)? else {
+            return Ok(None);
+        };
         data_encoding::BASE64
             .decode(text.as_bytes())
-            .map(CertificateDer::from)
+            .map(|b| Some(CertificateDer::from(b)))
             .map_err(|e| serde::de::Error::custom(format!("certificate is not base64: {e}")))
     }
 }
@@ -204,7 +243,7 @@ impl TrustStore {
         };
         let file: TrustFile = serde_json::from_slice(bytes)
             .map_err(|e| corrupt(format!("not a trust store ({e})")))?;
-        if file.format != TRUST_FORMAT {
+        if file.format != TRUST_FORMAT && file.format != TRUST_FORMAT_CERTS {
             return Err(corrupt(format!(
                 "format {} is not supported (this program reads format {TRUST_FORMAT})",
                 file.format

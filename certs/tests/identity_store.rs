@@ -168,7 +168,7 @@ fn atomic_write_replaces_whole_file_and_leaves_no_temporaries() {
 
 fn record(name: &str, at: u64) -> PeerRecord {
     let id = Identity::generate().unwrap();
-    PeerRecord::new(id.cert_der().clone(), name, t(at)).unwrap()
+    PeerRecord::new(id.peer_key(), name, t(at))
 }
 
 #[test]
@@ -213,7 +213,7 @@ fn last_addresses_are_newest_first_deduplicated_and_capped() {
     assert_eq!(p.last_seen, Some(2000));
     assert!(!s.note_addresses(&record("x", 1).device_id, &[a(1)], t(1)));
     // Re-pairing keeps the addresses when the new record has none.
-    let again = PeerRecord::new(r.cert.clone(), "renamed", t(3000)).unwrap();
+    let again = PeerRecord::new(r.key, "renamed", t(3000));
     let old = s.insert(again).unwrap();
     assert_eq!(old.name, "p");
     assert_eq!(s.get(&r.device_id).unwrap().last_addresses.len(), 8);
@@ -258,7 +258,7 @@ fn corrupt_trust_stores_are_refused_with_reasons() {
     let cases = [
         (good[..good.len() - 10].to_string(), "not a trust store"),
         ("{\"format\": 99, \"peers\": []}".to_string(), "format 99"),
-        // Swapped IDs: each certificate hashes to the other ID.
+        // Swapped IDs: each key hashes to the other ID.
         (
             good.replace(&a_id, "@@")
                 .replace(&b_id, &a_id)
@@ -270,7 +270,7 @@ fn corrupt_trust_stores_are_refused_with_reasons() {
             good.replacen(&a_id[..1], if &a_id[..1] == "A" { "B" } else { "A" }, 1),
             "typo",
         ),
-        (good.replace("\"cert\": \"", "\"cert\": \"!"), "base64"),
+        (good.replace("\"key\": \"", "\"key\": \"zz"), "hex"),
     ];
     for (content, expect) in cases {
         fs::write(&p, &content).unwrap();
@@ -368,4 +368,50 @@ fn concurrent_updates_lose_nothing() {
     for r in &records {
         assert!(s.contains(&r.device_id));
     }
+}
+
+/// A trust store of format 1 (the link ran on certificates and kept each
+/// peer's) is read: every peer keeps its ID and gets its key from its
+/// certificate, and the next write stores format 2 with the keys. Nobody
+/// has to pair again.
+#[test]
+fn a_format_1_store_of_certificates_is_read_and_migrated() {
+    use telextiles_certs::PeerKey;
+    let tmp = tempfile::tempdir().unwrap();
+    let peers: Vec<Identity> = (0..2).map(|_| Identity::generate().unwrap()).collect();
+    let records: Vec<serde_json::Value> = peers
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            serde_json::json!({
+                "device_id": p.device_id().to_string(),
+                "name": format!("peer {i}"),
+                "cert": data_encoding::BASE64.encode(p.cert_der()),
+                "paired_at": 1_700_000_000u64 + i as u64,
+                "last_addresses": ["192.0.2.7:4797"],
+                "last_seen": 1_700_000_100u64,
+            })
+        })
+        .collect();
+    let v1 = serde_json::json!({"format": 1, "peers": records});
+    fs::write(
+        tmp.path().join(TRUST_FILE),
+        serde_json::to_vec_pretty(&v1).unwrap(),
+    )
+    .unwrap();
+    let s = TrustStore::load(tmp.path()).unwrap();
+    for p in &peers {
+        let r = s.get(&p.device_id()).expect("peer kept");
+        assert_eq!(r.key, p.peer_key());
+        assert_eq!(r.last_addresses, vec!["192.0.2.7:4797".parse().unwrap()]);
+    }
+    TrustStore::update(tmp.path(), |_| (true, ())).unwrap();
+    let text = fs::read_to_string(tmp.path().join(TRUST_FILE)).unwrap();
+    let v2: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v2["format"], 2);
+    assert!(!text.contains("\"cert\""), "{text}");
+    let again = TrustStore::load(tmp.path()).unwrap();
+    assert_eq!(again, s);
+    let k: PeerKey = v2["peers"][0]["key"].as_str().unwrap().parse().unwrap();
+    assert!(peers.iter().any(|p| p.peer_key() == k));
 }

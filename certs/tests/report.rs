@@ -51,11 +51,10 @@ fn peers_text_and_json_show_every_field() {
 
     let peer = Identity::generate().unwrap();
     let rec = PeerRecord::new(
-        peer.cert_der().clone(),
+        peer.peer_key(),
         "kitchen",
         UNIX_EPOCH + Duration::from_secs(1_700_000_000),
-    )
-    .unwrap();
+    );
     store.insert(rec);
     let text = peers_text(&store);
     assert!(text.starts_with("1 paired peer ("), "{text}");
@@ -92,15 +91,18 @@ fn peers_text_and_json_show_every_field() {
 
 #[test]
 fn identity_views() {
-    let id = Identity::generate().unwrap().device_id();
+    let me = Identity::generate().unwrap();
+    let (id, key) = (me.device_id(), me.peer_key());
     let file = std::path::Path::new("/x/identity.pem");
-    let t = identity_text(&id, file, true);
+    let t = identity_text(&id, &key, file, true);
     assert!(
         t.contains(&id.to_string()) && t.contains("/x/identity.pem"),
         "{t}"
     );
-    assert!(!identity_text(&id, file, false).contains("created"));
-    let j = identity_json(&id, file, false);
+    assert!(t.contains(&format!("--connect {key}@")), "{t}");
+    assert!(!identity_text(&id, &key, file, false).contains("created"));
+    let j = identity_json(&id, &key, file, false);
     assert_eq!(j["device_id"], id.to_string());
+    assert_eq!(j["key"], key.to_string());
     assert_eq!(j["created"], false);
 }

@@ -248,17 +248,24 @@ fn spawn_daemon(
     })
 }
 
-/// Read a daemon's stdout until a line containing `marker`; returns the line.
-fn wait_line(d: &mut Daemon, marker: &str, timeout: Duration) -> Result<String> {
+/// Read a daemon's stdout until a line containing each of `markers` has
+/// been seen; returns those lines, in the order of `markers`.
+fn wait_lines(d: &mut Daemon, markers: &[&str], timeout: Duration) -> Result<Vec<String>> {
     let out = d.child.stdout.take().ok_or_else(|| anyhow!("no stdout"))?;
     let (tx, rx) = std::sync::mpsc::channel();
-    let want = marker.to_string();
+    let want: Vec<String> = markers.iter().map(|m| m.to_string()).collect();
     std::thread::spawn(move || {
-        let mut found = false;
+        let mut found: Vec<Option<String>> = vec![None; want.len()];
+        let mut sent = false;
         for line in BufReader::new(out).lines().map_while(Result::ok) {
-            if !found && line.contains(&want) {
-                found = true;
-                let _ = tx.send(line);
+            for (i, m) in want.iter().enumerate() {
+                if found[i].is_none() && line.contains(m.as_str()) {
+                    found[i] = Some(line.clone());
+                }
+            }
+            if !sent && found.iter().all(Option::is_some) {
+                sent = true;
+                let _ = tx.send(found.iter().flatten().cloned().collect::<Vec<_>>());
             }
         }
     });
@@ -266,7 +273,7 @@ fn wait_line(d: &mut Daemon, marker: &str, timeout: Duration) -> Result<String> 
         anyhow!(
             "daemon {} did not print {:?} within {:?}; see {}",
             d.name,
-            marker,
+            markers,
             timeout,
             d.log.display()
         )
@@ -427,8 +434,21 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         models,
         a.motion,
     )?;
-    let line = wait_line(&mut da, "Pairing code:", Duration::from_secs(30))?;
-    let code = pairing_code_in(&line).ok_or_else(|| anyhow!("no code in {line:?}"))?;
+    let lines = wait_lines(
+        &mut da,
+        &["This device's key:", "Pairing code:"],
+        Duration::from_secs(30),
+    )?;
+    let key_a = lines[0]
+        .rsplit(' ')
+        .next()
+        .unwrap_or_default()
+        .trim()
+        .to_string();
+    let line = &lines[1];
+    let code = pairing_code_in(line).ok_or_else(|| anyhow!("no code in {line:?}"))?;
+    // On loopback B dials A by its key at A's address (no mDNS there).
+    let connect_b = connect_b.map(|addr| format!("{key_a}@{addr}"));
     println!("A shows pairing code {code}; typing it on B");
     let mut db = spawn_daemon(
         "b",
@@ -441,8 +461,8 @@ async fn demo_in(a: &Args, work: &Path, started: Instant) -> Result<()> {
         models,
         a.motion,
     )?;
-    let b_paired = wait_line(&mut db, "Paired with", Duration::from_secs(30))?;
-    println!("B: {}", b_paired.trim());
+    let b_paired = wait_lines(&mut db, &["Paired with"], Duration::from_secs(30))?;
+    println!("B: {}", b_paired[0].trim());
 
     let mut ctl_a = connect_ctl(&da, Duration::from_secs(30)).await?;
     let mut ev_a = connect_ctl(&da, Duration::from_secs(30)).await?;

@@ -10,12 +10,12 @@
 //!   session: hello (encoder/index check), keep-alive, reconnects, and prints
 //!   when the peer comes and goes. Ctrl-C ends it.
 use std::io::{BufRead, Write};
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::ToSocketAddrs;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, TrustStore, DEFAULT_CODE_TTL};
-use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode};
+use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode, PeerAddr};
 
 use crate::config::{Config, ConfigArgs};
 use crate::live::discovery::{discovery_config, enter_expired_message};
@@ -106,19 +106,37 @@ fn hello_info(cfg: &Config) -> HelloInfo {
     }
 }
 
-pub fn resolve(list: &[String]) -> anyhow::Result<Vec<SocketAddr>> {
-    let mut out = Vec::new();
-    for s in list {
-        let addrs: Vec<SocketAddr> = s
+/// The peers of `--connect` (`KEY@HOST:PORT` or `KEY`), host names looked
+/// up.
+pub fn resolve(list: &[String]) -> anyhow::Result<Vec<PeerAddr>> {
+    list.iter().map(|s| resolve_peer(s)).collect()
+}
+
+/// One `--connect` peer: `KEY@HOST:PORT` (the host may be a name) or `KEY`
+/// alone (found through the relay).
+pub fn resolve_peer(s: &str) -> anyhow::Result<PeerAddr> {
+    let (key, host) = match s.split_once('@') {
+        Some((k, h)) => (k, Some(h)),
+        None => (s, None),
+    };
+    let mut addrs = Vec::new();
+    if let Some(h) = host {
+        addrs = h
             .to_socket_addrs()
-            .with_context(|| format!("--connect {s}: not a reachable host:port"))?
+            .with_context(|| format!("--connect {s}: {h} is not a reachable host:port"))?
             .collect();
         if addrs.is_empty() {
             bail!("--connect {s}: the name has no address");
         }
-        out.extend(addrs);
     }
-    Ok(out)
+    let text = if addrs.is_empty() {
+        key.to_string()
+    } else {
+        let list: Vec<String> = addrs.iter().map(|a| a.to_string()).collect();
+        format!("{key}@{}", list.join(","))
+    };
+    text.parse::<PeerAddr>()
+        .map_err(|e| anyhow::anyhow!("--connect {s}: {e}"))
 }
 
 /// `telextilesd run`
@@ -188,6 +206,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
         cfg.name,
         identity.device_id()
     ));
+    say(&format!("This device's key: {}", identity.peer_key()));
 
     let mode = if args.enter {
         Some(PairingMode::Enter(ask_code()?))
@@ -201,6 +220,10 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             args.code_ttl().as_secs() / 60
         ));
         say("On the other device run:  telextilesd pair --enter   and type this code.");
+        say(&format!(
+            "(Not on this LAN? There, add  --connect {}@HOST:PORT  with this device's address, or just the key through a relay.)",
+            identity.peer_key()
+        ));
         Some(PairingMode::Show(offer))
     } else {
         for p in store.peers() {
@@ -319,6 +342,12 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
             LinkEvent::PeerDown { peer, reason } => say(&format!(
                 "Peer down: {} ({reason}); reconnecting when it is back",
                 peer.short()
+            )),
+            LinkEvent::PathChanged { peer, route, rtt } => say(&format!(
+                "Path to {}: {} ({route}, round trip {:.1} ms)",
+                peer.short(),
+                route.kind(),
+                rtt.as_secs_f64() * 1e3
             )),
             LinkEvent::Latent(_) | LinkEvent::Control { .. } => {}
             LinkEvent::Error { kind, message, .. } => {

@@ -80,13 +80,13 @@ pub fn id(args: IdArgs) -> anyhow::Result<()> {
         writeln!(
             out,
             "{}",
-            report::identity_json(&me.device_id(), &file, created)
+            report::identity_json(&me.device_id(), &me.peer_key(), &file, created)
         )?;
     } else {
         write!(
             out,
             "{}",
-            report::identity_text(&me.device_id(), &file, created)
+            report::identity_text(&me.device_id(), &me.peer_key(), &file, created)
         )?;
     }
     Ok(())
@@ -151,9 +151,11 @@ mod tests {
         let a = Identity::generate().unwrap();
         let b = Identity::generate().unwrap();
         for (i, n) in [(&a, "a"), (&b, "b")] {
-            s.insert(
-                PeerRecord::new(i.cert_der().clone(), n, std::time::SystemTime::now()).unwrap(),
-            );
+            s.insert(PeerRecord::new(
+                i.peer_key(),
+                n,
+                std::time::SystemTime::now(),
+            ));
         }
         s.save().unwrap();
         let e = unpair(UnpairArgs {

@@ -339,8 +339,8 @@ pub struct ConfigArgs {
     /// QUIC listen address [env: TELEXTILESD_LISTEN] [default: [::]:47800]
     #[arg(long, value_name = "ADDR:PORT")]
     pub listen: Option<SocketAddr>,
-    /// Peers to connect to directly, besides mDNS (repeat or comma-separate) [env: TELEXTILESD_CONNECT]
-    #[arg(long, value_name = "HOST:PORT", value_delimiter = ',')]
+    /// Peers to dial besides mDNS, by key (`telextilesd id` prints it): KEY@HOST:PORT, or KEY alone through the relay (repeat or comma-separate) [env: TELEXTILESD_CONNECT]
+    #[arg(long, value_name = "KEY@HOST:PORT", value_delimiter = ',')]
     pub connect: Option<Vec<String>>,
     /// mDNS discovery on/off [env: TELEXTILESD_MDNS] [default: true]
     #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
@@ -706,7 +706,7 @@ impl Config {
             .get("connect", args.connect.clone(), parse_list, file.connect)?
             .unwrap_or_default();
         for c in &connect {
-            validate_host_port(c).map_err(|m| ConfigError::Invalid(format!("`connect`: {m}")))?;
+            validate_peer(c).map_err(|m| ConfigError::Invalid(format!("`connect`: {m}")))?;
         }
         let mdns = l
             .get("mdns", args.mdns, parse_bool, file.mdns)?
@@ -1072,6 +1072,25 @@ where
 }
 
 /// `host:port` or `[v6]:port` with a numeric port.
+/// `KEY@HOST:PORT` or `KEY` (through the relay).
+fn validate_peer(s: &str) -> Result<(), String> {
+    let (key, addr) = match s.split_once('@') {
+        Some((k, a)) => (k, Some(a)),
+        None => (s, None),
+    };
+    if addr.is_none() && validate_host_port(s).is_ok() {
+        return Err(format!(
+            "`{s}` has no device key: the link dials a device by its key, so write KEY@{s} (`telextilesd id` on that device prints its key)"
+        ));
+    }
+    key.parse::<telextiles_certs::PeerKey>()
+        .map_err(|e| format!("`{s}`: {e}"))?;
+    match addr {
+        Some(a) => validate_host_port(a),
+        None => Ok(()),
+    }
+}
+
 fn validate_host_port(s: &str) -> Result<(), String> {
     let (host, port) = s
         .rsplit_once(':')

@@ -38,7 +38,6 @@ use supervise::{supervise, EndGuard};
 
 use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
-use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc as std_mpsc;
@@ -106,8 +105,16 @@ struct ConnectedPeer {
     id: String,
     /// The name it gave at hello.
     name: String,
-    /// The address its connection comes from.
+    /// How its connection reaches it now: its address on a direct path,
+    /// or `relay <url>`.
     addr: String,
+    /// `direct`, `relay` or `unknown`.
+    path: String,
+    /// Round-trip time of that path, ms (when the link has measured it).
+    rtt_ms: Option<f64>,
+    /// When the path last changed (the session started or the link moved
+    /// between the relay and a direct path), Unix seconds.
+    path_since: u64,
 }
 
 impl Counters {
@@ -209,7 +216,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     };
     let mut lc = LinkConfig::new(cfg.name.clone(), cfg.listen, hello);
     for c in &cfg.connect {
-        lc.connect.push(resolve_addr(c)?);
+        lc.connect.push(crate::cmd_pair::resolve_peer(c)?);
     }
     if cfg.mdns {
         lc.discovery = Some(discovery::discovery_config(&cfg));
@@ -419,14 +426,6 @@ fn receiver_config(cfg: &Config) -> ReceiverConfig {
         motion: cfg.motion,
         ..ReceiverConfig::default()
     }
-}
-
-fn resolve_addr(s: &str) -> Result<SocketAddr> {
-    use std::net::ToSocketAddrs;
-    s.to_socket_addrs()
-        .with_context(|| format!("cannot resolve peer address {s:?}"))?
-        .next()
-        .ok_or_else(|| anyhow!("peer address {s:?} resolves to nothing"))
 }
 
 #[cfg(test)]

@@ -114,9 +114,12 @@ fn free_port() -> u16 {
 fn show(dir: &std::path::Path) -> (Proc, String, String) {
     let addr = format!("127.0.0.1:{}", free_port());
     let mut a = Proc::spawn(&["--name", "alice", "--listen", &addr], dir);
+    let key = a.expect("This device's key: ");
+    let key = key.split("key: ").nth(1).unwrap().trim().to_string();
     let line = a.expect("Pairing code: ");
     let code = line.split_whitespace().nth(2).unwrap().to_string();
-    (a, code, addr)
+    // What the user on the other device types after --connect.
+    (a, code, format!("{key}@{addr}"))
 }
 
 #[test]
@@ -199,7 +202,11 @@ fn entering_a_code_gives_up_after_the_code_lifetime() {
 
 fn gives_up(no_session: bool) {
     let d = tempfile::tempdir().unwrap();
-    let nobody = format!("127.0.0.1:{}", free_port());
+    let nobody = format!(
+        "{}@127.0.0.1:{}",
+        telextiles_certs::Identity::generate().unwrap().peer_key(),
+        free_port()
+    );
     let listen = format!("127.0.0.1:{}", free_port());
     let code = (0..10)
         .map(|d| format!("1234567{d}"))

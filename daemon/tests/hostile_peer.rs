@@ -14,11 +14,10 @@
 mod harness;
 
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use harness::*;
-use telextiles_certs::{client_config, Identity, PeerPolicy, SERVER_NAME};
+use telextiles_certs::Identity;
 use telextiles_control::{Command as Ctl, Event};
 use telextiles_proto::peer::{
     encode_control, Control, Hello, LatentFrame, QuantVec, FLAG_FINAL, PROTOCOL_VERSION,
@@ -119,11 +118,21 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
         .expect("an entry whose centroid's query is nearest to it");
 
     // The attacker, paired and compatible.
-    let tls = client_config(&evil, PeerPolicy::Expect(me.device_id())).unwrap();
-    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(tls).unwrap();
-    let mut ep = quinn::Endpoint::client("127.0.0.1:0".parse().unwrap()).unwrap();
-    ep.set_default_client_config(quinn::ClientConfig::new(Arc::new(quic)));
-    let conn = ep.connect(listen, SERVER_NAME).unwrap().await.unwrap();
+    let ep = iroh::Endpoint::builder(iroh::endpoint::presets::Minimal)
+        .secret_key(iroh::SecretKey::from_bytes(&evil.secret_seed().unwrap()))
+        .relay_mode(iroh::RelayMode::Disabled)
+        .clear_ip_transports()
+        .bind_addr("127.0.0.1:0".parse::<SocketAddr>().unwrap())
+        .unwrap()
+        .portmapper_config(iroh::endpoint::PortmapperConfig::Disabled)
+        .bind()
+        .await
+        .unwrap();
+    let target = iroh::EndpointAddr::from_parts(
+        iroh::EndpointId::from_bytes(me.peer_key().as_bytes()).unwrap(),
+        [iroh::TransportAddr::Ip(listen)],
+    );
+    let conn = ep.connect(target, telextiles_link::ALPN).await.unwrap();
     let (mut send, _recv) = conn.open_bi().await.unwrap();
     let mut hello = encode_control(&Control::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
@@ -329,5 +338,5 @@ async fn a_hostile_paired_peer_is_refused_counted_and_the_daemon_still_decides()
         "the daemon exited:\n{log}"
     );
     conn.close(0u32.into(), b"bye");
-    ep.wait_idle().await;
+    let _ = tokio::time::timeout(Duration::from_secs(1), ep.close()).await;
 }

@@ -56,9 +56,11 @@ fn start(work: &Path) -> (Node, Node, Node) {
         ids[me].save(&state).unwrap();
         let mut st = TrustStore::load(&state).unwrap();
         for &p in peers {
-            st.insert(
-                PeerRecord::new(ids[p].cert_der().clone(), names[p], SystemTime::now()).unwrap(),
-            );
+            st.insert(PeerRecord::new(
+                ids[p].peer_key(),
+                names[p],
+                SystemTime::now(),
+            ));
         }
         st.save().unwrap();
     }
@@ -102,7 +104,7 @@ fn start(work: &Path) -> (Node, Node, Node) {
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(&log).unwrap());
         if let Some(c) = connect {
-            cmd.args(["--connect", &c.to_string()]);
+            cmd.args(["--connect", &format!("{}@{c}", ids[0].peer_key())]);
         }
         Node {
             name: names[k],

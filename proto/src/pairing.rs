@@ -25,7 +25,7 @@ use alloc::vec::Vec;
 use serde::{Deserialize, Serialize};
 
 /// Version of the pairing exchange carried in [`PairingStart::version`].
-pub const PAIRING_VERSION: u16 = 1;
+pub const PAIRING_VERSION: u16 = 2;
 
 /// Largest SPAKE2 message accepted (the Ed25519 group uses 33 bytes).
 pub const MAX_PAKE_MESSAGE_LEN: usize = 64;

@@ -25,7 +25,9 @@ use serde::{Deserialize, Serialize};
 use crate::pairing::{PairingMessage, MAX_PAKE_MESSAGE_LEN};
 
 /// Version of this protocol. Sent in [`Hello`] and in the mDNS TXT record.
-pub const PROTOCOL_VERSION: u16 = 1;
+/// 2: the link runs on iroh (raw-key TLS, ALPN `telextiles/2`); 1 ran on
+/// quinn with certificates, and the two cannot connect.
+pub const PROTOCOL_VERSION: u16 = 2;
 /// Largest control payload (after the 4-byte length prefix) accepted.
 pub const MAX_CONTROL_FRAME: usize = 64 * 1024;
 /// Largest vector dimension carried by a latent frame.

@@ -131,8 +131,14 @@ fn paired_dirs() -> (tempfile::TempDir, tempfile::TempDir) {
 
 fn trust(dir: &Path, peer: &Identity, name: &str) {
     let mut st = TrustStore::load(dir).unwrap();
-    st.insert(PeerRecord::new(peer.cert_der().clone(), name, SystemTime::now()).unwrap());
+    st.insert(PeerRecord::new(peer.peer_key(), name, SystemTime::now()));
     st.save().unwrap();
+}
+
+/// `KEY@addr` of the device whose identity is in `d`: what `--connect`
+/// takes.
+fn key_at(d: &tempfile::TempDir, addr: &str) -> String {
+    format!("{}@{addr}", Identity::load(d.path()).unwrap().peer_key())
 }
 
 fn dir_arg(d: &tempfile::TempDir) -> String {
@@ -338,7 +344,7 @@ fn link_third_identity_refused() {
             "--listen",
             "0.0.0.0:7000",
             "--connect",
-            &a_addr,
+            &key_at(&da, &a_addr),
         ]),
     );
     a.expect("up ", Duration::from_secs(10));
@@ -354,7 +360,7 @@ fn link_third_identity_refused() {
             "--listen",
             "0.0.0.0:7001",
             "--connect",
-            &a_addr,
+            &key_at(&da, &a_addr),
         ]),
     );
     let ec = c.expect("error RefusedByPeer", Duration::from_secs(10));
@@ -404,7 +410,7 @@ fn link_mdns_blocked_manual_address_works() {
             "--mdns",
             &h.a_if,
             "--connect",
-            &b_addr,
+            &key_at(&db, &b_addr),
         ]),
     );
     a.expect("up ", Duration::from_secs(10));
@@ -466,7 +472,7 @@ fn link_loss_delay_reorder_decisions_stay_right() {
             "--listen",
             "0.0.0.0:7000",
             "--connect",
-            &format!("{}:7100", h.b_ip),
+            &key_at(&db, &format!("{}:7100", h.b_ip)),
         ]),
     );
     a.expect("up ", Duration::from_secs(15));
@@ -535,7 +541,7 @@ fn link_down_up_reconnects_within_3s() {
             "--listen",
             "0.0.0.0:7000",
             "--connect",
-            &b_addr,
+            &key_at(&db, &b_addr),
             "--idle-ms",
             "1500",
         ]),

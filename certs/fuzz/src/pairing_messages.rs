@@ -26,7 +26,7 @@ pub fn run(data: &[u8]) {
     let mut rng = StdRng::seed_from_u64(u64::from(first));
     let code = PairingCode::generate(&mut rng);
     let (mut session, _) =
-        PairingSession::start(role, code, me.cert_der(), peer.cert_der(), &mut rng).unwrap();
+        PairingSession::start(role, code, &me.peer_key(), &peer.peer_key(), &mut rng).unwrap();
     let cfg = bincode::config::standard().with_limit::<4096>();
     while !rest.is_empty() {
         let Ok((msg, used)) = bincode::serde::decode_from_slice::<PairingMessage, _>(rest, cfg)

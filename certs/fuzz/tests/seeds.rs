@@ -41,7 +41,7 @@ fn write_seeds() {
     let tmp = std::env::temp_dir().join(format!("txc-seeds-{}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
     let mut store = TrustStore::empty_in(&tmp);
-    let mut rec = PeerRecord::new(b.cert_der().clone(), "bob", SystemTime::UNIX_EPOCH).unwrap();
+    let mut rec = PeerRecord::new(b.peer_key(), "bob", SystemTime::UNIX_EPOCH);
     rec.last_addresses = vec!["192.0.2.7:4797".parse().unwrap()];
     store.insert(rec);
     store.save().unwrap();
@@ -61,7 +61,7 @@ fn write_seeds() {
             PairingRole::ShowsCode
         };
         let (_, start) =
-            PairingSession::start(role, code, b.cert_der(), a.cert_der(), &mut rng).unwrap();
+            PairingSession::start(role, code, &b.peer_key(), &a.peer_key(), &mut rng).unwrap();
         let mut bytes = vec![first];
         bytes.extend(bincode::serde::encode_to_vec(&start, cfg).unwrap());
         let abort = PairingMessage::Abort(telextiles_certs::pairing::PairingAbort::WrongCode);

@@ -8,7 +8,9 @@
 use std::time::{Duration, Instant};
 
 use telextiles_certs::{Identity, PinSet};
-use telextiles_link::{now_us, HelloInfo, Link, LinkConfig, LinkEvent, Quantisation, Timing};
+use telextiles_link::{
+    now_us, HelloInfo, Link, LinkConfig, LinkEvent, PeerAddr, Quantisation, Timing,
+};
 use tokio::sync::mpsc::Receiver;
 
 fn cfg(name: &str, q: Quantisation) -> LinkConfig {
@@ -50,7 +52,7 @@ async fn latency(q: Quantisation, frames: usize) {
         .await
         .unwrap();
     let mut cb = cfg("b", q);
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = Link::start(cb, ib, PinSet::new([ia.device_id()]))
         .await
         .unwrap();
@@ -107,7 +109,7 @@ async fn reconnect(trials: usize) {
     .unwrap();
     let b_addr = b.local_addr();
     let mut ca = cfg("a", Quantisation::Auto);
-    ca.connect = vec![b_addr];
+    ca.connect = vec![PeerAddr::at(ib.peer_key(), b_addr)];
     let (a, mut ra) = Link::start(ca, ia.clone(), PinSet::new([ib.device_id()]))
         .await
         .unwrap();

@@ -1,8 +1,10 @@
 //! mDNS discovery (mdns-sd): advertise and browse `_telextiles._udp.local.`.
 //!
-//! The TXT record carries the device ID (`id`), the protocol version (`pv`)
+//! The TXT record carries the device ID (`id`), the device's key (`key`,
+//! what the link dials; it must hash to `id`), the protocol version (`pv`)
 //! and whether the device is showing a pairing code (`pair=1`). None of it
-//! is trusted: identity is proved only by TLS.
+//! is trusted: identity is proved only by the link's TLS handshake, which
+//! a dial by key pins.
 //!
 //! Interfaces: multicast is first disabled on every interface
 //! (`IfKind::All`), then enabled only on the selected ones
@@ -14,7 +16,7 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use mdns_sd::{IfKind, IfPredicate, ServiceDaemon, ServiceEvent, ServiceInfo};
-use telextiles_certs::DeviceId;
+use telextiles_certs::{DeviceId, PeerKey};
 use tokio::sync::mpsc;
 
 use crate::LinkError;
@@ -92,6 +94,9 @@ impl DiscoveryConfig {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Discovered {
     pub device_id: DeviceId,
+    /// The key to dial (absent in adverts of protocol 1, which ran on
+    /// certificates).
+    pub key: Option<PeerKey>,
     pub protocol_version: u16,
     pub addrs: Vec<SocketAddr>,
     /// It is showing a pairing code.
@@ -147,6 +152,7 @@ impl Seen {
 pub fn parse_txt(
     fullname: &str,
     id: Option<&str>,
+    key: Option<&str>,
     pv: Option<&str>,
     pair: Option<&str>,
     addrs: Vec<SocketAddr>,
@@ -154,12 +160,26 @@ pub fn parse_txt(
     let id = id.ok_or_else(|| format!("{fullname}: TXT record has no device id"))?;
     let device_id =
         DeviceId::from_str(id).map_err(|e| format!("{fullname}: bad device id in TXT: {e}"))?;
+    let key = match key {
+        None => None,
+        Some(k) => {
+            let k = PeerKey::from_str(k)
+                .map_err(|e| format!("{fullname}: bad device key in TXT: {e}"))?;
+            if k.device_id() != device_id {
+                return Err(format!(
+                    "{fullname}: the TXT record's key is not device {device_id}'s"
+                ));
+            }
+            Some(k)
+        }
+    };
     let protocol_version = pv
         .ok_or_else(|| format!("{fullname}: TXT record has no protocol version"))?
         .parse::<u16>()
         .map_err(|e| format!("{fullname}: bad protocol version in TXT: {e}"))?;
     Ok(Discovered {
         device_id,
+        key,
         protocol_version,
         addrs,
         pairing: pair == Some("1"),
@@ -175,6 +195,7 @@ pub struct Discovery {
     host: String,
     port: u16,
     id_text: String,
+    key_text: String,
 }
 
 impl Discovery {
@@ -182,7 +203,7 @@ impl Discovery {
     /// devices (other than this one) arrive on the receiver.
     pub fn start(
         cfg: &DiscoveryConfig,
-        my_id: &DeviceId,
+        my_key: &PeerKey,
         port: u16,
         pairing: bool,
     ) -> Result<(Discovery, mpsc::Receiver<Discovered>), LinkError> {
@@ -197,6 +218,7 @@ impl Discovery {
             })))
             .map_err(err)?;
 
+        let my_id = &my_key.device_id();
         let short = my_id.short().to_lowercase();
         let mut disc = Discovery {
             instance: cfg
@@ -206,6 +228,7 @@ impl Discovery {
             host: format!("telextiles-{short}.local."),
             port,
             id_text: my_id.to_string(),
+            key_text: my_key.to_string(),
             fullname: String::new(),
             daemon,
         };
@@ -240,6 +263,7 @@ impl Discovery {
                     let d = match parse_txt(
                         &svc.fullname,
                         svc.get_property_val_str("id"),
+                        svc.get_property_val_str("key"),
                         svc.get_property_val_str("pv"),
                         svc.get_property_val_str("pair"),
                         addrs,
@@ -270,6 +294,7 @@ impl Discovery {
         let pv = telextiles_proto::peer::PROTOCOL_VERSION.to_string();
         let props = [
             ("id", self.id_text.as_str()),
+            ("key", self.key_text.as_str()),
             ("pv", pv.as_str()),
             ("pair", if pairing { "1" } else { "0" }),
         ];
@@ -326,6 +351,7 @@ mod tests {
         Discovered {
             fullname: format!("telextiles-{i}._telextiles._udp.local."),
             device_id: DeviceId::from_bytes([(i % 251) as u8; 32]),
+            key: None,
             protocol_version: 1,
             pairing: false,
             addrs: vec![SocketAddr::from(([192, 0, 2, 1], port))],
@@ -357,17 +383,48 @@ mod tests {
     fn txt_parsing_reports_what_is_wrong() {
         let id = DeviceId::from_bytes([7; 32]);
         let text = id.to_string();
-        let d = parse_txt("x", Some(&text), Some("1"), Some("1"), vec![]).unwrap();
+        let d = parse_txt("x", Some(&text), None, Some("1"), Some("1"), vec![]).unwrap();
         assert_eq!(d.device_id, id);
+        assert_eq!(d.key, None, "a protocol-1 advert has no key");
         assert!(d.pairing);
-        assert!(parse_txt("x", None, Some("1"), None, vec![])
+        assert!(parse_txt("x", None, None, Some("1"), None, vec![])
             .unwrap_err()
             .contains("no device id"));
-        assert!(parse_txt("x", Some("nonsense"), Some("1"), None, vec![])
-            .unwrap_err()
-            .contains("bad device id"));
-        assert!(parse_txt("x", Some(&text), Some("x"), None, vec![])
+        assert!(
+            parse_txt("x", Some("nonsense"), None, Some("1"), None, vec![])
+                .unwrap_err()
+                .contains("bad device id")
+        );
+        assert!(parse_txt("x", Some(&text), None, Some("x"), None, vec![])
             .unwrap_err()
             .contains("bad protocol version"));
+        // The key must be the device's: a claim of another's key is dropped.
+        let key = PeerKey::from_bytes([9; 32]);
+        let kid = key.device_id().to_string();
+        let d = parse_txt(
+            "x",
+            Some(&kid),
+            Some(&key.to_string()),
+            Some("2"),
+            None,
+            vec![],
+        )
+        .unwrap();
+        assert_eq!(d.key, Some(key));
+        assert!(parse_txt(
+            "x",
+            Some(&text),
+            Some(&key.to_string()),
+            Some("2"),
+            None,
+            vec![]
+        )
+        .unwrap_err()
+        .contains("is not device"));
+        assert!(
+            parse_txt("x", Some(&kid), Some("xyz"), Some("2"), None, vec![])
+                .unwrap_err()
+                .contains("bad device key")
+        );
     }
 }

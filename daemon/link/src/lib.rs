@@ -1,11 +1,15 @@
 //! Peer link: mDNS discovery, pairing over the connection, and QUIC
-//! streaming between two paired Telextiles daemons.
+//! streaming between two paired Telextiles daemons, on an iroh endpoint.
 //!
-//! One QUIC endpoint (one UDP socket) both listens and dials, so the address
-//! a peer connects from is the address it listens on; that is what the trust
-//! store remembers. TLS 1.3 with mutual authentication through the pinning
-//! verifiers of `telextiles-certs`: an unpaired device is refused in the
-//! handshake (outside pairing mode).
+//! One iroh endpoint (one UDP socket, plus a relay when one is configured)
+//! both listens and dials. Its key is the device's identity key
+//! ([`Identity::secret_seed`]), so a peer is dialled by its
+//! [`PeerKey`] and the dial pins it (TLS 1.3 with raw public keys, ALPN
+//! [`ALPN`]). An incoming connection from a device that is not paired is
+//! closed by the endpoint's after-handshake hook ([`close_code::NOT_PAIRED`])
+//! before the link sees it or any application data (outside pairing mode).
+//! Between two networks the endpoint meets its peer through the relay and
+//! goes direct when hole punching succeeds (iroh's QUIC NAT traversal).
 //!
 //! On each connection the dialing side opens one bidirectional **control
 //! stream** ([`telextiles_proto::peer::Control`] frames). Pairing messages go
@@ -30,6 +34,7 @@
 #![forbid(unsafe_code)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+mod addr;
 pub mod conn;
 mod dial;
 pub mod discovery;
@@ -42,15 +47,19 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
-use quinn::crypto::rustls::{QuicClientConfig, QuicServerConfig};
+use iroh::endpoint::{AfterHandshakeOutcome, Connection, EndpointHooks, QuicTransportConfig};
 use telextiles_certs::{
-    client_config, server_config, CodeOffer, DeviceId, Identity, PairingCode, PeerPolicy, PinSet,
-    VerificationCode,
+    CodeOffer, DeviceId, Identity, PairingCode, PeerKey, PinSet, VerificationCode,
 };
 use telextiles_proto::peer::{self, Control, LatentFrame, QuantVec, FLAG_FINAL};
 use tokio::sync::{mpsc, watch, Notify};
 
+pub use addr::{PeerAddr, PeerAddrError, RelaySpec, Route};
 pub use discovery::{DiscoveryConfig, Interfaces, SERVICE_TYPE};
+
+/// The application protocol of the peer link (ALPN). The number follows
+/// [`PROTOCOL_VERSION`].
+pub const ALPN: &[u8] = b"telextiles/2";
 pub use telextiles_proto::peer::{Hello, MismatchReason, PROTOCOL_VERSION};
 
 /// QUIC application close codes used by the link.
@@ -68,6 +77,11 @@ pub mod close_code {
     pub const PAIRING: u32 = 3;
     /// The peer broke the protocol.
     pub const PROTOCOL: u32 = 4;
+    /// Refused by the endpoint's after-handshake hook: this device does not
+    /// pin the dialler (it is not paired here), before any data.
+    pub const NOT_PAIRED: u32 = 5;
+    /// The reason sent with [`NOT_PAIRED`].
+    pub const NOT_PAIRED_REASON: &[u8] = b"not paired with this device";
 }
 
 /// Resource limits sized to the protocol (one control stream of frames of
@@ -77,13 +91,9 @@ pub mod close_code {
 pub mod limits {
     /// Connections (handshaking or established) at once, all peers.
     pub const MAX_CONNECTIONS: usize = 16;
-    /// Connections at once from one IP address.
+    /// Connections at once from one IP address (or, through a relay, from
+    /// one endpoint key).
     pub const MAX_CONNECTIONS_PER_IP: usize = 4;
-    /// Connection attempts quinn buffers before the link sees them.
-    pub const MAX_INCOMING: usize = 32;
-    /// Bytes buffered per not-yet-accepted connection attempt / all of them.
-    pub const INCOMING_BUFFER: u64 = 16 * 1024;
-    pub const INCOMING_BUFFER_TOTAL: u64 = 256 * 1024;
     /// Bidirectional streams a peer may open at once (the control stream).
     pub const MAX_BIDI_STREAMS: u32 = 1;
     /// Per-stream receive window: one maximal control frame plus slack.
@@ -236,8 +246,12 @@ pub struct LinkConfig {
     /// UDP address to listen (and dial) on, e.g. `0.0.0.0:0` or `[::]:4797`.
     pub listen: SocketAddr,
     pub hello: HelloInfo,
-    /// Peers to dial explicitly (`--connect host:port`).
-    pub connect: Vec<SocketAddr>,
+    /// Peers to dial explicitly (`--connect KEY@host:port`, or `KEY` through
+    /// the relay).
+    pub connect: Vec<PeerAddr>,
+    /// Relays to meet peers through beyond the LAN (`relay_url`); empty:
+    /// direct addresses only. Never a public relay unless named here.
+    pub relays: Vec<RelaySpec>,
     /// mDNS advertise + browse; `None` disables multicast entirely.
     pub discovery: Option<DiscoveryConfig>,
     /// Data directory of the trust store: remembered peer addresses are
@@ -256,6 +270,7 @@ impl LinkConfig {
             listen,
             hello,
             connect: Vec::new(),
+            relays: Vec::new(),
             discovery: None,
             data_dir: None,
             pairing: None,
@@ -347,7 +362,16 @@ pub enum LinkEvent {
     PeerUp {
         peer: DeviceId,
         name: String,
-        addr: SocketAddr,
+        /// How the connection reaches the peer now (direct address or relay).
+        addr: Route,
+    },
+    /// The path a connection's packets take changed (relayed → direct
+    /// after hole punching, or back).
+    PathChanged {
+        peer: DeviceId,
+        route: Route,
+        /// Smoothed round-trip time of that path.
+        rtt: Duration,
     },
     /// The connection to a peer ended.
     PeerDown {
@@ -380,6 +404,8 @@ pub enum LinkError {
     Tls(#[from] rustls::Error),
     #[error("QUIC configuration failed: {0}")]
     Quic(String),
+    #[error("the identity's key cannot be the link's key: {0}")]
+    Key(String),
     #[error("mDNS discovery failed: {0}")]
     Discovery(String),
     #[error("no peer is connected")]
@@ -393,7 +419,7 @@ pub enum LinkError {
 }
 
 pub(crate) struct PeerSlot {
-    pub conn: quinn::Connection,
+    pub conn: Connection,
     pub ctrl: mpsc::Sender<Control>,
     pub dialed_by_lower: bool,
 }
@@ -402,8 +428,14 @@ pub(crate) struct Shared {
     pub my_id: DeviceId,
     pub identity: Identity,
     pub pins: PinSet,
-    pub endpoint: quinn::Endpoint,
-    pub transport: Arc<quinn::TransportConfig>,
+    pub endpoint: iroh::Endpoint,
+    /// Whether the gate lets unpaired devices in (showing a pairing code).
+    pub open_gate: Arc<AtomicBool>,
+    /// A relay is configured: paired peers are dialled by key alone too.
+    pub relayed: bool,
+    pub gate_refused: Arc<Mutex<Option<DeviceId>>>,
+    /// The relays' URLs, added to every dial.
+    pub relay_urls: Vec<iroh::RelayUrl>,
     pub events: mpsc::Sender<LinkEvent>,
     pub peers: Mutex<HashMap<DeviceId, PeerSlot>>,
     pub peers_changed: Notify,
@@ -413,10 +445,11 @@ pub(crate) struct Shared {
     pub quantisation: Quantisation,
     pub data_dir: Option<PathBuf>,
     pub shutdown: watch::Sender<bool>,
-    pub dialing: Mutex<HashMap<DeviceId, watch::Sender<Vec<SocketAddr>>>>,
+    pub dialing: Mutex<HashMap<DeviceId, watch::Sender<PeerAddr>>>,
     pub stopped: AtomicBool,
-    /// Open connections per remote IP (accepted and dialled).
-    pub conns: Mutex<HashMap<std::net::IpAddr, usize>>,
+    /// Open accepted connections per origin (remote IP, or key through a
+    /// relay).
+    pub conns: Mutex<HashMap<session::Origin, usize>>,
     /// Rate limit of errors caused by unauthenticated senders (refused
     /// handshakes, failed incoming connections).
     pub refusals: Mutex<RateLimit>,
@@ -495,17 +528,6 @@ impl Shared {
         lock(&self.pairing).is_some()
     }
 
-    pub(crate) fn client_config(
-        &self,
-        policy: PeerPolicy,
-    ) -> Result<quinn::ClientConfig, LinkError> {
-        let tls = client_config(&self.identity, policy)?;
-        let quic = QuicClientConfig::try_from(tls).map_err(|e| LinkError::Quic(e.to_string()))?;
-        let mut cfg = quinn::ClientConfig::new(Arc::new(quic));
-        cfg.transport_config(self.transport.clone());
-        Ok(cfg)
-    }
-
     /// Revokes a peer at once: drops its pin (new handshakes are refused),
     /// stops dialing it and closes its live connection (the session ends
     /// with `PeerDown`).
@@ -519,10 +541,10 @@ impl Shared {
         self.peers_changed.notify_waiters();
     }
 
-    pub(crate) fn set_server_policy(&self, policy: PeerPolicy) -> Result<(), LinkError> {
-        let cfg = make_server_config(&self.identity, policy, self.transport.clone())?;
-        self.endpoint.set_server_config(Some(cfg));
-        Ok(())
+    /// Lets unpaired devices through the handshake (while showing a
+    /// pairing code) or not.
+    pub(crate) fn set_gate_open(&self, open: bool) {
+        self.open_gate.store(open, Ordering::SeqCst);
     }
 }
 
@@ -530,19 +552,34 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-fn make_server_config(
-    identity: &Identity,
-    policy: PeerPolicy,
-    transport: Arc<quinn::TransportConfig>,
-) -> Result<quinn::ServerConfig, LinkError> {
-    let tls = server_config(identity, policy)?;
-    let quic = QuicServerConfig::try_from(tls).map_err(|e| LinkError::Quic(e.to_string()))?;
-    let mut cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
-    cfg.transport_config(transport)
-        .max_incoming(limits::MAX_INCOMING)
-        .incoming_buffer_size(limits::INCOMING_BUFFER)
-        .incoming_buffer_size_total(limits::INCOMING_BUFFER_TOTAL);
-    Ok(cfg)
+/// The endpoint's after-handshake hook: an accepted connection from a
+/// device this one does not pin is closed with [`close_code::NOT_PAIRED`]
+/// before the link (or any stream or datagram) sees it, unless a pairing
+/// code is shown. Dialled connections went to a key this side chose.
+#[derive(Debug)]
+struct Gate {
+    pins: PinSet,
+    open: Arc<AtomicBool>,
+    /// The device refused last, for the accepting side's report.
+    refused: Arc<Mutex<Option<DeviceId>>>,
+}
+
+impl EndpointHooks for Gate {
+    async fn after_handshake(&self, conn: &Connection) -> AfterHandshakeOutcome {
+        if conn.side() == iroh::endpoint::Side::Client || self.open.load(Ordering::SeqCst) {
+            return AfterHandshakeOutcome::Accept;
+        }
+        let id = addr::key_of(&conn.remote_id()).device_id();
+        if self.pins.contains(&id) {
+            AfterHandshakeOutcome::Accept
+        } else {
+            *lock(&self.refused) = Some(id);
+            AfterHandshakeOutcome::Reject {
+                error_code: close_code::NOT_PAIRED.into(),
+                reason: close_code::NOT_PAIRED_REASON.to_vec(),
+            }
+        }
+    }
 }
 
 /// What the link dropped from paired peers, counted since it started
@@ -587,17 +624,17 @@ impl Link {
             listen,
             hello,
             connect,
+            relays,
             discovery,
             data_dir,
             pairing,
             timing,
             quantisation,
         } = config;
-        let mut transport = quinn::TransportConfig::default();
-        transport
-            .keep_alive_interval(Some(timing.keep_alive))
+        let transport = QuicTransportConfig::builder()
+            .keep_alive_interval(timing.keep_alive)
             .max_idle_timeout(Some(
-                quinn::IdleTimeout::try_from(timing.idle_timeout)
+                iroh::endpoint::IdleTimeout::try_from(timing.idle_timeout)
                     .map_err(|e| LinkError::Quic(e.to_string()))?,
             ))
             .max_concurrent_bidi_streams(limits::MAX_BIDI_STREAMS.into())
@@ -606,36 +643,48 @@ impl Link {
             .receive_window(limits::CONNECTION_WINDOW.into())
             .send_window(limits::SEND_WINDOW)
             .datagram_receive_buffer_size(Some(limits::DATAGRAM_RECEIVE_BUFFER))
-            // Latest wins at the sender too: a small send buffer makes quinn
+            // Latest wins at the sender too: a small send buffer makes QUIC
             // drop the oldest queued latents instead of delaying new ones.
             .datagram_send_buffer_size(4 * 1300)
             // Model-based congestion control: random loss (Wi-Fi) does not
             // collapse the window the way loss-based controllers do.
-            .congestion_controller_factory(Arc::new(quinn::congestion::BbrConfig::default()));
-        let transport = Arc::new(transport);
-        let server_policy = match &pairing {
-            Some(PairingMode::Show(_)) => PeerPolicy::AnyForPairing,
-            _ => PeerPolicy::Pinned(pins.clone()),
-        };
-        let server = make_server_config(&identity, server_policy, transport.clone())?;
-        let socket = std::net::UdpSocket::bind(listen).map_err(|source| LinkError::Bind {
-            addr: listen,
-            source,
-        })?;
-        let endpoint = quinn::Endpoint::new(
-            quinn::EndpointConfig::default(),
-            Some(server),
-            socket,
-            Arc::new(quinn::TokioRuntime),
+            .congestion_controller_factory(Arc::new(noq::congestion::Bbr3Config::default()))
+            .build();
+        let seed = identity
+            .secret_seed()
+            .ok_or_else(|| LinkError::Key("it is not an Ed25519 key".into()))?;
+        let secret = iroh::SecretKey::from_bytes(&seed);
+        if addr::key_of(&secret.public()) != identity.peer_key() {
+            return Err(LinkError::Key(
+                "its secret does not give its public key".into(),
+            ));
+        }
+        let gate_refused = Arc::new(Mutex::new(None));
+        let open_gate = Arc::new(AtomicBool::new(matches!(
+            pairing,
+            Some(PairingMode::Show(_))
+        )));
+        let endpoint = addr::bind_endpoint(
+            secret,
+            listen,
+            &relays,
+            transport,
+            Gate {
+                pins: pins.clone(),
+                open: open_gate.clone(),
+                refused: gate_refused.clone(),
+            },
         )
-        .map_err(|source| LinkError::Bind {
-            addr: listen,
-            source,
-        })?;
-        let local_addr = endpoint.local_addr().map_err(|source| LinkError::Bind {
-            addr: listen,
-            source,
-        })?;
+        .await?;
+        let local_addr =
+            endpoint
+                .bound_sockets()
+                .into_iter()
+                .next()
+                .ok_or_else(|| LinkError::Bind {
+                    addr: listen,
+                    source: std::io::Error::other("the endpoint bound no socket"),
+                })?;
         let (tx, rx) = mpsc::channel(1024);
         let (shutdown, _) = watch::channel(false);
         let enter_mode = matches!(pairing, Some(PairingMode::Enter(_)));
@@ -646,7 +695,10 @@ impl Link {
             identity,
             pins,
             endpoint,
-            transport,
+            open_gate,
+            gate_refused,
+            relayed: !relays.is_empty(),
+            relay_urls: relays.iter().map(|r| r.url.clone()).collect(),
             events: tx,
             peers: Mutex::new(HashMap::new()),
             peers_changed: Notify::new(),
@@ -679,22 +731,30 @@ impl Link {
         }
 
         for addr in connect {
-            shared.spawn(dial::dial_loop(shared.clone(), None, vec![addr], true));
+            shared.spawn(dial::dial_loop(shared.clone(), addr, true));
         }
-        // Remembered addresses of paired peers.
+        // Paired peers: at their remembered addresses, and through the
+        // relay when one is configured.
         if let Some(dir) = &shared.data_dir {
             if let Ok(store) = telextiles_certs::TrustStore::load(dir) {
                 for p in store.peers() {
-                    if shared.pins.contains(&p.device_id) && !p.last_addresses.is_empty() {
-                        dial::ensure_dialing(&shared, p.device_id, p.last_addresses.clone());
+                    if shared.pins.contains(&p.device_id)
+                        && (shared.relayed || !p.last_addresses.is_empty())
+                    {
+                        let to = PeerAddr::new(p.key, p.last_addresses.clone());
+                        dial::ensure_dialing(&shared, to);
                     }
                 }
             }
         }
         let disc = match discovery {
             Some(dcfg) => {
-                let (d, found) =
-                    discovery::Discovery::start(&dcfg, &my_id, local_addr.port(), show_mode)?;
+                let (d, found) = discovery::Discovery::start(
+                    &dcfg,
+                    &shared.identity.peer_key(),
+                    local_addr.port(),
+                    show_mode,
+                )?;
                 shared.spawn(dial::discovery_loop(shared.clone(), found, enter_mode));
                 let d = Arc::new(d);
                 *lock(&shared.advert) = Some(Arc::downgrade(&d));
@@ -836,7 +896,7 @@ impl LinkHandle {
         capture_us: u64,
         final_frame: bool,
     ) -> Result<SentLatent, LinkError> {
-        let peers: Vec<quinn::Connection> = lock(&self.shared.peers)
+        let peers: Vec<Connection> = lock(&self.shared.peers)
             .values()
             .map(|p| p.conn.clone())
             .collect();
@@ -927,28 +987,43 @@ impl LinkHandle {
         self.shared.revoke(peer);
     }
 
-    /// Dials an address (like `--connect`) from now on, with reconnects.
-    pub fn connect(&self, addr: SocketAddr) {
+    /// Dials a peer (like `--connect`) from now on, with reconnects.
+    pub fn connect(&self, to: PeerAddr) {
         self.shared
-            .spawn(dial::dial_loop(self.shared.clone(), None, vec![addr], true));
+            .spawn(dial::dial_loop(self.shared.clone(), to, true));
+    }
+
+    /// This device's key: what peers dial (with an address, or alone
+    /// through a relay).
+    pub fn peer_key(&self) -> PeerKey {
+        self.shared.identity.peer_key()
+    }
+
+    /// The route and round-trip time of each connected peer's connection
+    /// now.
+    pub fn routes(&self) -> Vec<(DeviceId, Route, Option<Duration>)> {
+        lock(&self.shared.peers)
+            .iter()
+            .map(|(id, p)| {
+                let (route, rtt) = addr::route_of(&p.conn);
+                (*id, route, rtt)
+            })
+            .collect()
     }
 
     /// Closes every connection and stops dialing and accepting.
     pub async fn shutdown(&self) {
         self.shared.stopped.store(true, Ordering::SeqCst);
         let _ = self.shared.shutdown.send(true);
-        let conns: Vec<quinn::Connection> = lock(&self.shared.peers)
+        let conns: Vec<Connection> = lock(&self.shared.peers)
             .drain()
             .map(|(_, p)| p.conn)
             .collect();
         for c in conns {
             c.close(close_code::BYE.into(), close_code::SHUTDOWN_REASON);
         }
-        self.shared
-            .endpoint
-            .close(close_code::BYE.into(), close_code::SHUTDOWN_REASON);
-        let _ =
-            tokio::time::timeout(Duration::from_secs(1), self.shared.endpoint.wait_idle()).await;
+        // Closes what is left and waits (bounded) for the closes to go out.
+        let _ = tokio::time::timeout(Duration::from_secs(1), self.shared.endpoint.close()).await;
         // Whatever did not end with the signal ends now.
         self.shared.abort_tasks();
     }

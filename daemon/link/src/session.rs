@@ -1,20 +1,19 @@
 //! Connection life cycle: accepting, pairing, hello and the streaming
 //! session of one connection, accepted or dialled (dialling and its
 //! backoff are in `dial.rs`).
-use std::net::{IpAddr, SocketAddr};
+use std::net::IpAddr;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
-use quinn::{Connection, ConnectionError, RecvStream, SendStream};
-use rustls::pki_types::CertificateDer;
+use iroh::endpoint::{Connection, ConnectionError, IncomingAddr, RecvStream, SendStream};
+use iroh::EndpointId;
 use telextiles_certs::trust::sanitize_text;
-use telextiles_certs::{
-    peer_device_id, DeviceId, PairingMessage, PairingRole, PeerPolicy, PeerRecord, TrustStore,
-};
+use telextiles_certs::{DeviceId, PairingMessage, PairingRole, PeerKey, PeerRecord, TrustStore};
 use telextiles_proto::peer::{self, Control, FrameDecoder, LatentFrame, LatestWins};
 use tokio::sync::mpsc;
 
+use crate::addr::{key_of, route_of, Route};
 use crate::conn::connection::{Action, Connection as ConnMachine};
 use crate::conn::duplicate::{self, Keep};
 use crate::conn::pairing::{PairAction, PairingExchange, STILL_LOOKING};
@@ -23,6 +22,9 @@ use crate::{
     close_code, limits, lock, now_us, ErrorKind, Latent, LinkEvent, PairingMode, PeerSlot,
     RateLimit, Shared,
 };
+
+/// How often a live connection's path is looked at for a change of route.
+pub(crate) const PATH_POLL: Duration = Duration::from_millis(100);
 
 /// Why a connection ended, for the user.
 #[derive(Debug)]
@@ -50,27 +52,20 @@ impl End {
     }
 }
 
-fn is_crypto_close(e: &ConnectionError) -> bool {
+/// Explains a connection error seen on a fresh connection. `addr`
+/// describes the peer (`key@address` or a route) for the user.
+pub(crate) fn explain(e: &ConnectionError, addr: &str) -> End {
     match e {
-        ConnectionError::ConnectionClosed(c) => {
-            let code = u64::from(c.error_code);
-            (0x100..0x200).contains(&code)
+        ConnectionError::ApplicationClosed(c)
+            if u64::from(c.error_code) == close_code::NOT_PAIRED as u64 =>
+        {
+            End::err(
+                ErrorKind::RefusedByPeer,
+                format!(
+                    "the device at {addr} refused this device in the handshake: it is not paired with this device (run `telextilesd pair` on both devices) [{e}]"
+                ),
+            )
         }
-        _ => false,
-    }
-}
-
-/// Explains a connection error seen on a fresh connection.
-fn explain(e: &ConnectionError, addr: SocketAddr) -> End {
-    if is_crypto_close(e) {
-        return End::err(
-            ErrorKind::RefusedByPeer,
-            format!(
-                "the device at {addr} refused this device in the TLS handshake: it is not paired with this device (run `telextilesd pair` on both devices) [{e}]"
-            ),
-        );
-    }
-    match e {
         ConnectionError::ApplicationClosed(c)
             if u64::from(c.error_code) == close_code::PAIRING as u64 =>
         {
@@ -116,7 +111,7 @@ pub(crate) fn not_there(e: &ConnectionError) -> bool {
     match e {
         ConnectionError::TimedOut => true,
         ConnectionError::ConnectionClosed(c) => {
-            c.error_code == quinn::TransportErrorCode::CONNECTION_REFUSED
+            c.error_code == iroh::endpoint::TransportErrorCode::CONNECTION_REFUSED
         }
         _ => false,
     }
@@ -127,10 +122,19 @@ fn peer_reason(reason: &[u8]) -> String {
     sanitize_text(&String::from_utf8_lossy(reason), 200)
 }
 
-pub(crate) fn peer_cert(conn: &Connection) -> Option<CertificateDer<'static>> {
-    let any = conn.peer_identity()?;
-    let certs = any.downcast::<Vec<CertificateDer<'static>>>().ok()?;
-    certs.first().cloned()
+/// The peer's key and device ID (authenticated by the handshake).
+pub(crate) fn peer_of(conn: &Connection) -> (PeerKey, DeviceId) {
+    let key = key_of(&conn.remote_id());
+    (key, key.device_id())
+}
+
+/// The peer as users read it: its short ID and its route now.
+pub(crate) fn describe(conn: &Connection) -> String {
+    let (route, _) = route_of(conn);
+    match route {
+        Route::Unknown => peer_of(conn).1.short(),
+        r => r.to_string(),
+    }
 }
 
 // ---------------------------------------------------------------------------
@@ -145,7 +149,7 @@ pub(crate) async fn accept_loop(shared: Arc<Shared>) {
             _ = stop.changed() => return,
         };
         let Some(incoming) = incoming else { return };
-        let Some(slot) = ConnSlot::reserve(&shared, incoming.remote_address().ip()) else {
+        let Some(slot) = ConnSlot::reserve(&shared, Origin::of(&incoming.remote_addr())) else {
             // Over the overall or per-address limit: refused before any
             // handshake work or state.
             incoming.refuse();
@@ -165,22 +169,53 @@ pub(crate) async fn accept_loop(shared: Arc<Shared>) {
     }
 }
 
+/// Where an incoming connection comes from, for the per-origin cap: its
+/// IP address, or through a relay the key the relay authenticated.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub(crate) enum Origin {
+    Ip(IpAddr),
+    Relayed(EndpointId),
+    Other,
+}
+
+impl Origin {
+    fn of(addr: &IncomingAddr) -> Origin {
+        match addr {
+            IncomingAddr::Ip(a) => Origin::Ip(a.ip()),
+            IncomingAddr::Relay { endpoint_id, .. } => Origin::Relayed(*endpoint_id),
+            _ => Origin::Other,
+        }
+    }
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Origin::Ip(ip) => write!(f, "{ip}"),
+            Origin::Relayed(id) => {
+                write!(f, "{} through the relay", key_of(id).device_id().short())
+            }
+            Origin::Other => f.write_str("an unknown transport"),
+        }
+    }
+}
+
 /// One accepted connection's place in [`limits::MAX_CONNECTIONS`] and
 /// [`limits::MAX_CONNECTIONS_PER_IP`], given back when dropped.
 struct ConnSlot {
     shared: Arc<Shared>,
-    ip: IpAddr,
+    ip: Origin,
 }
 
 impl ConnSlot {
-    fn reserve(shared: &Arc<Shared>, ip: IpAddr) -> Option<ConnSlot> {
+    fn reserve(shared: &Arc<Shared>, ip: Origin) -> Option<ConnSlot> {
         let mut conns = lock(&shared.conns);
         let total: usize = conns.values().sum();
         let here = conns.get(&ip).copied().unwrap_or(0);
         if total >= limits::MAX_CONNECTIONS || here >= limits::MAX_CONNECTIONS_PER_IP {
             return None;
         }
-        *conns.entry(ip).or_insert(0) += 1;
+        *conns.entry(ip.clone()).or_insert(0) += 1;
         Some(ConnSlot {
             shared: shared.clone(),
             ip,
@@ -215,26 +250,31 @@ async fn report_limited(shared: &Shared, peer: Option<DeviceId>, kind: ErrorKind
     }
 }
 
-async fn accept_one(shared: Arc<Shared>, incoming: quinn::Incoming) {
-    let addr = incoming.remote_address();
-    match incoming.await {
+async fn accept_one(shared: Arc<Shared>, incoming: iroh::endpoint::Incoming) {
+    let origin = Origin::of(&incoming.remote_addr());
+    let accepting = match incoming.accept() {
+        Ok(a) => a,
+        Err(e) => {
+            let msg = format!("incoming connection from {origin} failed: {e}");
+            report_limited(&shared, None, ErrorKind::RefusedPeer, msg).await;
+            return;
+        }
+    };
+    // The handshake and the gate (`Gate`: an unpaired device is closed
+    // here, before any stream or datagram reaches the link).
+    match accepting.await {
         Ok(conn) => {
             let _ = run_connection(shared, conn, false, false).await;
         }
         Err(e) => {
             let text = e.to_string();
-            let msg = if let Some(id) = text
-                .split("NotPaired(DeviceId(")
-                .nth(1)
-                .and_then(|r| r.split(')').next())
-            {
-                format!(
-                    "refused a connection from {addr}: device {id} is not paired with this device (pair with `telextilesd pair` if this is your peer) [{text}]"
-                )
-            } else if text.contains("not paired") || text.contains("certificate") {
-                format!("refused a connection from {addr}: {text}")
-            } else {
-                format!("incoming connection from {addr} failed: {text}")
+            let rejected = matches!(e, iroh::endpoint::ConnectingError::LocallyRejected { .. });
+            let refused = lock(&shared.gate_refused).take();
+            let msg = match refused {
+                Some(id) if rejected => format!(
+                    "refused a connection from {origin}: device {id} is not paired with this device (pair with `telextilesd pair` if this is your peer)"
+                ),
+                _ => format!("incoming connection from {origin} failed: {text}"),
             };
             report_limited(&shared, None, ErrorKind::RefusedPeer, msg).await;
         }
@@ -275,7 +315,7 @@ impl Ctrl {
                         "the peer closed the control stream".into(),
                     ))
                 }
-                Err(quinn::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
+                Err(iroh::endpoint::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
                 Err(e) => return Err(ReadFail::Closed(e.to_string())),
             }
         }
@@ -289,7 +329,7 @@ enum ReadFail {
 }
 
 impl ReadFail {
-    fn into_end(self, addr: SocketAddr) -> End {
+    fn into_end(self, addr: &str) -> End {
         match self {
             ReadFail::Conn(e) => explain(&e, addr),
             ReadFail::Closed(s) => End::quiet(s),
@@ -325,7 +365,6 @@ pub(crate) async fn run_connection(
     dialed: bool,
     entering: bool,
 ) -> Result<(), End> {
-    let addr = conn.remote_address();
     let result = run_connection_inner(&shared, &conn, dialed, entering).await;
     if let Err(end) = &result {
         let code = match end.kind {
@@ -345,14 +384,13 @@ pub(crate) async fn run_connection(
             // rate-limited: anyone can open connections.
             report_limited(
                 &shared,
-                peer_cert(&conn).and_then(|c| peer_device_id(&[c]).ok()),
+                Some(peer_of(&conn).1),
                 end.kind.clone(),
                 end.message.clone(),
             )
             .await;
         }
     }
-    let _ = addr;
     result
 }
 
@@ -366,15 +404,9 @@ async fn run_connection_inner(
     dialed: bool,
     entering: bool,
 ) -> Result<(), End> {
-    let addr = conn.remote_address();
-    let cert = peer_cert(conn).ok_or_else(|| {
-        End::err(
-            ErrorKind::Protocol,
-            format!("the device at {addr} presented no certificate"),
-        )
-    })?;
-    let peer_id = peer_device_id(std::slice::from_ref(&cert))
-        .map_err(|e| End::err(ErrorKind::Protocol, e.to_string()))?;
+    let addr = describe(conn);
+    let addr = addr.as_str();
+    let (peer_key, peer_id) = peer_of(conn);
     if peer_id == shared.my_id {
         return Err(End::quiet("connected to itself"));
     }
@@ -401,7 +433,7 @@ async fn run_connection_inner(
                 shared,
                 &mut ctrl,
                 PairingRole::EntersCode,
-                &cert,
+                &peer_key,
                 peer_id,
                 addr,
                 None,
@@ -426,7 +458,7 @@ async fn run_connection_inner(
         HandshakeConfig::new(shared.hello.clone(), hs),
         ClockConfig::new(shared.timing.ping_interval),
         role,
-        addr,
+        addr.to_string(),
         peer_id,
         now_us(),
     );
@@ -450,7 +482,7 @@ async fn run_connection_inner(
                             shared,
                             &mut ctrl,
                             PairingRole::ShowsCode,
-                            &cert,
+                            &peer_key,
                             peer_id,
                             addr,
                             Some(start),
@@ -516,12 +548,13 @@ async fn run_connection_inner(
         );
     }
     shared.peers_changed.notify_waiters();
-    remember(shared, peer_id, addr, &their_hello.device_name);
+    let (route, _) = route_of(conn);
+    remember(shared, peer_id, route.direct(), &their_hello.device_name);
     shared
         .emit(LinkEvent::PeerUp {
             peer: peer_id,
             name: their_hello.device_name.clone(),
-            addr,
+            addr: route,
         })
         .await;
 
@@ -573,9 +606,9 @@ async fn pair_as(
     shared: &Arc<Shared>,
     ctrl: &mut Ctrl,
     role: PairingRole,
-    peer_cert: &CertificateDer<'static>,
+    peer_key: &PeerKey,
     peer_id: DeviceId,
-    addr: SocketAddr,
+    addr: &str,
     pending: Option<PairingMessage>,
 ) -> Result<(), End> {
     let mut attempt = ShowAttempt {
@@ -586,7 +619,7 @@ async fn pair_as(
         shared,
         ctrl,
         role,
-        peer_cert,
+        peer_key,
         peer_id,
         addr,
         pending,
@@ -645,9 +678,9 @@ async fn pair_as_inner(
     shared: &Arc<Shared>,
     ctrl: &mut Ctrl,
     role: PairingRole,
-    peer_cert: &CertificateDer<'static>,
+    peer_key: &PeerKey,
     peer_id: DeviceId,
-    addr: SocketAddr,
+    addr: &str,
     mut pending: Option<PairingMessage>,
     code_taken: &mut bool,
 ) -> Result<(), End> {
@@ -678,10 +711,10 @@ async fn pair_as_inner(
     let mut x = PairingExchange::start(
         role,
         code,
-        shared.identity.cert_der(),
-        peer_cert,
+        &shared.identity.peer_key(),
+        peer_key,
         &mut rand::rngs::OsRng,
-        addr,
+        addr.to_string(),
         now_us(),
         shared.timing.handshake_timeout,
     );
@@ -730,25 +763,18 @@ async fn pair_as_inner(
     // Pin now; store if we have a data dir.
     shared.pins.insert(paired.peer_id);
     if let Some(dir) = shared.data_dir.clone() {
-        let cert = paired.peer_cert.clone();
+        let key = paired.peer_key;
         let name = paired.peer_id.short();
+        // Its address is remembered when the session comes up.
         let res = tokio::task::spawn_blocking(move || {
             TrustStore::update(&dir, |s| {
-                let rec = PeerRecord::new(cert, &name, SystemTime::now());
-                match rec {
-                    Ok(mut r) => {
-                        r.last_addresses = vec![addr];
-                        s.insert(r);
-                        (true, Ok(()))
-                    }
-                    Err(e) => (false, Err(e.to_string())),
-                }
+                s.insert(PeerRecord::new(key, &name, SystemTime::now()));
+                (true, ())
             })
         })
         .await;
         let err = match res {
-            Ok(Ok(Ok(()))) => None,
-            Ok(Ok(Err(e))) => Some(e),
+            Ok(Ok(())) => None,
             Ok(Err(e)) => Some(e.to_string()),
             Err(e) => Some(e.to_string()),
         };
@@ -777,7 +803,7 @@ async fn pair_as_inner(
 fn finish_pairing_mode(shared: &Arc<Shared>) {
     let was_show = matches!(lock(&shared.pairing).take(), Some(PairingMode::Show(_)));
     if was_show {
-        let _ = shared.set_server_policy(PeerPolicy::Pinned(shared.pins.clone()));
+        shared.set_gate_open(false);
         // Withdraw `pair=1` from the mDNS advert.
         let advert = lock(&shared.advert).as_ref().and_then(|w| w.upgrade());
         if let Some(d) = advert {
@@ -794,15 +820,17 @@ fn finish_pairing_mode(shared: &Arc<Shared>) {
     }
 }
 
-/// Saves the peer's address and name in the trust store (best effort).
-fn remember(shared: &Arc<Shared>, peer: DeviceId, addr: SocketAddr, name: &str) {
+/// Saves the peer's direct address (if it was reached at one) and name in
+/// the trust store (best effort).
+fn remember(shared: &Arc<Shared>, peer: DeviceId, addr: Option<std::net::SocketAddr>, name: &str) {
     let Some(dir) = shared.data_dir.clone() else {
         return;
     };
     let name = name.to_string();
     tokio::task::spawn_blocking(move || {
         let _ = TrustStore::update(&dir, |s| {
-            let mut changed = s.note_addresses(&peer, &[addr], SystemTime::now());
+            let addrs: Vec<_> = addr.into_iter().collect();
+            let mut changed = s.note_addresses(&peer, &addrs, SystemTime::now());
             if let Some(rec) = s.get(&peer) {
                 let clean = telextiles_certs::trust::sanitize_name(&name);
                 if rec.name != clean {
@@ -932,6 +960,26 @@ async fn stream(
         }
     }));
 
+    // Path watcher: the route (relay or direct) and its round trip, told
+    // when the route changes (hole punching moved it, or it fell back).
+    let pconn = conn.clone();
+    let pshared = shared.clone();
+    let paths = crate::AbortOnDrop(tokio::spawn(async move {
+        let mut last = route_of(&pconn).0;
+        loop {
+            tokio::time::sleep(PATH_POLL).await;
+            let (route, rtt) = route_of(&pconn);
+            if route != last {
+                last = route.clone();
+                pshared.emit_now(LinkEvent::PathChanged {
+                    peer: peer_id,
+                    route,
+                    rtt: rtt.unwrap_or_default(),
+                });
+            }
+        }
+    }));
+
     // Control reader (this task).
     let mut ctrl = ReaderOnly { recv, dec, buf };
     let reason = loop {
@@ -959,7 +1007,7 @@ async fn stream(
             Err(ReadFail::Conn(_)) if !shared.pins.contains(&peer_id) => {
                 break "unpaired on this device".to_string()
             }
-            Err(ReadFail::Conn(e)) => break explain(&e, conn.remote_address()).message,
+            Err(ReadFail::Conn(e)) => break explain(&e, &describe(conn)).message,
             Err(ReadFail::Closed(s)) => break s,
             Err(ReadFail::Protocol(s)) => {
                 conn.close(close_code::PROTOCOL.into(), b"bad control message");
@@ -969,7 +1017,7 @@ async fn stream(
     };
     // Ended before the connection closes (and on any cancellation of this
     // future, by the guards' drop).
-    drop((writer, pinger, datagrams));
+    drop((writer, pinger, datagrams, paths));
     if conn.close_reason().is_none() {
         conn.close(close_code::BYE.into(), b"session ended");
     }
@@ -1000,7 +1048,7 @@ impl ReaderOnly {
                         "the peer closed the control stream".into(),
                     ))
                 }
-                Err(quinn::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
+                Err(iroh::endpoint::ReadError::ConnectionLost(e)) => return Err(ReadFail::Conn(e)),
                 Err(e) => return Err(ReadFail::Closed(e.to_string())),
             }
         }
@@ -1011,6 +1059,7 @@ impl ReaderOnly {
 mod tests {
     use super::*;
     use crate::dial::bounded_addrs;
+    use std::net::SocketAddr;
 
     fn a(i: u16) -> SocketAddr {
         SocketAddr::from(([192, 0, 2, 1], i))

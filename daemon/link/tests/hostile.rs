@@ -3,7 +3,7 @@
 //! safe to print, revocation of a live peer, re-pairing after a one-sided
 //! unpair, fake devices claiming to show a pairing code.
 //!
-//! The attackers are raw quinn clients in this process: the memory figures
+//! The attackers are raw iroh endpoints in this process: the memory figures
 //! are the RSS of the whole test process (link + attacker). They are
 //! printed (`--nocapture`) and written to `docs/peer-protocol.md`.
 use std::net::SocketAddr;
@@ -11,12 +11,13 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
+use iroh::endpoint::{Connection, RecvStream, SendStream};
+use iroh::{Endpoint, EndpointAddr, EndpointId, SecretKey, TransportAddr};
 use telextiles_certs::{
-    client_config, CodeOffer, Identity, PairingCode, PeerPolicy, PeerRecord, PinSet, TrustStore,
-    DEFAULT_CODE_TTL, SERVER_NAME,
+    CodeOffer, Identity, PairingCode, PeerRecord, PinSet, TrustStore, DEFAULT_CODE_TTL,
 };
 use telextiles_link::{
-    limits, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, Timing,
+    limits, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, PeerAddr, Timing, ALPN,
 };
 use telextiles_proto::peer::{encode_control, Control, FrameDecoder, Hello, PROTOCOL_VERSION};
 use tokio::sync::mpsc::Receiver;
@@ -103,22 +104,30 @@ fn rss_mib() -> f64 {
     kb / 1024.0
 }
 
-/// A quinn client endpoint with quinn's default (generous) limits.
-fn attacker_endpoint(me: &Identity, policy: PeerPolicy) -> quinn::Endpoint {
-    attacker_endpoint_at(me, policy, std::net::Ipv4Addr::LOCALHOST)
+/// A raw iroh endpoint with the device's key and iroh's default
+/// (generous) limits, direct addresses only, bound to a loopback address.
+async fn attacker_endpoint_at(me: &Identity, ip: std::net::Ipv4Addr) -> Endpoint {
+    Endpoint::builder(iroh::endpoint::presets::Minimal)
+        .secret_key(SecretKey::from_bytes(&me.secret_seed().unwrap()))
+        .alpns(vec![ALPN.to_vec()])
+        .relay_mode(iroh::RelayMode::Disabled)
+        .clear_ip_transports()
+        .bind_addr(SocketAddr::from((ip, 0)))
+        .unwrap()
+        .portmapper_config(iroh::endpoint::PortmapperConfig::Disabled)
+        .bind()
+        .await
+        .unwrap()
 }
 
-/// The same, bound to a given loopback address.
-fn attacker_endpoint_at(
-    me: &Identity,
-    policy: PeerPolicy,
-    ip: std::net::Ipv4Addr,
-) -> quinn::Endpoint {
-    let tls = client_config(me, policy).unwrap();
-    let quic = quinn::crypto::rustls::QuicClientConfig::try_from(tls).unwrap();
-    let mut ep = quinn::Endpoint::client(SocketAddr::from((ip, 0))).unwrap();
-    ep.set_default_client_config(quinn::ClientConfig::new(Arc::new(quic)));
-    ep
+async fn attacker_endpoint(me: &Identity) -> Endpoint {
+    attacker_endpoint_at(me, std::net::Ipv4Addr::LOCALHOST).await
+}
+
+/// Where a raw endpoint dials the device `to` listening at `addr`.
+fn target(to: &Identity, addr: SocketAddr) -> EndpointAddr {
+    let id = EndpointId::from_bytes(to.peer_key().as_bytes()).unwrap();
+    EndpointAddr::from_parts(id, [TransportAddr::Ip(addr)])
 }
 
 fn raw_hello(name: &str) -> Hello {
@@ -139,14 +148,9 @@ async fn paired_attacker(
     server: &Identity,
     addr: SocketAddr,
     name: &str,
-) -> (
-    quinn::Endpoint,
-    quinn::Connection,
-    quinn::SendStream,
-    quinn::RecvStream,
-) {
-    let ep = attacker_endpoint(me, PeerPolicy::Expect(server.device_id()));
-    let conn = ep.connect(addr, SERVER_NAME).unwrap().await.unwrap();
+) -> (Endpoint, Connection, SendStream, RecvStream) {
+    let ep = attacker_endpoint(me).await;
+    let conn = ep.connect(target(server, addr), ALPN).await.unwrap();
     let (mut send, recv) = conn.open_bi().await.unwrap();
     let mut bytes = encode_control(&Control::Hello(raw_hello(name))).unwrap();
     bytes.extend(encode_control(&Control::HelloAck).unwrap());
@@ -178,21 +182,16 @@ async fn stream_flood(paired: bool, sources: u8, what: &str) -> usize {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let before = rss_mib();
 
-    let policy = if paired {
-        PeerPolicy::Expect(ia.device_id())
-    } else {
-        PeerPolicy::AnyForPairing
-    };
     let chunk = bytes::Bytes::from(vec![0x55u8; 64 * 1024]);
     let mut tasks = Vec::new();
     let mut connected = 0;
     let mut eps = Vec::new();
     for i in 0..24u8 {
         let ip = std::net::Ipv4Addr::new(127, 0, 0, 1 + i % sources);
-        let ep = attacker_endpoint_at(&evil, policy.clone(), ip);
+        let ep = attacker_endpoint_at(&evil, ip).await;
         let conn = match tokio::time::timeout(
             Duration::from_secs(2),
-            ep.connect(a.local_addr(), SERVER_NAME).unwrap(),
+            ep.connect(target(&ia, a.local_addr()), ALPN),
         )
         .await
         {
@@ -240,7 +239,7 @@ async fn stream_flood(paired: bool, sources: u8, what: &str) -> usize {
     let during = rss_mib();
     for (ep, conn) in &eps {
         conn.close(0u32.into(), b"bye");
-        ep.close(0u32.into(), b"bye");
+        let _ = tokio::time::timeout(Duration::from_millis(100), ep.close()).await;
     }
     for t in tasks {
         t.abort();
@@ -461,7 +460,7 @@ async fn latents_the_application_does_not_read_are_dropped_and_counted() {
 }
 
 fn record(id: &Identity, name: &str) -> PeerRecord {
-    PeerRecord::new(id.cert_der().clone(), name, SystemTime::now()).unwrap()
+    PeerRecord::new(id.peer_key(), name, SystemTime::now())
 }
 
 /// Two paired links with trust stores on disk, streaming.
@@ -482,7 +481,7 @@ async fn paired_pair() -> (
     let (a, mut ra) = start(ca, &ia, &[&ib]).await;
     let mut cb = config("bob");
     cb.data_dir = Some(db.path().to_path_buf());
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = start(cb, &ib, &[&ia]).await;
     for rx in [&mut ra, &mut rb] {
         wait_for(rx, Duration::from_secs(10), "PeerUp", |e| match e {
@@ -596,7 +595,7 @@ async fn repairing_works_after_a_one_sided_unpair() {
     let (a, mut ra) = start(ca, &ia, &[]).await;
     let mut cb = config("bob");
     cb.pairing = Some(PairingMode::Enter(typed));
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     cb.data_dir = Some(db.path().to_path_buf());
     let (b, mut rb) = start(cb, &ib, &[&ia]).await;
     for (rx, who) in [(&mut ra, "alice"), (&mut rb, "bob")] {
@@ -653,12 +652,8 @@ async fn unauthenticated_abort_does_not_end_pairing_mode() {
     );
     let (ca, typed) = show_config("alice");
     let (a, mut ra) = start(ca, &ia, &[]).await;
-    let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
-    let conn = ep
-        .connect(a.local_addr(), SERVER_NAME)
-        .unwrap()
-        .await
-        .unwrap();
+    let ep = attacker_endpoint(&evil).await;
+    let conn = ep.connect(target(&ia, a.local_addr()), ALPN).await.unwrap();
     let (mut send, _recv) = conn.open_bi().await.unwrap();
     let abort = Control::Pair(telextiles_certs::PairingMessage::Abort(
         telextiles_certs::pairing::PairingAbort::CodeExpired,
@@ -680,7 +675,7 @@ async fn unauthenticated_abort_does_not_end_pairing_mode() {
     }
     let mut cb = config("bob");
     cb.pairing = Some(PairingMode::Enter(typed));
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = start(cb, &ib, &[]).await;
     for rx in [&mut ra, &mut rb] {
         wait_for(rx, Duration::from_secs(10), "Paired", |e| match e {
@@ -703,19 +698,15 @@ async fn burnt_code_is_reported_and_pairing_mode_left_at_once() {
     let (mut ca, _typed) = show_config("alice");
     ca.timing.handshake_timeout = Duration::from_secs(30);
     let (a, mut ra) = start(ca, &ia, &[]).await;
-    let ep = attacker_endpoint(&evil, PeerPolicy::AnyForPairing);
-    let conn = ep
-        .connect(a.local_addr(), SERVER_NAME)
-        .unwrap()
-        .await
-        .unwrap();
+    let ep = attacker_endpoint(&evil).await;
+    let conn = ep.connect(target(&ia, a.local_addr()), ALPN).await.unwrap();
     let (mut send, mut recv) = conn.open_bi().await.unwrap();
     let guess = PairingCode::generate(&mut rand::rngs::OsRng);
     let (_session, start_msg) = telextiles_certs::PairingSession::start(
         telextiles_certs::PairingRole::EntersCode,
         guess,
-        evil.cert_der(),
-        ia.cert_der(),
+        &evil.peer_key(),
+        &ia.peer_key(),
         &mut rand::rngs::OsRng,
     )
     .unwrap();
@@ -749,8 +740,8 @@ async fn burnt_code_is_reported_and_pairing_mode_left_at_once() {
     assert!(msg.contains("used up"), "{msg}");
     // Pairing mode is over: an unpinned device is refused in the handshake.
     let other = Identity::generate().unwrap();
-    let ep2 = attacker_endpoint(&other, PeerPolicy::AnyForPairing);
-    let c2 = ep2.connect(a.local_addr(), SERVER_NAME).unwrap().await;
+    let ep2 = attacker_endpoint(&other).await;
+    let c2 = ep2.connect(target(&ia, a.local_addr()), ALPN).await;
     let refused = match c2 {
         Err(_) => true,
         Ok(c) => {
@@ -782,12 +773,9 @@ enum Fake {
 /// identity that accepts any client certificate, as a device showing a
 /// code does, and answers as `how` says. Returns its address and a count
 /// of the connection attempts that reached it.
-fn fake_shower(me: &Identity, how: Fake) -> (quinn::Endpoint, SocketAddr, Arc<AtomicUsize>) {
-    let tls = telextiles_certs::server_config(me, PeerPolicy::AnyForPairing).unwrap();
-    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls).unwrap();
-    let cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
-    let ep = quinn::Endpoint::server(cfg, "127.0.0.1:0".parse().unwrap()).unwrap();
-    let addr = ep.local_addr().unwrap();
+async fn fake_shower(me: &Identity, how: Fake) -> (Endpoint, SocketAddr, Arc<AtomicUsize>) {
+    let ep = attacker_endpoint(me).await;
+    let addr = ep.bound_sockets()[0];
     let count = Arc::new(AtomicUsize::new(0));
     let (ep2, count2, me) = (ep.clone(), count.clone(), me.clone());
     tokio::spawn(async move {
@@ -795,7 +783,10 @@ fn fake_shower(me: &Identity, how: Fake) -> (quinn::Endpoint, SocketAddr, Arc<At
             count2.fetch_add(1, Ordering::SeqCst);
             let me = me.clone();
             tokio::spawn(async move {
-                let Ok(conn) = incoming.await else { return };
+                let Ok(accepting) = incoming.accept() else {
+                    return;
+                };
+                let Ok(conn) = accepting.await else { return };
                 let Ok((mut send, mut recv)) = conn.accept_bi().await else {
                     return;
                 };
@@ -822,17 +813,13 @@ fn fake_shower(me: &Identity, how: Fake) -> (quinn::Endpoint, SocketAddr, Arc<At
                         let _ = send.write_all(&encode_control(&abort).unwrap()).await;
                     }
                     Fake::WrongCode => {
-                        let peer_cert = conn
-                            .peer_identity()
-                            .unwrap()
-                            .downcast::<Vec<rustls::pki_types::CertificateDer<'static>>>()
-                            .unwrap()[0]
-                            .clone();
+                        let peer_key =
+                            telextiles_certs::PeerKey::from_bytes(*conn.remote_id().as_bytes());
                         let (mut session, start) = telextiles_certs::PairingSession::start(
                             telextiles_certs::PairingRole::ShowsCode,
                             PairingCode::generate(&mut rand::rngs::OsRng),
-                            me.cert_der(),
-                            &peer_cert,
+                            &me.peer_key(),
+                            &peer_key,
                             &mut rand::rngs::OsRng,
                         )
                         .unwrap();
@@ -870,13 +857,14 @@ async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
     let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
     let mut fakes = Vec::new();
     for how in [Fake::Abort, Fake::WrongCode, Fake::Stall] {
-        let (ep, addr, count) = fake_shower(&Identity::generate().unwrap(), how);
-        fakes.push((how, ep, addr, count));
+        let fake = Identity::generate().unwrap();
+        let (ep, addr, count) = fake_shower(&fake, how).await;
+        fakes.push((how, ep, addr, count, fake.peer_key()));
     }
     let (ca, typed) = show_config("alice");
     let mut cb = config("bob");
     cb.pairing = Some(PairingMode::Enter(typed));
-    cb.connect = fakes.iter().map(|f| f.2).collect();
+    cb.connect = fakes.iter().map(|f| PeerAddr::at(f.4, f.2)).collect();
     // Quick redials: the old loop came back to a device within 0.6 s of a
     // failed pairing (10 × backoff_max, + jitter).
     cb.timing.backoff_min = Duration::from_millis(20);
@@ -916,7 +904,7 @@ async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
     for m in &attempts {
         println!("  {m}");
     }
-    for (how, _, addr, _) in &fakes {
+    for (how, _, addr, _, _) in &fakes {
         let m = attempts
             .iter()
             .find(|m| m.contains(&addr.to_string()))
@@ -942,7 +930,7 @@ async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
         }
         assert!(!matches!(e, LinkEvent::Paired { .. }), "{e:?}");
     }
-    for (how, _, addr, count) in &fakes {
+    for (how, _, addr, count, _) in &fakes {
         assert_eq!(
             count.load(Ordering::SeqCst),
             1,
@@ -951,7 +939,7 @@ async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
     }
     // Still entering the code: the real device showing it pairs.
     let (a, mut ra) = start(ca, &ia, &[]).await;
-    b.connect(a.local_addr());
+    b.connect(PeerAddr::at(a.peer_key(), a.local_addr()));
     for (rx, who, peer) in [(&mut ra, "alice", &ib), (&mut rb, "bob", &ia)] {
         let got = wait_for(
             rx,
@@ -980,13 +968,13 @@ async fn fake_devices_showing_a_code_neither_end_entering_nor_are_redialled() {
         },
     )
     .await;
-    for (how, ep, addr, count) in &fakes {
+    for (how, ep, addr, count, _) in &fakes {
         assert_eq!(
             count.load(Ordering::SeqCst),
             1,
             "{how:?} at {addr} was dialled again"
         );
-        ep.close(0u32.into(), b"bye");
+        let _ = tokio::time::timeout(Duration::from_millis(100), ep.close()).await;
     }
     a.shutdown().await;
     b.shutdown().await;

@@ -6,7 +6,8 @@ use std::time::{Duration, Instant};
 
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, DEFAULT_CODE_TTL};
 use telextiles_link::{
-    now_us, ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, Timing,
+    now_us, ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, LinkHandle, PairingMode, PeerAddr,
+    Timing,
 };
 use telextiles_proto::peer::Control;
 use tokio::sync::mpsc::Receiver;
@@ -92,7 +93,7 @@ async fn paired_peers_stream_both_ways_with_latency_estimate() {
     let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
     let (a, mut ra) = start(config("alice"), &ia, &[&ib]).await;
     let mut cb = config("bob");
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = start(cb, &ib, &[&ia]).await;
 
     let up_a = wait_for(&mut ra, 10, "PeerUp on a", |e| match e {
@@ -179,7 +180,7 @@ async fn hello_mismatch_is_reported_to_both_and_nothing_streams() {
     let (a, mut ra) = start(config("alice"), &ia, &[&ib]).await;
     let mut cb = config("bob");
     cb.hello.encoder_hash = "0".repeat(64);
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = start(cb, &ib, &[&ia]).await;
     for (rx, who) in [(&mut ra, "a"), (&mut rb, "b")] {
         let msg = wait_for(rx, 10, &format!("mismatch error on {who}"), |e| match e {
@@ -210,7 +211,7 @@ async fn unpaired_third_device_is_refused_and_told_why() {
     let (a, mut ra) = start(config("alice"), &ia, &[&ib]).await;
     // C believes it is paired with A, but A does not know C.
     let mut cc = config("mallory");
-    cc.connect = vec![a.local_addr()];
+    cc.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (c, mut rc) = start(cc, &ic, &[&ia]).await;
     let msg = wait_for(&mut rc, 10, "refusal on c", |e| match e {
         LinkEvent::PeerUp { .. } => panic!("unpaired device got a session"),
@@ -272,7 +273,7 @@ async fn pair(code_ok: bool) {
     };
     let mut cb = config("bob");
     cb.pairing = Some(PairingMode::Enter(typed));
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     cb.data_dir = Some(dir_b.path().to_path_buf());
     let (b, mut rb) = start(cb, &ib, &[]).await;
     if code_ok {
@@ -356,7 +357,7 @@ async fn reconnects_after_the_peer_restarts() {
     let (b, mut rb) = start(config("bob"), &ib, &[&ia]).await;
     let b_addr = b.local_addr();
     let mut ca = config("alice");
-    ca.connect = vec![b_addr];
+    ca.connect = vec![PeerAddr::at(ib.peer_key(), b_addr)];
     let (a, mut ra) = start(ca, &ia, &[&ib]).await;
     wait_for(&mut ra, 10, "first PeerUp", |e| {
         matches!(e, LinkEvent::PeerUp { .. }).then_some(())
@@ -411,7 +412,7 @@ async fn the_links_tasks_end_with_it() {
     let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
     let (a, mut ra) = start(config("alice"), &ia, &[&ib]).await;
     let mut cb = config("bob");
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, mut rb) = start(cb, &ib, &[&ia]).await;
     for (rx, what) in [(&mut ra, "PeerUp on a"), (&mut rb, "PeerUp on b")] {
         wait_for(rx, 10, what, |e| match e {

@@ -13,7 +13,9 @@ use std::time::Duration;
 
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, DEFAULT_CODE_TTL};
 use telextiles_link::discovery::{Discovered, Discovery};
-use telextiles_link::{DiscoveryConfig, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode};
+use telextiles_link::{
+    DiscoveryConfig, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode, PeerAddr,
+};
 
 const INNER_ENV: &str = "TELEXTILES_LINK_IN_NETNS";
 
@@ -143,12 +145,12 @@ async fn inner_pairing_flag_withdrawn() {
         .unwrap();
 
     let (_browser, mut found) =
-        Discovery::start(&DiscoveryConfig::only(&["lo"]), &ic.device_id(), 9, false).unwrap();
+        Discovery::start(&DiscoveryConfig::only(&["lo"]), &ic.peer_key(), 9, false).unwrap();
     advert_of(&mut found, &ia, true, Duration::from_secs(10)).await;
 
     let mut cb = LinkConfig::new("bob", "127.0.0.1:0".parse().unwrap(), hello());
     cb.pairing = Some(PairingMode::Enter(typed));
-    cb.connect = vec![a.local_addr()];
+    cb.connect = vec![PeerAddr::at(a.peer_key(), a.local_addr())];
     let (b, _rb) = Link::start(cb, ib, PinSet::default()).await.unwrap();
     let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
     loop {
@@ -193,7 +195,7 @@ async fn inner_spoofed_pairing_advert() {
     let dead = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let (_spoof_advert, _) = Discovery::start(
         &DiscoveryConfig::only(&["lo"]),
-        &spoof.device_id(),
+        &spoof.peer_key(),
         dead.local_addr().unwrap().port(),
         true,
     )
@@ -229,22 +231,31 @@ async fn inner_spoofed_pairing_advert() {
     b.shutdown().await;
 }
 
-/// A QUIC server that accepts any client certificate (like a device
+/// An iroh endpoint that accepts any device (like a device
 /// showing a code) and answers the first message with an `Abort`. Returns
 /// its endpoint and how many connection attempts reached it.
-fn aborting_server(me: &Identity) -> (quinn::Endpoint, Arc<AtomicUsize>) {
-    let tls =
-        telextiles_certs::server_config(me, telextiles_certs::PeerPolicy::AnyForPairing).unwrap();
-    let quic = quinn::crypto::rustls::QuicServerConfig::try_from(tls).unwrap();
-    let cfg = quinn::ServerConfig::with_crypto(Arc::new(quic));
-    let ep = quinn::Endpoint::server(cfg, "127.0.0.1:0".parse().unwrap()).unwrap();
+async fn aborting_server(me: &Identity) -> (iroh::Endpoint, Arc<AtomicUsize>) {
+    let ep = iroh::Endpoint::builder(iroh::endpoint::presets::Minimal)
+        .secret_key(iroh::SecretKey::from_bytes(&me.secret_seed().unwrap()))
+        .alpns(vec![telextiles_link::ALPN.to_vec()])
+        .relay_mode(iroh::RelayMode::Disabled)
+        .clear_ip_transports()
+        .bind_addr("127.0.0.1:0".parse::<std::net::SocketAddr>().unwrap())
+        .unwrap()
+        .portmapper_config(iroh::endpoint::PortmapperConfig::Disabled)
+        .bind()
+        .await
+        .unwrap();
     let count = Arc::new(AtomicUsize::new(0));
     let (ep2, count2) = (ep.clone(), count.clone());
     tokio::spawn(async move {
         while let Some(incoming) = ep2.accept().await {
             count2.fetch_add(1, Ordering::SeqCst);
             tokio::spawn(async move {
-                let Ok(conn) = incoming.await else { return };
+                let Ok(accepting) = incoming.accept() else {
+                    return;
+                };
+                let Ok(conn) = accepting.await else { return };
                 let Ok((mut send, mut recv)) = conn.accept_bi().await else {
                     return;
                 };
@@ -285,11 +296,11 @@ async fn inner_aborting_pairing_advertiser() {
     );
     let typed: PairingCode = offer.display().parse().unwrap();
     // The fake advertiser first.
-    let (fake_ep, dials) = aborting_server(&fake);
+    let (fake_ep, dials) = aborting_server(&fake).await;
     let (_fake_advert, _) = Discovery::start(
         &DiscoveryConfig::only(&["lo"]),
-        &fake.device_id(),
-        fake_ep.local_addr().unwrap().port(),
+        &fake.peer_key(),
+        fake_ep.bound_sockets()[0].port(),
         true,
     )
     .unwrap();
@@ -358,7 +369,7 @@ async fn inner_aborting_pairing_advertiser() {
         "the fake was dialled again"
     );
     println!("paired with the real advertiser after a fake one aborted");
-    fake_ep.close(0u32.into(), b"bye");
+    let _ = tokio::time::timeout(Duration::from_millis(100), fake_ep.close()).await;
     a.shutdown().await;
     b.shutdown().await;
 }

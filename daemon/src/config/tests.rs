@@ -137,7 +137,7 @@ fn precedence_flag_env_file_default() {
     let cfg = dir.path().join("t.toml");
     std::fs::write(
         &cfg,
-        "name = \"from-file\"\nsensor = \"replay:presses\"\nroller = \"sim\"\nlisten = \"127.0.0.1:1000\"\nconnect = [\"a:1\"]\nmap = false\nlog = \"debug\"\nmodel = \"m.onnx\"\n",
+        "name = \"from-file\"\nsensor = \"replay:presses\"\nroller = \"sim\"\nlisten = \"127.0.0.1:1000\"\nconnect = [\"aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@a:1\"]\nmap = false\nlog = \"debug\"\nmodel = \"m.onnx\"\n",
     )
     .unwrap();
     let owned = file_env(dir.path(), &cfg);
@@ -155,7 +155,10 @@ fn precedence_flag_env_file_default() {
     );
     assert_eq!(c.roller, RollerSource::Sim);
     assert_eq!(c.listen, "127.0.0.1:1000".parse().unwrap());
-    assert_eq!(c.connect, vec!["a:1".to_string()]);
+    assert_eq!(
+        c.connect,
+        vec!["aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@a:1".to_string()]
+    );
     assert!(!c.map);
     assert_eq!(c.model, dir.path().join("m.onnx"));
     assert_eq!(c.log, "debug");
@@ -165,7 +168,7 @@ fn precedence_flag_env_file_default() {
     env2.extend([
         ("TELEXTILESD_NAME", "from-env"),
         ("TELEXTILESD_SENSOR", "sim:T012"),
-        ("TELEXTILESD_CONNECT", "b:2, c:3"),
+        ("TELEXTILESD_CONNECT", "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@b:2, aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa"),
         ("TELEXTILESD_MAP", "yes"),
         ("RUST_LOG", "warn"),
     ]);
@@ -177,7 +180,13 @@ fn precedence_flag_env_file_default() {
             textile: Some("T012".into())
         }
     );
-    assert_eq!(c.connect, vec!["b:2".to_string(), "c:3".to_string()]);
+    assert_eq!(
+        c.connect,
+        vec![
+            "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@b:2".to_string(),
+            "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa".to_string()
+        ]
+    );
     assert!(c.map);
     assert_eq!(c.log, "warn", "RUST_LOG beats the file");
     assert_eq!(
@@ -194,7 +203,7 @@ fn precedence_flag_env_file_default() {
             "--sensor",
             "digit:D20001",
             "--connect",
-            "d:4",
+            "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@d:4",
             "--map=false",
             "--log",
             "trace",
@@ -209,7 +218,10 @@ fn precedence_flag_env_file_default() {
             serial: Some("D20001".into())
         }
     );
-    assert_eq!(c.connect, vec!["d:4".to_string()]);
+    assert_eq!(
+        c.connect,
+        vec!["aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@d:4".to_string()]
+    );
     assert!(!c.map);
     assert_eq!(c.log, "trace");
     env2.push(("TELEXTILESD_LOG", "error"));
@@ -331,7 +343,7 @@ fn every_key_is_a_file_key_a_flag_and_an_env_var() {
     let c = resolve(
         &[
             "--connect",
-            "a:1",
+            "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@a:1",
             "--sensor",
             "replay:/d",
             "--replay-fps",
@@ -597,7 +609,8 @@ fn references_are_listed_and_paths_in_the_file_are_relative_to_it() {
 fn sample_toml(key: &str) -> &'static str {
     match key {
         "system" | "mdns" | "map" => "true",
-        "connect" | "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
+        "connect" => "[\"aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@x:1\"]",
+        "mdns_allow" | "mdns_deny" => "[\"x:1\"]",
         "reference" => "[\"/x.png\"]",
         "replay_fps" => "30",
         "contact_enter" => "0.5",
@@ -621,7 +634,8 @@ fn sample_env(key: &str) -> &'static str {
         "system" => "1",
         "mdns" => "false",
         "map" => "true",
-        "connect" | "mdns_allow" | "mdns_deny" => "x:1",
+        "connect" => "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa@x:1",
+        "mdns_allow" | "mdns_deny" => "x:1",
         "reference" => "D1=/x.png",
         "replay_fps" => "29.97",
         "contact_enter" => "0.45",
@@ -698,4 +712,39 @@ fn sensor_settings_are_checked_together() {
         e.contains("sensor_mode") && e.contains("WIDTHxHEIGHT@FPS"),
         "{e}"
     );
+}
+
+#[test]
+fn a_peer_to_connect_to_is_named_by_its_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("t.toml");
+    std::fs::write(&cfg, "").unwrap();
+    let owned = file_env(dir.path(), &cfg);
+    let env = borrow(&owned);
+    let key = "ab".repeat(32);
+
+    // An address alone is refused with the form that works.
+    let e = resolve(&["--connect", "10.0.0.2:47800"], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("has no device key"), "{e}");
+    assert!(e.contains("KEY@10.0.0.2:47800"), "{e}");
+
+    // A key that is not 32 bytes of hex is refused.
+    let e = resolve(&["--connect", "abcd@10.0.0.2:47800"], &env)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("`connect`"), "{e}");
+
+    // KEY@HOST:PORT and KEY alone (through a relay) are taken.
+    let both = format!("{key}@10.0.0.2:47800,{key}");
+    let c = resolve(&["--connect", &both], &env).unwrap();
+    assert_eq!(
+        c.connect,
+        vec![format!("{key}@10.0.0.2:47800"), key.clone()]
+    );
+
+    // A key with a bad address is refused.
+    let bad = format!("{key}@nohost");
+    assert!(resolve(&["--connect", &bad], &env).is_err());
 }

@@ -56,12 +56,32 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
                     id: peer.to_string(),
                     name: name.clone(),
                     addr: addr.to_string(),
+                    path: addr.kind().to_string(),
+                    rtt_ms: None,
+                    path_since: unix_now(),
                 },
             );
             let _ = state.events.send(Event::PeerUp {
                 peer: name,
                 addr: Some(addr.to_string()),
             });
+        }
+        LinkEvent::PathChanged { peer, route, rtt } => {
+            let rtt_ms = rtt.as_secs_f64() * 1e3;
+            say(&format!(
+                "Path to {}: {} ({}, round trip {rtt_ms:.1} ms)",
+                peer.short(),
+                route.kind(),
+                route
+            ));
+            if let Some(p) = lock(&state.peers).get_mut(&peer.to_string()) {
+                if p.path != route.kind() {
+                    p.path_since = unix_now();
+                }
+                p.addr = route.to_string();
+                p.path = route.kind().to_string();
+                p.rtt_ms = Some(rtt_ms);
+            }
         }
         LinkEvent::PeerDown { peer, reason } => {
             say(&format!(
@@ -194,4 +214,9 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
         }
     }
     commanded
+}
+
+/// Seconds since the Unix epoch now.
+fn unix_now() -> u64 {
+    telextiles_certs::trust::unix_seconds(std::time::SystemTime::now())
 }

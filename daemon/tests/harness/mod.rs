@@ -93,12 +93,13 @@ pub fn free_udp_port() -> u16 {
 }
 
 /// Starts one daemon `name` under `work/name` (whose `state/` holds its
-/// identity and trust store), listening at `listen`, dialling `connect`.
+/// identity and trust store), listening at `listen`, dialling `connect`
+/// (`KEY@HOST:PORT`).
 pub fn spawn(
     name: &'static str,
     work: &Path,
     listen: SocketAddr,
-    connect: Option<SocketAddr>,
+    connect: Option<String>,
     sensor: &str,
     flags: &[String],
 ) -> Side {
@@ -140,7 +141,7 @@ pub fn spawn(
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(&log).unwrap());
     if let Some(c) = connect {
-        cmd.args(["--connect", &c.to_string()]);
+        cmd.args(["--connect", &c]);
     }
     let child = cmd.spawn().expect("start telextilesd");
     Side {
@@ -195,7 +196,11 @@ pub fn paired_state(dir: &Path, me: &Identity, peer: &Identity, peer_name: &str)
     std::fs::create_dir_all(&state).unwrap();
     me.save(&state).unwrap();
     let mut st = TrustStore::load(&state).unwrap();
-    st.insert(PeerRecord::new(peer.cert_der().clone(), peer_name, SystemTime::now()).unwrap());
+    st.insert(PeerRecord::new(
+        peer.peer_key(),
+        peer_name,
+        SystemTime::now(),
+    ));
     st.save().unwrap();
 }
 
@@ -235,7 +240,7 @@ impl Pair {
             "b",
             work.path(),
             b_addr,
-            Some(target),
+            Some(format!("{}@{target}", ia.peer_key())),
             &setup.sensors.1,
             &setup.flags.1,
         );

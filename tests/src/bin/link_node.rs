@@ -2,7 +2,7 @@
 //! endpoint (or a UDP relay) and speaks a line protocol.
 //!
 //! ```text
-//! link_node node --dir DIR --name NAME --listen ADDR [--connect ADDR]...
+//! link_node node --dir DIR --name NAME --listen ADDR [--connect KEY@ADDR]...
 //!           [--mdns IFACE]... [--show-code | --code CODE] [--encoder HASH]
 //!           [--idle-ms N]
 //! link_node relay LISTEN TARGET DELAY_MS JITTER_MS
@@ -218,6 +218,9 @@ async fn node(args: &[String]) -> Result<(), String> {
                     }
                     LinkEvent::PeerUp { peer, name, addr } => say(&format!("up {peer} {name} {addr}")),
                     LinkEvent::PeerDown { peer, reason } => say(&format!("down {peer} {reason}")),
+                    LinkEvent::PathChanged { peer, route, rtt } => {
+                        say(&format!("path {peer} {} {route} {}us", route.kind(), rtt.as_micros()))
+                    }
                     LinkEvent::Error { kind, message, .. } => {
                         let k = format!("{kind:?}");
                         let k = k.split('(').next().unwrap_or("").to_string();

@@ -10,7 +10,6 @@
 //! says when [`Connection::handle_timeout`] is due.
 
 use std::collections::VecDeque;
-use std::net::SocketAddr;
 
 use telextiles_certs::trust::sanitize_text;
 use telextiles_certs::DeviceId;
@@ -63,7 +62,7 @@ impl Connection {
         hs: HandshakeConfig,
         clock: ClockConfig,
         role: Role,
-        addr: SocketAddr,
+        addr: String,
         peer: DeviceId,
         now: u64,
     ) -> Connection {

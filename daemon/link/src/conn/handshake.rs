@@ -18,7 +18,6 @@
 //! a protocol error. Each wait has the handshake timeout.
 
 use std::collections::VecDeque;
-use std::net::SocketAddr;
 use std::time::Duration;
 
 use telextiles_certs::pairing::PairingAbort;
@@ -126,7 +125,7 @@ pub enum HsState {
 pub struct Handshake {
     cfg: HandshakeConfig,
     role: Role,
-    addr: SocketAddr,
+    addr: String,
     peer: DeviceId,
     state: HsState,
     deadline: Option<u64>,
@@ -141,7 +140,7 @@ impl Handshake {
     pub fn new(
         cfg: HandshakeConfig,
         role: Role,
-        addr: SocketAddr,
+        addr: String,
         peer: DeviceId,
         now: u64,
     ) -> Handshake {
@@ -217,7 +216,7 @@ impl Handshake {
     }
 
     fn protocol(&mut self, what: &str, got: &Control) {
-        let addr = self.addr;
+        let addr = self.addr.clone();
         self.fail(
             ErrorKind::Protocol,
             format!("expected {what} from {addr}, got {}", describe(got)),
@@ -249,7 +248,7 @@ impl Handshake {
             Some(d) if now >= d => {}
             _ => return,
         }
-        let addr = self.addr;
+        let addr = self.addr.clone();
         let hs = self.cfg.timeout;
         match self.state {
             HsState::AwaitFirst
@@ -270,7 +269,7 @@ impl Handshake {
 
     /// A message from the peer, received at `now`.
     pub fn handle_message(&mut self, now: u64, msg: Control, local: Local) {
-        let addr = self.addr;
+        let addr = self.addr.clone();
         let short = self.peer.short();
         match self.state {
             HsState::AwaitFirst => match msg {

@@ -23,12 +23,10 @@
 //! the driver's: they touch shared state and files.
 
 use std::collections::VecDeque;
-use std::net::SocketAddr;
 use std::time::Duration;
 
-use rustls::pki_types::CertificateDer;
 use telextiles_certs::pairing::{PairingAbort, PairingError};
-use telextiles_certs::{Paired, PairingCode, PairingRole, PairingSession, PairingStep};
+use telextiles_certs::{Paired, PairingCode, PairingRole, PairingSession, PairingStep, PeerKey};
 use telextiles_proto::pairing::PairingMessage;
 use telextiles_proto::peer::Control;
 
@@ -71,7 +69,7 @@ enum State {
 pub struct PairingExchange {
     session: Option<PairingSession>,
     role: PairingRole,
-    addr: SocketAddr,
+    addr: String,
     timeout: Duration,
     state: State,
     deadline: Option<u64>,
@@ -99,10 +97,10 @@ impl PairingExchange {
     pub fn start<R: rand::RngCore + rand::CryptoRng>(
         role: PairingRole,
         code: Result<PairingCode, (Option<PairingAbort>, String)>,
-        own_cert: &CertificateDer<'_>,
-        peer_cert: &CertificateDer<'_>,
+        own_key: &PeerKey,
+        peer_key: &PeerKey,
         rng: &mut R,
-        addr: SocketAddr,
+        addr: String,
         now: u64,
         timeout: Duration,
     ) -> PairingExchange {
@@ -131,7 +129,7 @@ impl PairingExchange {
                     None => x.fail(err, false),
                 }
             }
-            Ok(code) => match PairingSession::start(role, code, own_cert, peer_cert, rng) {
+            Ok(code) => match PairingSession::start(role, code, own_key, peer_key, rng) {
                 Ok((session, start)) => {
                     x.session = Some(session);
                     x.actions.push_back(PairAction::Send(Control::Pair(start)));
@@ -249,7 +247,7 @@ impl PairingExchange {
         let m = match msg {
             Control::Pair(m) => m,
             other => {
-                let addr = self.addr;
+                let addr = self.addr.clone();
                 let error = if self.entering() {
                     HsError {
                         kind: ErrorKind::PairingAttempt,

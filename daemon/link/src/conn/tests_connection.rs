@@ -58,7 +58,7 @@ impl Node {
                 HandshakeConfig::new(h, Duration::from_secs(10)),
                 ClockConfig::new(Duration::from_millis(500)),
                 role,
-                addr,
+                addr.to_string(),
                 id(),
                 clock.at(0),
             ),

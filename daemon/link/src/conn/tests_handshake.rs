@@ -2,7 +2,6 @@
 //! delaying channels; mismatches, refusals, timeouts, early, duplicate and
 //! made-up messages.
 
-use std::net::SocketAddr;
 use std::time::Duration;
 
 use rand::rngs::StdRng;
@@ -33,8 +32,8 @@ fn id() -> DeviceId {
     Identity::generate().expect("identity").device_id()
 }
 
-fn addr() -> SocketAddr {
-    "192.0.2.7:4797".parse().unwrap()
+fn addr() -> String {
+    "192.0.2.7:4797".to_string()
 }
 
 fn pinned() -> Local {
@@ -366,8 +365,8 @@ fn start_msg() -> Control {
     let (_, start) = telextiles_certs::PairingSession::start(
         telextiles_certs::PairingRole::EntersCode,
         telextiles_certs::PairingCode::generate(&mut rand::rngs::OsRng),
-        id.cert_der(),
-        other.cert_der(),
+        &id.peer_key(),
+        &other.peer_key(),
         &mut rand::rngs::OsRng,
     )
     .unwrap();

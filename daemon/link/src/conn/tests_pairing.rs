@@ -2,7 +2,6 @@
 //! over an ordered, delaying stream; right and wrong codes, no code,
 //! silence, aborts, foreign and out-of-place messages.
 
-use std::net::SocketAddr;
 use std::time::Duration;
 
 use rand::rngs::OsRng;
@@ -18,8 +17,8 @@ use crate::ErrorKind;
 const MS: u64 = 1_000;
 const TIMEOUT: Duration = Duration::from_secs(10);
 
-fn addr() -> SocketAddr {
-    "203.0.113.5:4797".parse().unwrap()
+fn addr() -> String {
+    "203.0.113.5:4797".to_string()
 }
 
 #[derive(Debug, Default)]
@@ -57,8 +56,8 @@ fn exchange(enter_code: PairingCode, show_code: PairingCode, delay: u64) -> (Sid
     let mut e = PairingExchange::start(
         PairingRole::EntersCode,
         Ok(enter_code),
-        ide.cert_der(),
-        ids.cert_der(),
+        &ide.peer_key(),
+        &ids.peer_key(),
         &mut OsRng,
         addr(),
         0,
@@ -95,8 +94,8 @@ fn exchange(enter_code: PairingCode, show_code: PairingCode, delay: u64) -> (Sid
                 PairingExchange::start(
                     PairingRole::ShowsCode,
                     Ok(show_code.clone()),
-                    ids.cert_der(),
-                    ide.cert_der(),
+                    &ids.peer_key(),
+                    &ide.peer_key(),
                     &mut OsRng,
                     addr(),
                     t,
@@ -177,8 +176,8 @@ fn one_as(
     PairingExchange::start(
         role,
         code,
-        a.cert_der(),
-        b.cert_der(),
+        &a.peer_key(),
+        &b.peer_key(),
         &mut OsRng,
         addr(),
         1_000,
@@ -298,8 +297,8 @@ fn messages_of_another_device_pair_do_not_pair() {
     let (mut other, replayed) = telextiles_certs::PairingSession::start(
         PairingRole::EntersCode,
         code.clone(),
-        other_a.cert_der(),
-        other_b.cert_der(),
+        &other_a.peer_key(),
+        &other_b.peer_key(),
         &mut OsRng,
     )
     .unwrap();
@@ -436,8 +435,8 @@ fn entering_side_judges_a_wrong_confirmation_itself() {
     let mut e = PairingExchange::start(
         PairingRole::EntersCode,
         Ok(PairingCode::generate(&mut OsRng)),
-        ide.cert_der(),
-        ids.cert_der(),
+        &ide.peer_key(),
+        &ids.peer_key(),
         &mut OsRng,
         addr(),
         0,
@@ -449,8 +448,8 @@ fn entering_side_judges_a_wrong_confirmation_itself() {
     let (mut fake, fake_start) = telextiles_certs::PairingSession::start(
         PairingRole::ShowsCode,
         PairingCode::generate(&mut OsRng),
-        ids.cert_der(),
-        ide.cert_der(),
+        &ids.peer_key(),
+        &ide.peer_key(),
         &mut OsRng,
     )
     .unwrap();
@@ -485,8 +484,8 @@ fn entering_side_judges_a_wrong_confirmation_itself() {
     let (mut guess, guess_start) = telextiles_certs::PairingSession::start(
         PairingRole::EntersCode,
         PairingCode::generate(&mut OsRng),
-        ide.cert_der(),
-        ids.cert_der(),
+        &ide.peer_key(),
+        &ids.peer_key(),
         &mut OsRng,
     )
     .unwrap();
