@@ -142,6 +142,22 @@ impl Netns {
         .map(|_| ())
     }
 
+    /// Keep UDP `port` of this host off the wire: packets to it or from it
+    /// pass only on loopback. With a userspace relay in the same namespace
+    /// in front of the port, the relay is then the only way between the
+    /// hosts: the link cannot open a direct path around it (iroh's NAT
+    /// traversal would otherwise find one, and should).
+    pub fn only_local(&self, port: u16) -> Result<(), String> {
+        let p = port.to_string();
+        self.exec(&[
+            "iptables", "-A", "INPUT", "-p", "udp", "--dport", &p, "!", "-i", "lo", "-j", "DROP",
+        ])?;
+        self.exec(&[
+            "iptables", "-A", "OUTPUT", "-p", "udp", "--sport", &p, "!", "-o", "lo", "-j", "DROP",
+        ])
+        .map(|_| ())
+    }
+
     /// Packet counters of the INPUT chain (for reporting).
     pub fn iptables_counters(&self) -> String {
         self.exec(&["iptables", "-L", "INPUT", "-v", "-n", "-x"])

@@ -439,6 +439,8 @@ fn link_loss_delay_reorder_decisions_stay_right() {
     // 10% random loss on every UDP packet entering either host.
     h.a.random_loss(0.1).unwrap();
     h.b.random_loss(0.1).unwrap();
+    // Through the impairment relay only: no direct path to B's port.
+    h.b.only_local(7000).unwrap();
     let mut b = Node::spawn(
         &h.b,
         "bob",

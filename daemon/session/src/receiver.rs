@@ -148,6 +148,10 @@ const FINISHED_KEPT: usize = 8;
 #[derive(Default)]
 struct PeerState {
     press: Option<RxPress>,
+    /// The press before `press`, replaced before its stop came (the next
+    /// press's datagrams overtook the stop on the control stream): its
+    /// stop still gives its final answer.
+    superseded: Option<RxPress>,
     finished: std::collections::VecDeque<u32>,
     heard: u64,
 }
@@ -315,7 +319,7 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 }
                 if let (true, Some(d)) = (step.changed, step.decision) {
                     Self::decide(
-                        &*index, peer, p, d.entry, d.distance, capture_us, false, out,
+                        &*index, peer, p, d.entry, d.distance, capture_us, false, true, out,
                     );
                 }
             }
@@ -332,6 +336,27 @@ impl<I: TextileIndex> ReceiverCore<I> {
                     });
                 }
                 let good = checked.and_then(|(l, t)| l.ok().map(|l| (l, t)));
+                // The stop of a press that the next one already replaced:
+                // its final answer still counts (events, records, the felt
+                // log), but the roller stays with the press under the hand.
+                let st = self.peer(peer);
+                if st
+                    .superseded
+                    .as_ref()
+                    .is_some_and(|p| p.press_id == press_id)
+                {
+                    let Some(mut p) = st.superseded.take() else {
+                        return;
+                    };
+                    Self::finish(st, press_id);
+                    let index = self.index.clone();
+                    if let Some((entry, distance, t)) =
+                        Self::final_answer(&*index, &mut p, &good, capture_us)
+                    {
+                        Self::decide(&*index, peer, &mut p, entry, distance, t, true, false, out);
+                    }
+                    return;
+                }
                 // A stop for a press never seen (its start and every latent
                 // lost) still decides, from the final latent alone.
                 let started_at = good.as_ref().map_or(capture_us, |(_, t)| *t);
@@ -343,28 +368,43 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 let Some(mut p) = st.press.take() else {
                     return;
                 };
-                if st.finished.len() >= FINISHED_KEPT {
-                    st.finished.pop_front();
-                }
-                st.finished.push_back(press_id);
-                // The sender's mean of the whole press decides the final
-                // answer, so lost datagrams never change it; without a
-                // usable one, the mean of the latents that arrived does,
-                // by the same rule (`Decider::press_end`).
-                let fin = match &good {
-                    Some((l, t)) => index
-                        .nearest2(l.as_slice())
-                        .map(|n| (n.best, n.best_dist, *t)),
-                    None => p
-                        .decider
-                        .press_end(&*index, capture_us)
-                        .and_then(|o| o.decision)
-                        .map(|d| (d.entry, d.distance, capture_us)),
-                };
-                if let Some((entry, distance, t)) = fin {
-                    Self::decide(&*index, peer, &mut p, entry, distance, t, true, out);
+                Self::finish(st, press_id);
+                if let Some((entry, distance, t)) =
+                    Self::final_answer(&*index, &mut p, &good, capture_us)
+                {
+                    Self::decide(&*index, peer, &mut p, entry, distance, t, true, true, out);
                 }
             }
+        }
+    }
+
+    /// Remember `press_id` as finished (its late messages are ignored).
+    fn finish(st: &mut PeerState, press_id: u32) {
+        if st.finished.len() >= FINISHED_KEPT {
+            st.finished.pop_front();
+        }
+        st.finished.push_back(press_id);
+    }
+
+    /// The final answer of press `p`: the sender's mean of the whole press
+    /// decides it, so lost datagrams never change it; without a usable
+    /// one, the mean of the latents that arrived does, by the same rule
+    /// (`Decider::press_end`).
+    fn final_answer(
+        index: &I,
+        p: &mut RxPress,
+        good: &Option<(Latent, u64)>,
+        capture_us: u64,
+    ) -> Option<(usize, f32, u64)> {
+        match good {
+            Some((l, t)) => index
+                .nearest2(l.as_slice())
+                .map(|n| (n.best, n.best_dist, *t)),
+            None => p
+                .decider
+                .press_end(index, capture_us)
+                .and_then(|o| o.decision)
+                .map(|d| (d.entry, d.distance, capture_us)),
         }
     }
 
@@ -401,6 +441,12 @@ impl<I: TextileIndex> ReceiverCore<I> {
                 return false;
             }
         }
+        // A press replaced before its stop came keeps its place for that
+        // stop (one press back: stops are seconds apart, reordering
+        // milliseconds).
+        if let Some(old) = st.press.take() {
+            st.superseded = Some(old);
+        }
         let mut decider = Decider::new(cfg, dim);
         decider.press_start(capture_us);
         let mut motion = Motion::new(policy);
@@ -430,6 +476,7 @@ impl<I: TextileIndex> ReceiverCore<I> {
         distance: f32,
         capture_us: u64,
         final_decision: bool,
+        move_roller: bool,
         out: &mut Vec<RxAction>,
     ) {
         let changed = p.decided != Some(entry);
@@ -438,7 +485,7 @@ impl<I: TextileIndex> ReceiverCore<I> {
         }
         p.decided = Some(entry);
         let slot = index.slot_of(entry);
-        if final_decision {
+        if final_decision && move_roller {
             if let Some(slot) = p.motion.press_end(slot) {
                 out.push(RxAction::RollerTarget { slot });
             }

@@ -96,3 +96,96 @@ fn the_links_own_messages_change_nothing() {
     }
     assert!(out.is_empty());
 }
+
+/// Presses back to back: the next press's first datagrams can overtake the
+/// previous press's stop on the control stream. The late stop still gives
+/// its press's final answer, and the roller stays with the press under the
+/// hand.
+#[test]
+fn a_stop_overtaken_by_the_next_press_still_gives_its_final_answer() {
+    let idx = index();
+    let first = idx.centroid(1).to_vec();
+    let second = idx.centroid(4).to_vec();
+    let mut rx = ReceiverCore::new(idx.clone(), ReceiverConfig::default());
+    let mut out = Vec::new();
+    let latent = |press_id, seq, capture_us, vector| RxInput::Latent {
+        press_id,
+        seq,
+        capture_us,
+        vector,
+        one_way_latency_us: Some(2_000),
+    };
+    rx.handle(
+        "peer",
+        RxInput::PressStart {
+            press_id: 1,
+            capture_us: 0,
+        },
+        &mut out,
+    );
+    for i in 0..20u64 {
+        rx.handle("peer", latent(1, i, i * 16_667, &first), &mut out);
+    }
+    // Press 2's datagrams come before press 1's stop.
+    let t2 = 20 * 16_667;
+    for i in 0..5u64 {
+        rx.handle(
+            "peer",
+            latent(2, 20 + i, t2 + i * 16_667, &second),
+            &mut out,
+        );
+    }
+    out.clear();
+    rx.handle(
+        "peer",
+        RxInput::PressStop {
+            press_id: 1,
+            capture_us: t2 - 1,
+            final_latent: Some((&first, t2 - 1)),
+        },
+        &mut out,
+    );
+    let finals: Vec<_> = out
+        .iter()
+        .filter_map(|a| match a {
+            RxAction::Decision(d) if d.final_decision => Some((d.press_id, d.entry)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(finals, vec![(1, 1)], "{out:?}");
+    assert!(
+        !out.iter()
+            .any(|a| matches!(a, RxAction::RollerTarget { .. })),
+        "a late stop does not move the roller away from press 2: {out:?}"
+    );
+    // A second copy of the stop (or a stray one) decides nothing more.
+    out.clear();
+    rx.handle(
+        "peer",
+        RxInput::PressStop {
+            press_id: 1,
+            capture_us: t2 - 1,
+            final_latent: Some((&first, t2 - 1)),
+        },
+        &mut out,
+    );
+    assert!(out.is_empty(), "{out:?}");
+    // Press 2 goes on and ends as itself, moving the roller.
+    rx.handle(
+        "peer",
+        RxInput::PressStop {
+            press_id: 2,
+            capture_us: t2 + 10 * 16_667,
+            final_latent: Some((&second, t2 + 10 * 16_667)),
+        },
+        &mut out,
+    );
+    let d = out
+        .iter()
+        .find_map(|a| match a {
+            RxAction::Decision(d) if d.final_decision => Some(d.clone()),
+            _ => None,
+        })
+        .expect("press 2's final answer");
+    assert_eq!((d.press_id, d.entry), (2, 4));
+}
