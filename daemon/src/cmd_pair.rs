@@ -10,12 +10,11 @@
 //!   session: hello (encoder/index check), keep-alive, reconnects, and prints
 //!   when the peer comes and goes. Ctrl-C ends it.
 use std::io::{BufRead, Write};
-use std::net::ToSocketAddrs;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use telextiles_certs::{CodeOffer, Identity, PairingCode, PinSet, TrustStore, DEFAULT_CODE_TTL};
-use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode, PeerAddr};
+use telextiles_link::{ErrorKind, HelloInfo, Link, LinkConfig, LinkEvent, PairingMode};
 
 use crate::config::{Config, ConfigArgs};
 use crate::live::discovery::{discovery_config, enter_expired_message};
@@ -104,39 +103,6 @@ fn hello_info(cfg: &Config) -> HelloInfo {
             }
         }
     }
-}
-
-/// The peers of `--connect` (`KEY@HOST:PORT` or `KEY`), host names looked
-/// up.
-pub fn resolve(list: &[String]) -> anyhow::Result<Vec<PeerAddr>> {
-    list.iter().map(|s| resolve_peer(s)).collect()
-}
-
-/// One `--connect` peer: `KEY@HOST:PORT` (the host may be a name) or `KEY`
-/// alone (found through the relay).
-pub fn resolve_peer(s: &str) -> anyhow::Result<PeerAddr> {
-    let (key, host) = match s.split_once('@') {
-        Some((k, h)) => (k, Some(h)),
-        None => (s, None),
-    };
-    let mut addrs = Vec::new();
-    if let Some(h) = host {
-        addrs = h
-            .to_socket_addrs()
-            .with_context(|| format!("--connect {s}: {h} is not a reachable host:port"))?
-            .collect();
-        if addrs.is_empty() {
-            bail!("--connect {s}: the name has no address");
-        }
-    }
-    let text = if addrs.is_empty() {
-        key.to_string()
-    } else {
-        let list: Vec<String> = addrs.iter().map(|a| a.to_string()).collect();
-        format!("{key}@{}", list.join(","))
-    };
-    text.parse::<PeerAddr>()
-        .map_err(|e| anyhow::anyhow!("--connect {s}: {e}"))
 }
 
 /// `telextilesd run`
@@ -262,7 +228,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     }
 
     let mut lc = LinkConfig::new(cfg.name.clone(), cfg.listen, hello_info(&cfg));
-    lc.connect = resolve(&cfg.connect)?;
+    lc.connect = crate::config::peer::resolve(&cfg.connect)?;
     lc.data_dir = Some(cfg.state_dir.clone());
     lc.pairing = mode;
     if cfg.mdns {

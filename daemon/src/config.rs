@@ -1137,6 +1137,7 @@ fn default_name() -> String {
         .unwrap_or_else(|| "telextiles".into())
 }
 
+pub mod peer;
 mod sensor;
 pub use sensor::SensorArgs;
 use sensor::{check_mm_per_px, check_sensor, parse_mm_per_px, parse_profile};

@@ -216,7 +216,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     };
     let mut lc = LinkConfig::new(cfg.name.clone(), cfg.listen, hello);
     for c in &cfg.connect {
-        lc.connect.push(crate::cmd_pair::resolve_peer(c)?);
+        lc.connect.push(crate::config::peer::resolve_peer(c)?);
     }
     if cfg.mdns {
         lc.discovery = Some(discovery::discovery_config(&cfg));
