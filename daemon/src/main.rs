@@ -11,6 +11,7 @@ mod cmd_map;
 mod cmd_pair;
 mod cmd_peers;
 mod cmd_record;
+mod cmd_relay;
 mod cmd_roller;
 mod cmd_sensors;
 #[cfg(feature = "sim")]
@@ -70,6 +71,8 @@ enum Cmd {
     /// Drive a roller directly, or run the simulated roller on a pty
     #[command(subcommand)]
     Roller(cmd_roller::Args),
+    /// Run the relay two devices on two networks meet through (on a host both reach)
+    Relay(cmd_relay::Args),
 }
 
 /// The log filter of the running process, replaceable once the daemon's
@@ -125,6 +128,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Map(a) => cmd_map::run(a),
         Cmd::Sensors(a) => cmd_sensors::run(a),
         Cmd::Roller(a) => cmd_roller::run(a),
+        Cmd::Relay(a) => cmd_relay::run(a),
     };
     match result {
         // The reader of stdout went away (`telextilesd sim list | head`):
