@@ -209,7 +209,7 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     let entering = matches!(mode, Some(PairingMode::Enter(_)));
     if !args.no_session {
         if !cfg.mdns && cfg.connect.is_empty() && matches!(mode, Some(PairingMode::Enter(_))) {
-            bail!("mDNS is off and no --connect address was given: there is no way to find the device showing the code");
+            bail!("mDNS is off and no --connect was given: there is no way to find the device showing the code (name it by its key: KEY@HOST:PORT, or KEY alone with a relay)");
         }
         // Pairing (if asked for) and then the live session: sensing, link,
         // decisions, roller, control socket.
@@ -230,11 +230,12 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
     let mut lc = LinkConfig::new(cfg.name.clone(), cfg.listen, hello_info(&cfg));
     lc.connect = crate::config::peer::resolve(&cfg.connect)?;
     lc.data_dir = Some(cfg.state_dir.clone());
+    lc.relays = crate::config::peer::relays(&cfg)?;
     lc.pairing = mode;
     if cfg.mdns {
         lc.discovery = Some(discovery_config(&cfg));
     } else if lc.connect.is_empty() && matches!(lc.pairing, Some(PairingMode::Enter(_))) {
-        bail!("mDNS is off and no --connect address was given: there is no way to find the device showing the code");
+        bail!("mDNS is off and no --connect was given: there is no way to find the device showing the code (name it by its key: KEY@HOST:PORT, or KEY alone with a relay)");
     }
     let pins = PinSet::from_store(&store);
     let (link, mut events) = Link::start(lc, identity, pins).await?;

@@ -55,6 +55,8 @@ pub const KEYS: &[&str] = &[
     "roller",
     "listen",
     "connect",
+    "relay",
+    "relay_cert",
     "mdns",
     "mdns_allow",
     "mdns_deny",
@@ -342,6 +344,12 @@ pub struct ConfigArgs {
     /// Peers to dial besides mDNS, by key (`telextilesd id` prints it): KEY@HOST:PORT, or KEY alone through the relay (repeat or comma-separate) [env: TELEXTILESD_CONNECT]
     #[arg(long, value_name = "KEY@HOST:PORT", value_delimiter = ',')]
     pub connect: Option<Vec<String>>,
+    /// Relay to meet peers through beyond the LAN, https://HOST:PORT (`telextilesd relay` prints it; its UDP port of the same number serves address discovery) [env: TELEXTILESD_RELAY] [default: none]
+    #[arg(long, value_name = "URL")]
+    pub relay: Option<String>,
+    /// The relay's self-signed certificate to pin (PEM) [env: TELEXTILESD_RELAY_CERT] [default: a certificate from a public CA]
+    #[arg(long, value_name = "FILE")]
+    pub relay_cert: Option<PathBuf>,
     /// mDNS discovery on/off [env: TELEXTILESD_MDNS] [default: true]
     #[arg(long, num_args = 0..=1, require_equals = true, default_missing_value = "true", value_parser = BoolishValueParser::new(), value_name = "BOOL")]
     pub mdns: Option<bool>,
@@ -390,6 +398,8 @@ struct FileConfig {
     roller: Option<String>,
     listen: Option<SocketAddr>,
     connect: Option<Vec<String>>,
+    relay: Option<String>,
+    relay_cert: Option<PathBuf>,
     mdns: Option<bool>,
     mdns_allow: Option<Vec<String>>,
     mdns_deny: Option<Vec<String>>,
@@ -442,6 +452,10 @@ pub struct Config {
     pub roller: RollerSource,
     pub listen: SocketAddr,
     pub connect: Vec<String>,
+    /// The relay's URL, checked (`https://HOST[:PORT]`).
+    pub relay: Option<String>,
+    /// Its pinned certificate (only with `relay`).
+    pub relay_cert: Option<PathBuf>,
     pub mdns: bool,
     pub mdns_allow: Vec<String>,
     pub mdns_deny: Vec<String>,
@@ -708,6 +722,16 @@ impl Config {
         for c in &connect {
             validate_peer(c).map_err(|m| ConfigError::Invalid(format!("`connect`: {m}")))?;
         }
+        let relay = l.checked("relay", args.relay.clone(), parse_relay, file.relay, |u| {
+            parse_relay(&u)
+        })?;
+        let relay_cert = l.path("relay_cert", args.relay_cert.clone(), file.relay_cert)?;
+        if relay_cert.is_some() && relay.is_none() {
+            return Err(ConfigError::Invalid(
+                "`relay_cert` is set but `relay` is not: name the relay whose certificate it is"
+                    .into(),
+            ));
+        }
         let mdns = l
             .get("mdns", args.mdns, parse_bool, file.mdns)?
             .unwrap_or(true);
@@ -767,6 +791,8 @@ impl Config {
             roller,
             listen,
             connect,
+            relay,
+            relay_cert,
             mdns,
             mdns_allow,
             mdns_deny,
@@ -843,7 +869,7 @@ impl Config {
             replay_fps = format!("sensor_mode = {}\n{replay_fps}", q(&m.to_string()));
         }
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nrelay = {}\nrelay_cert = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -865,6 +891,12 @@ impl Config {
             q(&self.roller.to_string()),
             q(&self.listen.to_string()),
             list(&self.connect),
+            q(self.relay.as_deref().unwrap_or("")),
+            q(&self
+                .relay_cert
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default()),
             self.mdns,
             list(&self.mdns_allow),
             list(&self.mdns_deny),
@@ -1073,34 +1105,6 @@ where
 
 /// `host:port` or `[v6]:port` with a numeric port.
 /// `KEY@HOST:PORT` or `KEY` (through the relay).
-fn validate_peer(s: &str) -> Result<(), String> {
-    let (key, addr) = match s.split_once('@') {
-        Some((k, a)) => (k, Some(a)),
-        None => (s, None),
-    };
-    if addr.is_none() && validate_host_port(s).is_ok() {
-        return Err(format!(
-            "`{s}` has no device key: the link dials a device by its key, so write KEY@{s} (`telextilesd id` on that device prints its key)"
-        ));
-    }
-    key.parse::<telextiles_certs::PeerKey>()
-        .map_err(|e| format!("`{s}`: {e}"))?;
-    match addr {
-        Some(a) => validate_host_port(a),
-        None => Ok(()),
-    }
-}
-
-fn validate_host_port(s: &str) -> Result<(), String> {
-    let (host, port) = s
-        .rsplit_once(':')
-        .ok_or_else(|| format!("`{s}` is not HOST:PORT"))?;
-    if host.is_empty() || port.parse::<u16>().is_err() {
-        return Err(format!("`{s}` is not HOST:PORT with a port 0..=65535"));
-    }
-    Ok(())
-}
-
 fn home(e: &Env<'_>, what: &str) -> Result<PathBuf, ConfigError> {
     e.raw("HOME").map(PathBuf::from).ok_or_else(|| {
         ConfigError::Invalid(format!(
@@ -1138,6 +1142,7 @@ fn default_name() -> String {
 }
 
 pub mod peer;
+use peer::{parse_relay, validate_peer};
 mod sensor;
 pub use sensor::SensorArgs;
 use sensor::{check_mm_per_px, check_sensor, parse_mm_per_px, parse_profile};

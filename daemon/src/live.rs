@@ -222,6 +222,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         lc.discovery = Some(discovery::discovery_config(&cfg));
     }
     lc.data_dir = Some(cfg.state_dir.clone());
+    lc.relays = crate::config::peer::relays(&cfg)?;
     lc.pairing = opts.pairing.take();
     let pairing = lc.pairing.is_some();
     let entering = matches!(lc.pairing, Some(PairingMode::Enter(_)));

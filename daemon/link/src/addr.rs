@@ -161,6 +161,27 @@ pub struct RelaySpec {
     pub quic_port: Option<u16>,
 }
 
+impl RelaySpec {
+    /// A relay by its URL (`https://HOST[:PORT]`, as `telextilesd relay`
+    /// prints it), its certificate pinned or not. Its QUIC address
+    /// discovery is taken to be on the UDP port of the URL's number, as
+    /// `telextilesd relay` serves it.
+    pub fn new(url: &str, cert: Option<CertificateDer<'static>>) -> Result<RelaySpec, String> {
+        let url: RelayUrl = url
+            .parse()
+            .map_err(|e| format!("`{url}` is not a relay URL ({e})"))?;
+        if url.scheme() != "https" {
+            return Err(format!("`{url}`: a relay is reached over https://"));
+        }
+        let quic_port = url.port_or_known_default();
+        Ok(RelaySpec {
+            url,
+            cert,
+            quic_port,
+        })
+    }
+}
+
 /// The iroh key of a device key (every key a device has is one; a key
 /// typed by a user may not be a curve point).
 pub(crate) fn endpoint_id_of(key: &PeerKey) -> Result<EndpointId, LinkError> {
