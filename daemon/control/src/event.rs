@@ -97,6 +97,14 @@ pub enum Event {
         peer: String,
         reason: String,
     },
+    /// The path to a connected peer changed: `direct` (hole punched or on
+    /// the LAN) or `relay`, the address it goes to, its round-trip time.
+    PeerPath {
+        peer: String,
+        path: String,
+        addr: String,
+        rtt_ms: f64,
+    },
     /// Roller position while moving (rate-limited by the daemon).
     RollerPosition {
         angle_deg: f64,
@@ -185,6 +193,7 @@ impl Event {
             Event::Decision { .. } => EventKind::Decision,
             Event::PeerUp { .. } => EventKind::PeerUp,
             Event::PeerDown { .. } => EventKind::PeerDown,
+            Event::PeerPath { .. } => EventKind::PeerPath,
             Event::RollerPosition { .. } => EventKind::RollerPosition,
             Event::RollerArrived { .. } => EventKind::RollerArrived,
             Event::Felt { .. } => EventKind::Felt,
@@ -217,6 +226,7 @@ pub enum EventKind {
     Decision,
     PeerUp,
     PeerDown,
+    PeerPath,
     RollerPosition,
     RollerArrived,
     Error,
@@ -226,11 +236,12 @@ pub enum EventKind {
 }
 
 impl EventKind {
-    pub const ALL: [EventKind; 9] = [
+    pub const ALL: [EventKind; 10] = [
         EventKind::Contact,
         EventKind::Decision,
         EventKind::PeerUp,
         EventKind::PeerDown,
+        EventKind::PeerPath,
         EventKind::RollerPosition,
         EventKind::RollerArrived,
         EventKind::Error,
@@ -244,6 +255,7 @@ impl EventKind {
             EventKind::Decision => "decision",
             EventKind::PeerUp => "peer_up",
             EventKind::PeerDown => "peer_down",
+            EventKind::PeerPath => "peer_path",
             EventKind::RollerPosition => "roller_position",
             EventKind::RollerArrived => "roller_arrived",
             EventKind::Error => "error",

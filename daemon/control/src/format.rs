@@ -161,6 +161,12 @@ pub fn human_event(e: &Event) -> String {
             None => format!("peer up   {peer}"),
         },
         Event::PeerDown { peer, reason } => format!("peer down {peer}: {reason}"),
+        Event::PeerPath {
+            peer,
+            path,
+            addr,
+            rtt_ms,
+        } => format!("peer path {peer}: {path} ({addr}, round trip {rtt_ms:.1} ms)"),
         Event::RollerPosition {
             angle_deg,
             target_slot,

@@ -73,6 +73,14 @@ pub enum MapEvent {
     },
     /// A peer went away.
     PeerDown { peer: String, reason: String },
+    /// The path to a peer changed: `direct` or `relay`, where to, its
+    /// round-trip time.
+    PeerPath {
+        peer: String,
+        path: String,
+        addr: String,
+        rtt_ms: f64,
+    },
     /// The roller is moving.
     RollerPosition {
         angle_deg: f64,
@@ -105,6 +113,13 @@ impl MapEvent {
 /// Nearest textiles shown around a touch.
 pub const TOUCH_NEAREST: usize = 3;
 
+#[derive(Debug, Clone, Default)]
+struct PeerInfo {
+    addr: Option<String>,
+    path: Option<String>,
+    rtt_ms: Option<f64>,
+}
+
 /// The latest state, and the translation of input events into page messages.
 pub struct Live {
     index: Arc<Index>,
@@ -113,7 +128,8 @@ pub struct Live {
     decision: Option<Value>,
     roller: Option<Value>,
     felt: Option<Value>,
-    peers: BTreeMap<String, Option<String>>,
+    /// Connected peers: address, then path and round trip once known.
+    peers: BTreeMap<String, PeerInfo>,
     last_error: Option<Value>,
 }
 
@@ -193,12 +209,31 @@ impl Live {
                 m
             }
             MapEvent::PeerUp { peer, addr } => {
-                self.peers.insert(peer.clone(), addr.clone());
+                self.peers.insert(
+                    peer.clone(),
+                    PeerInfo {
+                        addr: addr.clone(),
+                        ..PeerInfo::default()
+                    },
+                );
                 json!({"type": "peer", "peer": peer, "up": true, "addr": addr})
             }
             MapEvent::PeerDown { peer, reason } => {
                 self.peers.remove(peer);
                 json!({"type": "peer", "peer": peer, "up": false, "reason": reason})
+            }
+            MapEvent::PeerPath {
+                peer,
+                path,
+                addr,
+                rtt_ms,
+            } => {
+                let p = self.peers.entry(peer.clone()).or_default();
+                p.addr = Some(addr.clone());
+                p.path = Some(path.clone());
+                p.rtt_ms = Some(*rtt_ms);
+                json!({"type": "peer", "peer": peer, "up": true, "addr": addr,
+                       "path": path, "rtt_ms": rtt_ms})
             }
             MapEvent::RollerPosition {
                 angle_deg,
@@ -251,7 +286,7 @@ impl Live {
         let peers: Vec<Value> = self
             .peers
             .iter()
-            .map(|(p, a)| json!({"peer": p, "addr": a}))
+            .map(|(p, i)| json!({"peer": p, "addr": i.addr, "path": i.path, "rtt_ms": i.rtt_ms}))
             .collect();
         json!({"type": "state", "touch": self.touch, "contact": self.contact,
                "decision": self.decision, "roller": self.roller, "felt": self.felt,

@@ -111,6 +111,12 @@ async fn send_press(
         peer: "browser-test".into(),
         addr: Some("[::1]:4433".into()),
     });
+    let _ = events.send(MapEvent::PeerPath {
+        peer: "browser-test".into(),
+        path: "relay".into(),
+        addr: "relay https://relay.example:443/".into(),
+        rtt_ms: 23.4,
+    });
     let _ = events.send(MapEvent::Contact {
         phase: ContactPhase::Start,
         score: Some(0.9),

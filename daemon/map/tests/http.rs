@@ -230,6 +230,13 @@ async fn event_stream_places_touches_and_keeps_state() {
         addr: Some("[::1]:4433".into()),
     })
     .unwrap();
+    ev.send(MapEvent::PeerPath {
+        peer: "alice".into(),
+        path: "relay".into(),
+        addr: "relay https://relay.example:443/".into(),
+        rtt_ms: 31.0,
+    })
+    .unwrap();
     ev.send(MapEvent::Contact {
         phase: ContactPhase::Start,
         score: Some(0.7),
@@ -284,6 +291,15 @@ async fn event_stream_places_touches_and_keeps_state() {
     let peer = sse.next().await.unwrap();
     assert_eq!(peer["type"], "peer");
     assert_eq!(peer["up"], true);
+    let path = sse.next().await.unwrap();
+    assert_eq!(
+        (
+            path["type"].as_str(),
+            path["path"].as_str(),
+            path["rtt_ms"].as_f64()
+        ),
+        (Some("peer"), Some("relay"), Some(31.0))
+    );
     let contact = sse.next().await.unwrap();
     assert_eq!(
         (contact["type"].as_str(), contact["on"].as_bool()),
@@ -330,6 +346,10 @@ async fn event_stream_places_touches_and_keeps_state() {
     assert_eq!(st["roller"], arrived);
     assert_eq!(st["contact"]["on"], true);
     assert_eq!(st["peers"][0]["peer"], "alice");
+    assert_eq!(
+        st["peers"][0]["path"], "relay",
+        "the path outlives the page"
+    );
 
     ev.send(MapEvent::PeerDown {
         peer: "alice".into(),
@@ -465,6 +485,12 @@ fn every_control_event_converts_except_dropped() {
             peer: "bob".into(),
             reason: "timeout".into(),
         },
+        Event::PeerPath {
+            peer: "bob".into(),
+            path: "direct".into(),
+            addr: "direct 198.18.2.2:7000".into(),
+            rtt_ms: 12.5,
+        },
         Event::RollerPosition {
             angle_deg: 10.5,
             target_slot: Some(1),
@@ -531,6 +557,20 @@ fn every_control_event_converts_except_dropped() {
             (Event::PeerDown { peer, reason }, MapEvent::PeerDown { peer: p, reason: r }) => {
                 peer == p && reason == r
             }
+            (
+                Event::PeerPath {
+                    peer,
+                    path,
+                    addr,
+                    rtt_ms,
+                },
+                MapEvent::PeerPath {
+                    peer: p,
+                    path: h,
+                    addr: a,
+                    rtt_ms: r,
+                },
+            ) => peer == p && path == h && addr == a && rtt_ms == r,
             (
                 Event::RollerPosition {
                     angle_deg,

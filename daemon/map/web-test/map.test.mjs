@@ -162,6 +162,8 @@ try {
   }
   await page.waitForFunction(() => document.getElementById('felt').textContent.includes('felt 234 ms after contact'));
   await page.waitForFunction(() => document.getElementById('peers').textContent.includes('browser-test'));
+  // Its path (direct or relay) and round trip are shown beside it.
+  await page.waitForFunction(() => document.getElementById('peers').textContent.includes('relay · 23.4 ms'));
   // The rendered marker sits where the map puts the touch.
   const markerOk = await page.evaluate(([x, y]) => {
     const pt = document.querySelectorAll('#map .scatterlayer .trace')[6].querySelector('.point');

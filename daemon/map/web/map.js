@@ -38,6 +38,11 @@
 
   // ---------------------------------------------------------------- the map
 
+  // A peer as the page keeps it: address, path (direct/relay), round trip.
+  function peerInfo(m) {
+    return { addr: m.addr, path: m.path, rtt_ms: m.rtt_ms };
+  }
+
   function esc(s) {
     return String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
   }
@@ -269,8 +274,10 @@
     if (S.peers.size === 0) {
       peers.innerHTML = '<li class="muted">none connected</li>';
     } else {
-      peers.innerHTML = [...S.peers.entries()].map(([p, a]) =>
-        '<li>' + esc(p) + (a ? ' <span class="muted">' + esc(a) + '</span>' : '') + '</li>').join('');
+      peers.innerHTML = [...S.peers.entries()].map(([p, i]) =>
+        '<li>' + esc(p) + (i.path ? ' <span class="path">' + esc(i.path) +
+          (i.rtt_ms !== null && i.rtt_ms !== undefined ? ' · ' + Number(i.rtt_ms).toFixed(1) + ' ms' : '') + '</span>' : '') +
+        (i.addr ? ' <span class="muted">' + esc(i.addr) + '</span>' : '') + '</li>').join('');
     }
   }
 
@@ -332,7 +339,7 @@
         S.decision = msg.decision || null;
         S.roller = msg.roller || null;
         S.felt = msg.felt || null;
-        S.peers = new Map((msg.peers || []).map((p) => [p.peer, p.addr]));
+        S.peers = new Map((msg.peers || []).map((p) => [p.peer, peerInfo(p)]));
         break;
       case 'touch': onTouch(msg); break;
       case 'contact':
@@ -343,7 +350,7 @@
       case 'roller': S.roller = msg; break;
       case 'felt': S.felt = msg; break;
       case 'peer':
-        if (msg.up) S.peers.set(msg.peer, msg.addr); else S.peers.delete(msg.peer);
+        if (msg.up) S.peers.set(msg.peer, peerInfo(msg)); else S.peers.delete(msg.peer);
         break;
       case 'lagged': break;
       case 'error': console.warn('daemon:', msg.source, msg.message); break;

@@ -74,14 +74,23 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
                 route.kind(),
                 route
             ));
-            if let Some(p) = lock(&state.peers).get_mut(&peer.to_string()) {
+            let name = if let Some(p) = lock(&state.peers).get_mut(&peer.to_string()) {
                 if p.path != route.kind() {
                     p.path_since = unix_now();
                 }
                 p.addr = route.to_string();
                 p.path = route.kind().to_string();
                 p.rtt_ms = Some(rtt_ms);
-            }
+                p.name.clone()
+            } else {
+                peer.to_string()
+            };
+            let _ = state.events.send(Event::PeerPath {
+                peer: name,
+                path: route.kind().to_string(),
+                addr: route.to_string(),
+                rtt_ms,
+            });
         }
         LinkEvent::PeerDown { peer, reason } => {
             say(&format!(
