@@ -2,5 +2,7 @@
 #![forbid(unsafe_code)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod nat;
 pub mod netns;
+pub mod node;
 pub mod relay;

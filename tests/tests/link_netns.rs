@@ -2,193 +2,16 @@
 //! pair (real mDNS, real QUIC, real iptables). Each endpoint is a separate
 //! `link_node` process run with `ip netns exec`. Needs root; without it each
 //! test prints a loud SKIP and returns.
-use std::collections::VecDeque;
-use std::io::{BufRead, BufReader, Write};
-use std::path::Path;
-use std::process::{Child, ChildStdin, Stdio};
-use std::sync::mpsc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
-use telextiles_certs::{Identity, PeerRecord, TrustStore};
+use telextiles_certs::{Identity, TrustStore};
 use telextiles_tests::netns::{available_or_skip, Netns, TwoHosts};
+use telextiles_tests::node::{dir_arg, key_at, median, paired_dirs, presses, s, trust, Node};
 
 const NODE: &str = env!("CARGO_BIN_EXE_link_node");
 
-struct Node {
-    name: String,
-    child: Child,
-    stdin: ChildStdin,
-    rx: mpsc::Receiver<String>,
-    log: VecDeque<String>,
-}
-
-impl Node {
-    fn spawn(ns: &Netns, name: &str, args: &[String]) -> Node {
-        let mut cmd = ns.command(NODE);
-        cmd.arg("node").args(args);
-        Node::spawn_cmd(cmd, name)
-    }
-
-    fn spawn_cmd(mut cmd: std::process::Command, name: &str) -> Node {
-        let mut child = cmd
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("spawn link_node");
-        let stdout = child.stdout.take().unwrap();
-        let stdin = child.stdin.take().unwrap();
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        Node {
-            name: name.into(),
-            child,
-            stdin,
-            rx,
-            log: VecDeque::new(),
-        }
-    }
-
-    /// Next line starting with `prefix` (other lines are kept in the log).
-    fn expect(&mut self, prefix: &str, timeout: Duration) -> String {
-        self.try_expect(prefix, timeout).unwrap_or_else(|| {
-            panic!(
-                "{}: no `{prefix}` line within {timeout:?}; last lines:\n{}",
-                self.name,
-                self.log.iter().cloned().collect::<Vec<_>>().join("\n")
-            )
-        })
-    }
-
-    fn try_expect(&mut self, prefix: &str, timeout: Duration) -> Option<String> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let left = deadline.checked_duration_since(Instant::now())?;
-            let line = self.rx.recv_timeout(left).ok()?;
-            if line.starts_with("fatal") {
-                panic!("{}: {line}", self.name);
-            }
-            let hit = line.starts_with(prefix);
-            if !line.starts_with("latent") {
-                self.log.push_back(line.clone());
-                if self.log.len() > 60 {
-                    self.log.pop_front();
-                }
-            }
-            if hit {
-                return Some(line);
-            }
-        }
-    }
-
-    /// Every line that arrives within `d`.
-    fn drain(&mut self, d: Duration) -> Vec<String> {
-        let deadline = Instant::now() + d;
-        let mut v = Vec::new();
-        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-            match self.rx.recv_timeout(left) {
-                Ok(l) => v.push(l),
-                Err(_) => break,
-            }
-        }
-        v
-    }
-
-    fn send(&mut self, line: &str) {
-        writeln!(self.stdin, "{line}").expect("write to node");
-        self.stdin.flush().unwrap();
-    }
-}
-
-impl Drop for Node {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn s(v: &[&str]) -> Vec<String> {
-    v.iter().map(|x| x.to_string()).collect()
-}
-
-/// Two data dirs with identities that already trust each other.
-fn paired_dirs() -> (tempfile::TempDir, tempfile::TempDir) {
-    let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    let (ia, ib) = (Identity::generate().unwrap(), Identity::generate().unwrap());
-    ia.save(da.path()).unwrap();
-    ib.save(db.path()).unwrap();
-    trust(da.path(), &ib, "bob");
-    trust(db.path(), &ia, "alice");
-    (da, db)
-}
-
-fn trust(dir: &Path, peer: &Identity, name: &str) {
-    let mut st = TrustStore::load(dir).unwrap();
-    st.insert(PeerRecord::new(peer.peer_key(), name, SystemTime::now()));
-    st.save().unwrap();
-}
-
-/// `KEY@addr` of the device whose identity is in `d`: what `--connect`
-/// takes.
-fn key_at(d: &tempfile::TempDir, addr: &str) -> String {
-    format!("{}@{addr}", Identity::load(d.path()).unwrap().peer_key())
-}
-
-fn dir_arg(d: &tempfile::TempDir) -> String {
-    d.path().display().to_string()
-}
-
-/// Streams `presses` presses of known classes from `from` to `to`; every
-/// final decision must name the pressed class. Returns (decisions right,
-/// latents received, one-way latencies in µs).
-fn presses(from: &mut Node, to: &mut Node, presses: u32, frames: u32) -> (u32, u64, Vec<i64>) {
-    let mut right = 0;
-    let mut latents = 0u64;
-    let mut lat = Vec::new();
-    for p in 1..=presses {
-        let class = (p * 7) % 16;
-        from.send(&format!("press {p} {class} {frames}"));
-        let deadline = Instant::now() + Duration::from_secs(10);
-        let decision = loop {
-            let left = deadline
-                .checked_duration_since(Instant::now())
-                .unwrap_or_else(|| panic!("{}: no decision for press {p}", to.name));
-            let line = to.rx.recv_timeout(left).unwrap_or_else(|_| {
-                panic!("{}: no decision for press {p}; log {:?}", to.name, to.log)
-            });
-            let f: Vec<&str> = line.split_whitespace().collect();
-            match f.as_slice() {
-                ["latent", _, _, l] => {
-                    latents += 1;
-                    if let Ok(v) = l.parse() {
-                        lat.push(v);
-                    }
-                }
-                ["decision", id, c, _] if *id == p.to_string() => break c.to_string(),
-                _ => {}
-            }
-        };
-        assert_eq!(
-            decision,
-            class.to_string(),
-            "press {p}: wrong final decision"
-        );
-        right += 1;
-        from.expect(&format!("sent {p}"), Duration::from_secs(5));
-    }
-    (right, latents, lat)
-}
-
-fn median(v: &mut [i64]) -> i64 {
-    v.sort();
-    v.get(v.len() / 2).copied().unwrap_or(-1)
+fn spawn(ns: &Netns, name: &str, args: &[String]) -> Node {
+    Node::spawn_in(ns, NODE, name, args)
 }
 
 #[test]
@@ -198,7 +21,7 @@ fn link_discovery_pairing_streaming() {
     }
     let h = TwoHosts::new().unwrap();
     let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &[
@@ -215,7 +38,7 @@ fn link_discovery_pairing_streaming() {
         .concat(),
     );
     let code = a.expect("code ", Duration::from_secs(5))[5..].to_string();
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &[
@@ -263,7 +86,7 @@ fn link_wrong_code_fails_on_both_sides() {
     }
     let h = TwoHosts::new().unwrap();
     let (da, db) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &s(&[
@@ -289,7 +112,7 @@ fn link_wrong_code_fails_on_both_sides() {
         })
         .find(|c| *c != code)
         .unwrap();
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &s(&[
@@ -328,12 +151,12 @@ fn link_third_identity_refused() {
     Identity::generate().unwrap().save(dc.path()).unwrap();
     trust(dc.path(), &ia, "alice");
     let a_addr = format!("{}:7000", h.a_ip);
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &s(&["--dir", &dir_arg(&da), "--listen", "0.0.0.0:7000"]),
     );
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &s(&[
@@ -349,7 +172,7 @@ fn link_third_identity_refused() {
     );
     a.expect("up ", Duration::from_secs(10));
     b.expect("up ", Duration::from_secs(10));
-    let mut c = Node::spawn(
+    let mut c = spawn(
         &h.b,
         "mallory",
         &s(&[
@@ -384,7 +207,7 @@ fn link_mdns_blocked_manual_address_works() {
     h.b.block_mdns().unwrap();
     let (da, db) = paired_dirs();
     let b_addr = format!("{}:7000", h.b_ip);
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &s(&[
@@ -399,7 +222,7 @@ fn link_mdns_blocked_manual_address_works() {
         ]),
     );
     b.expect("listening", Duration::from_secs(5));
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &s(&[
@@ -441,7 +264,7 @@ fn link_loss_delay_reorder_decisions_stay_right() {
     h.b.random_loss(0.1).unwrap();
     // Through the impairment relay only: no direct path to B's port.
     h.b.only_local(7000).unwrap();
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &s(&[
@@ -465,7 +288,7 @@ fn link_loss_delay_reorder_decisions_stay_right() {
     ]);
     let mut relay = Node::spawn_cmd(relay_cmd, "relay");
     relay.expect("relay ", Duration::from_secs(5));
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &s(&[
@@ -521,7 +344,7 @@ fn link_down_up_reconnects_within_3s() {
     let h = TwoHosts::new().unwrap();
     let (da, db) = paired_dirs();
     let b_addr = format!("{}:7000", h.b_ip);
-    let mut b = Node::spawn(
+    let mut b = spawn(
         &h.b,
         "bob",
         &s(&[
@@ -534,7 +357,7 @@ fn link_down_up_reconnects_within_3s() {
         ]),
     );
     b.expect("listening", Duration::from_secs(5));
-    let mut a = Node::spawn(
+    let mut a = spawn(
         &h.a,
         "alice",
         &s(&[

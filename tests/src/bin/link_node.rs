@@ -5,13 +5,16 @@
 //! link_node node --dir DIR --name NAME --listen ADDR [--connect KEY@ADDR]...
 //!           [--mdns IFACE]... [--show-code | --code CODE] [--encoder HASH]
 //!           [--idle-ms N]
+//!           [--relay URL [--relay-cert FILE]]
 //! link_node relay LISTEN TARGET DELAY_MS JITTER_MS
+//! link_node iroh-relay LISTEN DIR (--open | KEY...)
 //! ```
 //!
 //! stdout, one event per line: `id ID`, `listening ADDR`, `code CODE`,
 //! `discovered ID`, `paired ID VERIFICATION`, `up ID NAME ADDR`,
 //! `down ID REASON`, `error KIND MESSAGE`, `latent PRESS SEQ ONE_WAY_US`,
-//! `decision PRESS CLASS LATENTS_RECEIVED`.
+//! `decision PRESS CLASS LATENTS_RECEIVED`, `path ID KIND ROUTE RTTus`;
+//! the iroh relay says `relay URL CERT_FILE`.
 //! stdin: `press ID CLASS FRAMES` (stream a press of a known class),
 //! `quit`.
 //!
@@ -95,6 +98,7 @@ fn main() {
     let res = match args.first().map(String::as_str) {
         Some("node") => rt.block_on(node(&args[1..])),
         Some("relay") => rt.block_on(relay(&args[1..])),
+        Some("iroh-relay") => rt.block_on(iroh_relay(&args[1..])),
         _ => Err("usage: link_node node ... | link_node relay ...".into()),
     };
     if let Err(e) = res {
@@ -127,6 +131,39 @@ async fn relay(args: &[String]) -> Result<(), String> {
     }
 }
 
+/// The relay users run (`telextilesd relay`'s library), self-signed.
+async fn iroh_relay(args: &[String]) -> Result<(), String> {
+    let [listen, dir, rest @ ..] = args else {
+        return Err("iroh-relay LISTEN DIR (--open | KEY...)".into());
+    };
+    let access = if rest == ["--open"] {
+        telextiles_relay::AccessList::Open
+    } else {
+        telextiles_relay::AccessList::Keys(
+            rest.iter()
+                .map(|k| k.parse().map_err(|e| format!("{k}: {e}")))
+                .collect::<Result<_, String>>()?,
+        )
+    };
+    let r = telextiles_relay::RunningRelay::start(&telextiles_relay::RelayOptions {
+        listen: listen.parse().map_err(|e| format!("{listen}: {e}"))?,
+        names: Vec::new(),
+        cert: telextiles_relay::CertSource::SelfSigned { dir: dir.into() },
+        access,
+    })
+    .await
+    .map_err(|e| e.to_string())?;
+    say(&format!(
+        "relay {} {}",
+        r.url(),
+        r.cert_file()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default()
+    ));
+    std::future::pending::<()>().await;
+    Ok(())
+}
+
 async fn node(args: &[String]) -> Result<(), String> {
     let mut dir = None;
     let mut name = "node".to_string();
@@ -137,6 +174,8 @@ async fn node(args: &[String]) -> Result<(), String> {
     let mut code = None;
     let mut encoder = "e".repeat(64);
     let mut idle_ms = 2000u64;
+    let mut relay = None;
+    let mut relay_cert = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = || it.next().cloned().ok_or(format!("{a} needs a value"));
@@ -149,6 +188,8 @@ async fn node(args: &[String]) -> Result<(), String> {
             "--show-code" => show = true,
             "--code" => code = Some(val()?),
             "--encoder" => encoder = val()?,
+            "--relay" => relay = Some(val()?),
+            "--relay-cert" => relay_cert = Some(std::path::PathBuf::from(val()?)),
             "--idle-ms" => idle_ms = val()?.parse().map_err(|e| format!("--idle-ms: {e}"))?,
             other => return Err(format!("unknown argument {other}")),
         }
@@ -169,6 +210,13 @@ async fn node(args: &[String]) -> Result<(), String> {
         },
     );
     cfg.connect = connect;
+    if let Some(url) = relay {
+        let cert = relay_cert
+            .map(|p| telextiles_relay::read_pinned_cert(&p))
+            .transpose()
+            .map_err(|e| e.to_string())?;
+        cfg.relays = vec![telextiles_link::RelaySpec::new(&url, cert)?];
+    }
     cfg.data_dir = Some(dir);
     cfg.timing.idle_timeout = Duration::from_millis(idle_ms);
     cfg.timing.keep_alive = Duration::from_millis(idle_ms / 4);
