@@ -387,7 +387,7 @@ fn filters() {
         peer: "p".into(),
         reason: "r".into()
     }));
-    assert_eq!(EventFilter::all().kinds().len(), 9);
+    assert_eq!(EventFilter::all().kinds().len(), 10);
     for k in EventKind::ALL {
         assert_eq!(EventKind::parse(k.as_str()), Some(k));
         assert_eq!(serde_json::to_value(k).unwrap(), json!(k.as_str()));
