@@ -1,7 +1,10 @@
 //! Latency benchmark of the live session: two `telextilesd run` daemons on
 //! this machine, both pressing simulated textiles at 60 fps (latents flow
 //! both ways at once), over loopback and through the userspace delay relay
-//! (this kernel has no netem). Per-frame stage times come from the daemons'
+//! (this kernel has no netem), or (`nat-direct`, `nat-relayed`; root) each
+//! behind a NAT router in network namespaces, meeting through
+//! `telextilesd relay`: endpoint-independent NATs, measured once the path
+//! went direct, or symmetric ones, where it stays relayed. Per-frame stage times come from the daemons'
 //! latency traces on the shared CLOCK_MONOTONIC, joined on sequence numbers.
 //!
 //! Each daemon replays a set of `--replay N` different presses
@@ -13,7 +16,7 @@
 //!
 //! ```sh
 //! cargo bench -p telextilesd --bench session_latency -- \
-//!     [--seconds 30] [--replay 24] [--scenarios loopback,5:1,20:5,50:20] [--svg docs/session-latency.svg] \
+//!     [--seconds 30] [--replay 24] [--scenarios loopback,5:1,20:5,50:20,nat-direct,nat-relayed] [--svg docs/session-latency.svg] \
 //!     [--flags "--encode-run --commit-margin 0.02 ..."]
 //! ```
 //!
@@ -29,10 +32,12 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 use telextiles_control::Event;
+use telextiles_tests::nat::Mapping;
 
 struct Scenario {
     name: String,
     relay: Option<(u64, u64)>,
+    nat: Option<Mapping>,
 }
 
 struct Result1 {
@@ -58,6 +63,24 @@ fn parse_scenarios(s: &str) -> Vec<Scenario> {
                 Scenario {
                     name: "loopback".into(),
                     relay: None,
+                    nat: None,
+                }
+            } else if x == "nat-direct" || x == "nat-relayed" {
+                let (name, nat) = if x == "nat-direct" {
+                    (
+                        "behind two home NATs, direct path",
+                        Mapping::EndpointIndependent,
+                    )
+                } else {
+                    (
+                        "behind two symmetric NATs, through the relay",
+                        Mapping::Symmetric,
+                    )
+                };
+                Scenario {
+                    name: name.into(),
+                    relay: None,
+                    nat: Some(nat),
                 }
             } else {
                 let (d, j) = x.split_once(':').unwrap_or((x, "0"));
@@ -66,6 +89,7 @@ fn parse_scenarios(s: &str) -> Vec<Scenario> {
                 Scenario {
                     name: format!("relay {d} ± {j} ms"),
                     relay: Some((d, j)),
+                    nat: None,
                 }
             }
         })
@@ -118,11 +142,33 @@ fn main() {
         let (pair, t0, t1) = rt.block_on(async {
             let pair = Pair::start(&Setup {
                 relay: sc.relay,
+                nat: sc.nat,
                 sensors: sensors.clone(),
                 flags: (flags.clone(), flags.clone()),
             })
             .await;
+            if sc.nat == Some(Mapping::EndpointIndependent) {
+                let d = pair.wait_path("direct", Duration::from_secs(30)).await;
+                let d = d.expect("the NAT pair found no direct path within 30 s");
+                eprintln!(
+                    "  connected after {:?}, direct after {d:?}",
+                    pair.connected_after
+                );
+            } else if sc.nat.is_some() {
+                eprintln!("  connected after {:?}", pair.connected_after);
+            }
             tokio::time::sleep(Duration::from_secs(5)).await;
+            if sc.nat.is_some() {
+                let want = if sc.nat == Some(Mapping::Symmetric) {
+                    "relay"
+                } else {
+                    "direct"
+                };
+                for side in [&pair.a, &pair.b] {
+                    let path = Pair::path(side).await;
+                    assert_eq!(path.as_deref(), Some(want), "{}'s path", side.name);
+                }
+            }
             let f0 = [
                 counter(&pair.a, "frames").await,
                 counter(&pair.b, "frames").await,

@@ -6,7 +6,10 @@
 //! control-socket events. Shared by the latency benchmark
 //! (`benches/session_latency.rs`) and the soak test (`tests/soak.rs`).
 //!
-//! Loopback only (127.0.0.1, mDNS off): nothing leaves the machine.
+//! Loopback only (127.0.0.1, mDNS off), or (`Setup::nat`) the two home
+//! networks behind NAT routers of `telextiles_tests::nat` with
+//! `telextilesd relay` on the lab's public network: nothing leaves the
+//! machine.
 #![allow(dead_code)]
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -19,6 +22,8 @@ use std::time::{Duration, Instant, SystemTime};
 use telextiles_certs::{Identity, PeerRecord, TrustStore};
 use telextiles_control::client::{Client, EventLine};
 use telextiles_control::{Command as Ctl, Event, SubscribeArgs};
+use telextiles_tests::nat::{Mapping, NatLab};
+use telextiles_tests::netns::Netns;
 use telextiles_tests::relay::{Impairment, Relay};
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_telextilesd");
@@ -64,6 +69,10 @@ pub struct Setup {
     pub sensors: (String, String),
     /// Further flags of A and of B (e.g. `--reference PNG`).
     pub flags: (Vec<String>, Vec<String>),
+    /// Each daemon on its own home network behind a NAT router mapping
+    /// this way, meeting through `telextilesd relay` (needs root; `relay`
+    /// must then be `None`). B dials A by key alone, through the relay.
+    pub nat: Option<Mapping>,
 }
 
 impl Default for Setup {
@@ -72,6 +81,7 @@ impl Default for Setup {
             relay: None,
             sensors: ("sim:T012".into(), "sim:T047".into()),
             flags: Default::default(),
+            nat: None,
         }
     }
 }
@@ -80,8 +90,78 @@ pub struct Pair {
     pub a: Side,
     pub b: Side,
     pub relay: Option<Relay>,
+    /// `Setup::nat`: the relay daemon, then the lab (dropped after the
+    /// daemons, which live in its namespaces).
+    pub meet: Option<Meet>,
     pub work: tempfile::TempDir,
+    /// When the daemons were started.
+    pub started: Instant,
+    /// From their start to A listing B as connected.
+    pub connected_after: Duration,
     stop: Arc<std::sync::atomic::AtomicBool>,
+}
+
+/// The NAT lab of a `Setup::nat` pair and the relay on its public network.
+pub struct Meet {
+    pub relay: Child,
+    pub url: String,
+    pub cert: PathBuf,
+    pub lab: NatLab,
+}
+
+impl Drop for Meet {
+    fn drop(&mut self) {
+        let _ = self.relay.kill();
+        let _ = self.relay.wait();
+    }
+}
+
+/// The port `telextilesd relay` serves on in the NAT lab.
+const RELAY_PORT: u16 = 3340;
+
+/// Starts `telextilesd relay` on the lab's public network serving `keys`
+/// with a self-signed certificate made in `dir`; its URL and certificate.
+fn start_relay(lab: NatLab, dir: &Path, keys: &[String]) -> Meet {
+    use std::io::BufRead;
+    let mut cmd = lab.public.command(BIN);
+    cmd.arg("relay")
+        .args(["--listen", &format!("{}:{RELAY_PORT}", lab.relay_ip)])
+        .args(["--name", &lab.relay_ip.to_string()])
+        .arg("--state-dir")
+        .arg(dir)
+        .args(["--allow", &keys.join(",")])
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    let mut relay = cmd.spawn().expect("start telextilesd relay");
+    let out = relay.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(out).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let (mut url, mut cert) = (None, None);
+    while url.is_none() || cert.is_none() {
+        let line = rx
+            .recv_timeout(Duration::from_secs(20))
+            .expect("telextilesd relay printed its URL and certificate");
+        if let Some(u) = line.strip_prefix("Relay: ") {
+            url = Some(u.trim().to_string());
+        }
+        if let Some(c) = line.strip_prefix("Self-signed certificate: ") {
+            cert = c.split(" (").next().map(PathBuf::from);
+        }
+    }
+    Meet {
+        relay,
+        url: url.unwrap(),
+        cert: cert.unwrap(),
+        lab,
+    }
 }
 
 pub fn free_udp_port() -> u16 {
@@ -103,12 +183,28 @@ pub fn spawn(
     sensor: &str,
     flags: &[String],
 ) -> Side {
+    spawn_in(None, name, work, listen, connect, sensor, flags)
+}
+
+/// [`spawn`], inside network namespace `ns` when given.
+pub fn spawn_in(
+    ns: Option<&Netns>,
+    name: &'static str,
+    work: &Path,
+    listen: SocketAddr,
+    connect: Option<String>,
+    sensor: &str,
+    flags: &[String],
+) -> Side {
     let dir = work.join(name);
     let socket = dir.join("control.sock");
     let trace = dir.join("trace.txt");
     let log = dir.join("daemon.log");
     std::fs::write(dir.join("none.toml"), "").unwrap();
-    let mut cmd = Command::new(BIN);
+    let mut cmd = match ns {
+        Some(ns) => ns.command(BIN),
+        None => Command::new(BIN),
+    };
     cmd.arg("run")
         .args(["--name", &format!("bench-{name}")])
         .arg("--state-dir")
@@ -213,8 +309,17 @@ impl Pair {
         {
             paired_state(&work.path().join(name), me, peer, peer_name);
         }
-        let a_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
-        let b_addr: SocketAddr = format!("127.0.0.1:{}", free_udp_port()).parse().unwrap();
+        let (a_addr, b_addr): (SocketAddr, SocketAddr) = match setup.nat {
+            // Each in its own namespace: the same port will do.
+            Some(_) => (
+                "0.0.0.0:7000".parse().unwrap(),
+                "0.0.0.0:7000".parse().unwrap(),
+            ),
+            None => (
+                format!("127.0.0.1:{}", free_udp_port()).parse().unwrap(),
+                format!("127.0.0.1:{}", free_udp_port()).parse().unwrap(),
+            ),
+        };
         let relay = match setup.relay {
             Some((d, j)) => Some(
                 Relay::start(
@@ -227,29 +332,58 @@ impl Pair {
             ),
             None => None,
         };
-        let target = relay.as_ref().map_or(a_addr, |r| r.local_addr());
-        let a = spawn(
+        let meet = setup.nat.map(|mapping| {
+            assert!(setup.relay.is_none(), "a NAT pair has no delay relay");
+            let lab = NatLab::new(mapping).expect("build the NAT lab (needs root)");
+            let keys = [ia.peer_key().to_string(), ib.peer_key().to_string()];
+            start_relay(lab, &work.path().join("relay"), &keys)
+        });
+        let (mut flags_a, mut flags_b) = setup.flags.clone();
+        let mut connect_b = {
+            let target = relay.as_ref().map_or(a_addr, |r| r.local_addr());
+            format!("{}@{target}", ia.peer_key())
+        };
+        if let Some(m) = &meet {
+            for f in [&mut flags_a, &mut flags_b] {
+                f.extend([
+                    "--relay".to_string(),
+                    m.url.clone(),
+                    "--relay-cert".to_string(),
+                    m.cert.display().to_string(),
+                ]);
+            }
+            // By key alone: through the relay, where A's link is known.
+            connect_b = ia.peer_key().to_string();
+        }
+        let ns = |home: fn(&NatLab) -> &Netns| meet.as_ref().map(|m| home(&m.lab));
+        let started = Instant::now();
+        let a = spawn_in(
+            ns(|l| &l.a.host),
             "a",
             work.path(),
             a_addr,
             None,
             &setup.sensors.0,
-            &setup.flags.0,
+            &flags_a,
         );
-        let b = spawn(
+        let b = spawn_in(
+            ns(|l| &l.b.host),
             "b",
             work.path(),
             b_addr,
-            Some(format!("{}@{target}", ia.peer_key())),
+            Some(connect_b),
             &setup.sensors.1,
-            &setup.flags.1,
+            &flags_b,
         );
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let pair = Pair {
+        let mut pair = Pair {
             a,
             b,
             relay,
+            meet,
             work,
+            started,
+            connected_after: Duration::ZERO,
             stop,
         };
         // Up: A sees B as a connected peer.
@@ -258,6 +392,7 @@ impl Pair {
         loop {
             let st = ctl.call(&Ctl::Status).await.unwrap().unwrap();
             if st["peers"].as_array().is_some_and(|p| !p.is_empty()) {
+                pair.connected_after = started.elapsed();
                 break;
             }
             assert!(
@@ -298,6 +433,31 @@ impl Pair {
             });
         }
         pair
+    }
+
+    /// The path `side` reaches its peer by now, as `ctl status` says
+    /// (`direct`, `relay`, `unknown`), or `None` while it lists no peer.
+    pub async fn path(side: &Side) -> Option<String> {
+        let mut c = connect(side).await;
+        let st = c.call(&Ctl::Status).await.unwrap().unwrap();
+        st["peers"][0]["path"].as_str().map(str::to_string)
+    }
+
+    /// Waits (polling `ctl status` every 50 ms, `within` at most) until
+    /// both sides say their path is `kind`; how long that took from the
+    /// daemons' start, or `None`.
+    pub async fn wait_path(&self, kind: &str, within: Duration) -> Option<Duration> {
+        let t0 = Instant::now();
+        loop {
+            let (a, b) = (Pair::path(&self.a).await, Pair::path(&self.b).await);
+            if a.as_deref() == Some(kind) && b.as_deref() == Some(kind) {
+                return Some(self.started.elapsed());
+            }
+            if t0.elapsed() > within {
+                return None;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
     }
 
     /// Stops both daemons (SIGTERM, then kill) and returns their traces.
