@@ -316,6 +316,15 @@ async fn run_async(args: Args, cfg: Config) -> anyhow::Result<()> {
                 route.kind(),
                 rtt.as_secs_f64() * 1e3
             )),
+            LinkEvent::Relay {
+                url,
+                connected,
+                error,
+            } => say(&telextiles_link::relay_status_line(
+                &url,
+                connected,
+                error.as_deref(),
+            )),
             LinkEvent::Latent(_) | LinkEvent::Control { .. } => {}
             LinkEvent::Error { kind, message, .. } => {
                 eprintln!("error: {message}");

@@ -117,6 +117,20 @@ struct ConnectedPeer {
     path_since: u64,
 }
 
+/// A configured relay, as `ctl status` lists it.
+#[derive(Clone, Debug, serde::Serialize)]
+struct RelayState {
+    url: String,
+    /// Whether this device is connected to it (so peers beyond the LAN
+    /// can reach it).
+    connected: bool,
+    /// Why not, when the last attempt failed (e.g. the relay does not
+    /// serve this device's key).
+    error: Option<String>,
+    /// When `connected` last changed (or the daemon started), Unix seconds.
+    since: u64,
+}
+
 impl Counters {
     /// Count one; the new total.
     fn bump(counter: &AtomicU64) -> u64 {
@@ -150,6 +164,8 @@ struct State {
     events: broadcast::Sender<Event>,
     /// The connected peers, by device ID.
     peers: Mutex<BTreeMap<String, ConnectedPeer>>,
+    /// The configured relays, by URL.
+    relays: Mutex<BTreeMap<String, RelayState>>,
     counters: Counters,
     in_contact: AtomicBool,
     /// Last roller position: (millidegrees, slot, moving).
@@ -223,6 +239,7 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
     }
     lc.data_dir = Some(cfg.state_dir.clone());
     lc.relays = crate::config::peer::relays(&cfg)?;
+    let lc_relays = lc.relays.clone();
     lc.pairing = opts.pairing.take();
     let pairing = lc.pairing.is_some();
     let entering = matches!(lc.pairing, Some(PairingMode::Enter(_)));
@@ -272,6 +289,21 @@ pub async fn run(cfg: Config, mut opts: SessionOptions) -> Result<()> {
         sim,
         events: events.clone(),
         peers: Mutex::new(BTreeMap::new()),
+        relays: Mutex::new(
+            lc_relays
+                .iter()
+                .map(|r| {
+                    let url = r.url.to_string();
+                    let state = RelayState {
+                        url: url.clone(),
+                        connected: false,
+                        error: None,
+                        since: receive::unix_now(),
+                    };
+                    (url, state)
+                })
+                .collect(),
+        ),
         counters: Counters::default(),
         in_contact: AtomicBool::new(false),
         roller_pos: Mutex::new(None),

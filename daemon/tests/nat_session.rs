@@ -40,6 +40,38 @@ fn finals(side: &Side, textile: &str, t0: u64, t1: u64) -> (usize, usize) {
     n
 }
 
+/// Both daemons' `ctl status` lists the relay, connected, with no error
+/// (within 5 s: the status follows the link's events).
+async fn relays_connected(pair: &Pair) {
+    let url = &pair.meet.as_ref().unwrap().url;
+    for side in [&pair.a, &pair.b] {
+        let mut c = connect(side).await;
+        let t0 = std::time::Instant::now();
+        let st = loop {
+            let st = c
+                .call(&telextiles_control::Command::Status)
+                .await
+                .unwrap()
+                .unwrap();
+            if st["relays"][0]["connected"] == true || t0.elapsed() > Duration::from_secs(5) {
+                break st;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        };
+        let r = &st["relays"][0];
+        let got = r["url"].as_str().unwrap_or_default();
+        assert_eq!(
+            got.trim_end_matches('/'),
+            url.trim_end_matches('/'),
+            "{}: {st}",
+            side.name
+        );
+        assert_eq!(r["connected"], true, "{}: {st}", side.name);
+        assert!(r["error"].is_null(), "{}: {st}", side.name);
+        assert!(r["since"].as_u64().is_some(), "{}: {st}", side.name);
+    }
+}
+
 /// Streams for `seconds` and checks both directions: at least 99 % of
 /// the latents sent inside the window arrive, final decisions come and
 /// name the pressed textile. Returns A → B's stages.
@@ -125,6 +157,7 @@ async fn daemons_behind_two_home_nats_go_direct_and_outlive_the_relay() {
         "connected after {:?}",
         pair.connected_after
     );
+    relays_connected(&pair).await;
     let direct = pair.wait_path("direct", Duration::from_secs(15)).await;
     assert!(
         direct.is_some(),
@@ -176,6 +209,7 @@ async fn daemons_behind_symmetric_nats_stay_relayed_and_decide() {
         "connected after {:?}",
         pair.connected_after
     );
+    relays_connected(&pair).await;
     let relayed = pair.wait_path("relay", Duration::from_secs(5)).await;
     assert!(
         relayed.is_some(),

@@ -187,10 +187,20 @@ pub fn dir_arg(d: &tempfile::TempDir) -> String {
 /// final decision must name the pressed class. Returns (decisions right,
 /// latents received, one-way latencies in µs).
 pub fn presses(from: &mut Node, to: &mut Node, presses: u32, frames: u32) -> (u32, u64, Vec<i64>) {
+    presses_numbered(from, to, 1..=presses, frames)
+}
+
+/// [`presses`] with the press IDs `ids` (a later batch takes new IDs).
+pub fn presses_numbered(
+    from: &mut Node,
+    to: &mut Node,
+    ids: std::ops::RangeInclusive<u32>,
+    frames: u32,
+) -> (u32, u64, Vec<i64>) {
     let mut right = 0;
     let mut latents = 0u64;
     let mut lat = Vec::new();
-    for p in 1..=presses {
+    for p in ids {
         let class = (p * 7) % 16;
         from.send(&format!("press {p} {class} {frames}"));
         let deadline = Instant::now() + Duration::from_secs(10);
@@ -220,6 +230,24 @@ pub fn presses(from: &mut Node, to: &mut Node, presses: u32, frames: u32) -> (u3
         );
         right += 1;
         from.expect(&format!("sent {p}"), Duration::from_secs(5));
+    }
+    // Datagrams and the stream are not ordered with each other: a press's
+    // last latents may land just after its final decision. Count those of
+    // the last press too (an earlier press's are counted by the next).
+    let end = Instant::now() + Duration::from_millis(300);
+    while let Some(left) = end.checked_duration_since(Instant::now()) {
+        let Ok(line) = to.rx.recv_timeout(left) else {
+            break;
+        };
+        let f: Vec<&str> = line.split_whitespace().collect();
+        if let ["latent", _, _, l] = f.as_slice() {
+            latents += 1;
+            if let Ok(v) = l.parse() {
+                lat.push(v);
+            }
+        } else {
+            to.log.push_back(line);
+        }
     }
     (right, latents, lat)
 }

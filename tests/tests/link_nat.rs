@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use telextiles_certs::Identity;
 use telextiles_tests::nat::{Mapping, NatLab};
 use telextiles_tests::netns::{available_or_skip, Netns};
-use telextiles_tests::node::{dir_arg, paired_dirs, presses, s, Node};
+use telextiles_tests::node::{dir_arg, paired_dirs, presses, presses_numbered, s, Node};
 
 const NODE: &str = env!("CARGO_BIN_EXE_link_node");
 const RELAY_PORT: u16 = 3340;
@@ -136,6 +136,13 @@ fn nat_two_home_routers_start_relayed_go_direct_and_outlive_the_relay() {
     let rss_idle = rss_kib(r.0.child.id());
     let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
     a.expect("listening", Duration::from_secs(10));
+    // A is reachable through the relay once it is connected to it: B dials
+    // then (as a peer that was already running would be). Dialled before
+    // that, the relay drops B's first packet and QUIC resends it about 1 s
+    // later (its first timeout): the connect time was either ~10 ms or
+    // ~1 s from run to run before this wait.
+    let online = a.expect("relay-online ", Duration::from_secs(10));
+    assert!(online.contains(&r.1), "{online}");
     let t0 = Instant::now();
     let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
     b.expect("up ", Duration::from_secs(10));
@@ -206,6 +213,13 @@ fn nat_symmetric_on_both_sides_stays_relayed_and_streams() {
     let r = relay(&lab, &dr, &[key(&da), key(&db)]);
     let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
     a.expect("listening", Duration::from_secs(10));
+    // A is reachable through the relay once it is connected to it: B dials
+    // then (as a peer that was already running would be). Dialled before
+    // that, the relay drops B's first packet and QUIC resends it about 1 s
+    // later (its first timeout): the connect time was either ~10 ms or
+    // ~1 s from run to run before this wait.
+    let online = a.expect("relay-online ", Duration::from_secs(10));
+    assert!(online.contains(&r.1), "{online}");
     let t0 = Instant::now();
     let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
     let up = b.expect("up ", Duration::from_secs(10));
@@ -214,6 +228,11 @@ fn nat_symmetric_on_both_sides_stays_relayed_and_streams() {
     // The session starts on the relay (the route is in the `up` line; a
     // `path` line comes only when it changes).
     assert!(up.contains(" relay "), "{up}");
+    // One press of warm-up, not counted: in about one run in ten a few
+    // latents of the first second after connecting were lost (the sender
+    // found no peer for 4 of them); the figure is the steady state.
+    let (right, _, _) = presses_numbered(&mut a, &mut b, 100..=100, 60);
+    assert_eq!(right, 1, "the warm-up press's decision");
     let frames = 60;
     let (right, got, mut lat) = presses(&mut a, &mut b, 5, frames);
     assert_eq!(right, 5, "decisions as on the LAN");
@@ -227,8 +246,10 @@ fn nat_symmetric_on_both_sides_stays_relayed_and_streams() {
     );
     assert!(
         got * 100 >= 99 * u64::from(5 * frames),
-        "{got} of {} latents through the relay",
-        5 * frames
+        "{got} of {} latents through the relay; A's lines: {:?}; B's lines: {:?}",
+        5 * frames,
+        a.log,
+        b.log
     );
     assert!(
         b.path_at("direct", Instant::now()).is_none()
@@ -310,6 +331,9 @@ fn nat_unpaired_or_unlisted_keys_get_nothing() {
         &r,
         &["--connect", &key(&da), "--listen", "0.0.0.0:7001"],
     );
+    // D is told that the relay refuses it (not left wondering).
+    let refused = d.expect("relay-down ", Duration::from_secs(10));
+    assert!(refused.contains("refused this device"), "{refused}");
     assert!(
         d.try_expect("up ", Duration::from_secs(5)).is_none(),
         "a key the relay does not serve reached A: {:?}",

@@ -378,6 +378,15 @@ pub enum LinkEvent {
         peer: DeviceId,
         reason: String,
     },
+    /// The connection to a configured relay came up, or went down or
+    /// failed (a relay that does not serve this device's key says so in
+    /// `error`). Told on each change; the first attempt's "connecting" is
+    /// not told.
+    Relay {
+        url: String,
+        connected: bool,
+        error: Option<String>,
+    },
     Latent(Latent),
     /// A control message other than hello/ping (press start/stop, errors).
     Control {
@@ -724,6 +733,9 @@ impl Link {
             tasks: Mutex::new(tokio::task::JoinSet::new()),
         });
         shared.emit(LinkEvent::Listening { addr: local_addr }).await;
+        if shared.relayed {
+            shared.spawn(watch_relay(shared.clone()));
+        }
 
         shared.spawn(session::accept_loop(shared.clone()));
         if let Some(dir) = shared.data_dir.clone() {
@@ -776,6 +788,51 @@ impl Link {
             },
             rx,
         ))
+    }
+}
+
+/// What a [`LinkEvent::Relay`] tells the user, one line.
+pub fn relay_status_line(url: &str, connected: bool, error: Option<&str>) -> String {
+    match (connected, error) {
+        (true, _) => format!("Relay {url}: connected (peers beyond the LAN can reach this device)"),
+        (false, Some(e)) => format!("Relay {url}: not connected, retrying: {e}"),
+        (false, None) => format!("Relay {url}: not connected, retrying"),
+    }
+}
+
+/// Tells the connection state of the home relay as it changes
+/// ([`LinkEvent::Relay`]): a relay that is down, unreachable or refuses this
+/// device's key is said, not only seen as peers that never come up.
+async fn watch_relay(shared: Arc<Shared>) {
+    use iroh::Watcher;
+    let mut watcher = shared.endpoint.home_relay_status();
+    let mut told: HashMap<String, (bool, Option<String>)> = HashMap::new();
+    let mut value = watcher.get();
+    loop {
+        for status in &value {
+            let url = status.url().to_string();
+            let connected = status.is_connected();
+            let error = match (status.auth_denied_reason(), status.last_error()) {
+                (Some(why), _) => Some(format!("the relay refused this device: {why}")),
+                (None, Some(e)) if !connected => Some(format!("{e:#}")),
+                _ => None,
+            };
+            let state = (connected, error.clone());
+            let first = !told.contains_key(&url);
+            if told.get(&url) == Some(&state) || (first && !connected && error.is_none()) {
+                continue;
+            }
+            told.insert(url.clone(), state);
+            shared.emit_now(LinkEvent::Relay {
+                url,
+                connected,
+                error,
+            });
+        }
+        value = match watcher.updated().await {
+            Ok(v) => v,
+            Err(_) => return,
+        };
     }
 }
 

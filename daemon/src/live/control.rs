@@ -40,6 +40,7 @@ impl Daemon {
             "sensor": {"source": s.sensor_desc, "in_contact": s.in_contact.load(std::sync::atomic::Ordering::Relaxed)},
             "roller": {"source": s.roller_desc, "state": roller},
             "peers": lock(&s.peers).values().cloned().collect::<Vec<_>>(),
+            "relays": lock(&s.relays).values().cloned().collect::<Vec<_>>(),
             "model": {"path": s.model.path, "sha256": s.model.sha256, "arch": s.model.arch, "dim": s.model.dim},
             "index": {"fingerprint": s.index.fingerprint(), "textiles": s.index.entries.len(), "slots": s.index.roller.n()},
             "counters": {

@@ -8,7 +8,7 @@ use telextiles_link::{now_us, LinkEvent};
 use telextiles_roller::Target;
 use telextiles_session::{RxAction, RxInput};
 
-use super::{lock, say, ConnectedPeer, Counters, Receiver, State};
+use super::{lock, say, ConnectedPeer, Counters, Receiver, RelayState, State};
 
 /// One link event; the receiver core's actions are carried out here.
 pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent) {
@@ -91,6 +91,31 @@ pub(crate) fn on_link_event(state: &Arc<State>, rx: &mut Receiver, ev: LinkEvent
                 addr: route.to_string(),
                 rtt_ms,
             });
+        }
+        LinkEvent::Relay {
+            url,
+            connected,
+            error,
+        } => {
+            say(&telextiles_link::relay_status_line(
+                &url,
+                connected,
+                error.as_deref(),
+            ));
+            let mut relays = lock(&state.relays);
+            let since = match relays.get(&url) {
+                Some(r) if r.connected == connected => r.since,
+                _ => unix_now(),
+            };
+            relays.insert(
+                url.clone(),
+                RelayState {
+                    url,
+                    connected,
+                    error,
+                    since,
+                },
+            );
         }
         LinkEvent::PeerDown { peer, reason } => {
             say(&format!(
@@ -226,6 +251,6 @@ fn apply(state: &Arc<State>, rx: &Receiver, actions: &mut Vec<RxAction>) -> Opti
 }
 
 /// Seconds since the Unix epoch now.
-fn unix_now() -> u64 {
+pub(super) fn unix_now() -> u64 {
     telextiles_certs::trust::unix_seconds(std::time::SystemTime::now())
 }

@@ -266,6 +266,10 @@ async fn node(args: &[String]) -> Result<(), String> {
                     }
                     LinkEvent::PeerUp { peer, name, addr } => say(&format!("up {peer} {name} {addr}")),
                     LinkEvent::PeerDown { peer, reason } => say(&format!("down {peer} {reason}")),
+                    LinkEvent::Relay { url, connected: true, .. } => say(&format!("relay-online {url}")),
+                    LinkEvent::Relay { url, error, .. } => {
+                        say(&format!("relay-down {url} {}", error.unwrap_or_default()))
+                    }
                     LinkEvent::PathChanged { peer, route, rtt } => {
                         say(&format!("path {peer} {} {route} {}us", route.kind(), rtt.as_micros()))
                     }
