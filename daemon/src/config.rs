@@ -868,8 +868,17 @@ impl Config {
         if let Some(m) = self.sensor_mode {
             replay_fps = format!("sensor_mode = {}\n{replay_fps}", q(&m.to_string()));
         }
+        // No relay: said as comments (an empty URL is not a relay).
+        let relay_lines = match (&self.relay, &self.relay_cert) {
+            (Some(r), Some(c)) => format!("relay = {}\nrelay_cert = {}\n", q(r), p(c)),
+            (Some(r), None) => format!(
+                "relay = {}\n# relay_cert: none (a CA-signed certificate)\n",
+                q(r)
+            ),
+            (None, _) => "# relay: none (LAN and --connect addresses only)\n".to_string(),
+        };
         format!(
-            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\nrelay = {}\nrelay_cert = {}\nmdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
+            "name = {}\nstate_dir = {}\ndata_dir = {}\nruntime_dir = {}\nsocket = {}\nsystem = {}\ngroup = {}\nsensor = {}\nreference = {}\n{}contact_enter = {:?}\ncontact_frames = {}\ncontact_tile = {}\ncommit_margin = {:?}\nencode_run = {}\nmotion = {}\nmodel = {}\nindex = {}\nroller = {}\nlisten = {}\nconnect = {}\n{}mdns = {}\nmdns_allow = {}\nmdns_deny = {}\nmap = {}\nmap_bind = {}\nlog = {}\n",
             q(&self.name),
             p(&self.state_dir),
             p(&self.data_dir),
@@ -891,12 +900,7 @@ impl Config {
             q(&self.roller.to_string()),
             q(&self.listen.to_string()),
             list(&self.connect),
-            q(self.relay.as_deref().unwrap_or("")),
-            q(&self
-                .relay_cert
-                .as_ref()
-                .map(|p| p.display().to_string())
-                .unwrap_or_default()),
+            relay_lines,
             self.mdns,
             list(&self.mdns_allow),
             list(&self.mdns_deny),

@@ -169,6 +169,7 @@ async fn daemons_behind_two_home_nats_go_direct_and_outlive_the_relay() {
     figure("nat_daemons_direct", &pair, direct, &ab, &ba, fa, fb);
     // The relay goes away: the direct path carries on, no reconnect.
     let meet = pair.meet.as_mut().unwrap();
+    let killed_at = mono_us();
     meet.relay.kill().unwrap();
     meet.relay.wait().unwrap();
     let (ab, ba, fa, fb) = stream(&pair, 8, "after the relay was killed").await;
@@ -179,9 +180,11 @@ async fn daemons_behind_two_home_nats_go_direct_and_outlive_the_relay() {
         .lock()
         .unwrap()
         .iter()
-        .filter(|(_, e)| matches!(e, Event::PeerDown { .. }))
+        .filter(|(t, e)| *t >= killed_at && matches!(e, Event::PeerDown { .. }))
         .count();
-    assert_eq!(downs, 0, "the session went down");
+    // (Only after the kill: at the start both sides dial each other and
+    // one connection may replace the other; see docs/results.md.)
+    assert_eq!(downs, 0, "the session went down after the relay was killed");
     println!(
         "after the relay was killed: {}/{} latents, finals {}/{}",
         ab.received + ba.received,

@@ -334,6 +334,10 @@ fn every_key_is_a_file_key_a_flag_and_an_env_var() {
         if *key == "sensor_mm_per_px" {
             base.push(("TELEXTILESD_SENSOR_PROFILE", "gelsight-mini"));
         }
+        // A relay's certificate is the certificate of a relay: given with one.
+        if *key == "relay_cert" {
+            base.push(("TELEXTILESD_RELAY", "https://relay.example:443"));
+        }
         let with: Vec<(&str, &str)> = base.iter().copied().chain([(var.as_str(), val)]).collect();
         let c = resolve(&[], &with).unwrap();
         let d = resolve(&[], &base).unwrap();
@@ -360,6 +364,30 @@ fn every_key_is_a_file_key_a_flag_and_an_env_var() {
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("c.toml");
+    std::fs::write(&p, c.to_toml()).unwrap();
+    let again = resolve(
+        &["--config", p.to_str().unwrap()],
+        &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
+    )
+    .unwrap();
+    assert_eq!(
+        Config {
+            config_file: None,
+            ..again
+        },
+        c
+    );
+    // With a relay and its certificate too.
+    let c = resolve(
+        &[
+            "--relay",
+            "https://relay.example:443",
+            "--relay-cert",
+            "/etc/relay.pem",
+        ],
+        &[("HOME", "/h"), ("XDG_RUNTIME_DIR", "/r")],
+    )
+    .unwrap();
     std::fs::write(&p, c.to_toml()).unwrap();
     let again = resolve(
         &["--config", p.to_str().unwrap()],
@@ -625,6 +653,7 @@ fn sample_toml(key: &str) -> &'static str {
         "sensor_mm_per_px" => "0.03",
         "sensor_mode" => "\"640x480@30\"",
         "roller" => "\"sim\"",
+        "relay" => "\"https://relay.example:443\"",
         _ => "\"/x\"",
     }
 }
@@ -652,6 +681,7 @@ fn sample_env(key: &str) -> &'static str {
         "roller" => "sim",
         "group" => "wheel",
         "log" => "debug",
+        "relay" => "https://relay.example:443",
         _ => "/x",
     }
 }
