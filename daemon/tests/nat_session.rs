@@ -40,6 +40,23 @@ fn finals(side: &Side, textile: &str, t0: u64, t1: u64) -> (usize, usize) {
     n
 }
 
+/// The pair behind NATs mapping as `mapping`: connected within 10 s, both
+/// on the relay.
+async fn start(mapping: Mapping) -> Pair {
+    let pair = Pair::start(&Setup {
+        nat: Some(mapping),
+        ..Setup::default()
+    })
+    .await;
+    assert!(
+        pair.connected_after < Duration::from_secs(10),
+        "connected after {:?}",
+        pair.connected_after
+    );
+    relays_connected(&pair).await;
+    pair
+}
+
 /// Both daemons' `ctl status` lists the relay, connected, with no error
 /// (within 5 s: the status follows the link's events).
 async fn relays_connected(pair: &Pair) {
@@ -147,17 +164,7 @@ async fn daemons_behind_two_home_nats_go_direct_and_outlive_the_relay() {
     if !available_or_skip("daemons_behind_two_home_nats_go_direct_and_outlive_the_relay") {
         return;
     }
-    let mut pair = Pair::start(&Setup {
-        nat: Some(Mapping::EndpointIndependent),
-        ..Setup::default()
-    })
-    .await;
-    assert!(
-        pair.connected_after < Duration::from_secs(10),
-        "connected after {:?}",
-        pair.connected_after
-    );
-    relays_connected(&pair).await;
+    let mut pair = start(Mapping::EndpointIndependent).await;
     let direct = pair.wait_path("direct", Duration::from_secs(15)).await;
     assert!(
         direct.is_some(),
@@ -202,17 +209,7 @@ async fn daemons_behind_symmetric_nats_stay_relayed_and_decide() {
     if !available_or_skip("daemons_behind_symmetric_nats_stay_relayed_and_decide") {
         return;
     }
-    let pair = Pair::start(&Setup {
-        nat: Some(Mapping::Symmetric),
-        ..Setup::default()
-    })
-    .await;
-    assert!(
-        pair.connected_after < Duration::from_secs(10),
-        "connected after {:?}",
-        pair.connected_after
-    );
-    relays_connected(&pair).await;
+    let pair = start(Mapping::Symmetric).await;
     let relayed = pair.wait_path("relay", Duration::from_secs(5)).await;
     assert!(
         relayed.is_some(),

@@ -61,6 +61,32 @@ fn node(
     spawn(home, name, &args)
 }
 
+/// A (alice, `da`) on home A, then B (bob, `db`) on home B dialling A by
+/// key through the relay; both up. (A, B, when B started, its connect
+/// time, its `up` line.)
+fn meet(
+    lab: &NatLab,
+    da: &tempfile::TempDir,
+    db: &tempfile::TempDir,
+    r: &(Node, String, String),
+) -> (Node, Node, Instant, Duration, String) {
+    let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
+    a.expect("listening", Duration::from_secs(10));
+    // A is reachable through the relay once it is connected to it: B dials
+    // then (as a peer that was already running would be). Dialled before
+    // that, the relay drops B's first packet and QUIC resends it about 1 s
+    // later (its first timeout): the connect time was either ~10 ms or
+    // ~1 s from run to run before this wait.
+    let online = a.expect("relay-online ", Duration::from_secs(10));
+    assert!(online.contains(&r.1), "{online}");
+    let t0 = Instant::now();
+    let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
+    let up = b.expect("up ", Duration::from_secs(10));
+    let connected = t0.elapsed();
+    a.expect("up ", Duration::from_secs(10));
+    (a, b, t0, connected, up)
+}
+
 fn rss_kib(pid: u32) -> u64 {
     let st = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
     st.lines()
@@ -134,20 +160,7 @@ fn nat_two_home_routers_start_relayed_go_direct_and_outlive_the_relay() {
     let dr = tempfile::tempdir().unwrap();
     let mut r = relay(&lab, &dr, &[key(&da), key(&db)]);
     let rss_idle = rss_kib(r.0.child.id());
-    let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
-    a.expect("listening", Duration::from_secs(10));
-    // A is reachable through the relay once it is connected to it: B dials
-    // then (as a peer that was already running would be). Dialled before
-    // that, the relay drops B's first packet and QUIC resends it about 1 s
-    // later (its first timeout): the connect time was either ~10 ms or
-    // ~1 s from run to run before this wait.
-    let online = a.expect("relay-online ", Duration::from_secs(10));
-    assert!(online.contains(&r.1), "{online}");
-    let t0 = Instant::now();
-    let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
-    b.expect("up ", Duration::from_secs(10));
-    let connected = t0.elapsed();
-    a.expect("up ", Duration::from_secs(10));
+    let (mut a, mut b, t0, connected, _) = meet(&lab, &da, &db, &r);
     let direct_at = b.path_at("direct", t0 + Duration::from_secs(20));
     let direct = direct_at.map(|t| t - t0);
     println!(
@@ -218,20 +231,7 @@ fn nat_symmetric_on_both_sides_stays_relayed_and_streams() {
     let (da, db) = paired_dirs();
     let dr = tempfile::tempdir().unwrap();
     let r = relay(&lab, &dr, &[key(&da), key(&db)]);
-    let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
-    a.expect("listening", Duration::from_secs(10));
-    // A is reachable through the relay once it is connected to it: B dials
-    // then (as a peer that was already running would be). Dialled before
-    // that, the relay drops B's first packet and QUIC resends it about 1 s
-    // later (its first timeout): the connect time was either ~10 ms or
-    // ~1 s from run to run before this wait.
-    let online = a.expect("relay-online ", Duration::from_secs(10));
-    assert!(online.contains(&r.1), "{online}");
-    let t0 = Instant::now();
-    let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
-    let up = b.expect("up ", Duration::from_secs(10));
-    let connected = t0.elapsed();
-    a.expect("up ", Duration::from_secs(10));
+    let (mut a, mut b, _, connected, up) = meet(&lab, &da, &db, &r);
     // The session starts on the relay (the route is in the `up` line; a
     // `path` line comes only when it changes).
     assert!(up.contains(" relay "), "{up}");
