@@ -70,7 +70,7 @@ fn meet(
     db: &tempfile::TempDir,
     r: &(Node, String, String),
 ) -> (Node, Node, Instant, Duration, String) {
-    let mut a = node(&lab.a.host, "alice", &da, &r, &[]);
+    let mut a = node(&lab.a.host, "alice", da, r, &[]);
     a.expect("listening", Duration::from_secs(10));
     // A is reachable through the relay once it is connected to it: B dials
     // then (as a peer that was already running would be). Dialled before
@@ -80,7 +80,7 @@ fn meet(
     let online = a.expect("relay-online ", Duration::from_secs(10));
     assert!(online.contains(&r.1), "{online}");
     let t0 = Instant::now();
-    let mut b = node(&lab.b.host, "bob", &db, &r, &["--connect", &key(&da)]);
+    let mut b = node(&lab.b.host, "bob", db, r, &["--connect", &key(da)]);
     let up = b.expect("up ", Duration::from_secs(10));
     let connected = t0.elapsed();
     a.expect("up ", Duration::from_secs(10));
